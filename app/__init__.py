@@ -1,0 +1,1 @@
+"""tracklabel's service: FastAPI app, database, jobs and worker, and the CLI."""

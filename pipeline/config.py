@@ -1,0 +1,143 @@
+"""The pipeline's one typed config tree: small pydantic sections under `PipelineConfig`.
+
+YAML files hold overrides only (`load_config`); every run writes the config it used
+(`PipelineConfig.dump`). Pipeline code never reads environment variables.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from pipeline.errors import ConfigError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SensorConfig(_Section):
+    name: str = "auto"  # auto | hdl32e | hdl64e | vlp16 | path to an Ouster metadata json
+
+
+class RangeImageConfig(_Section):
+    width: int | None = None  # azimuth bins; None = the sensor preset's width
+    min_range: float = 0.5
+    max_range: float = 120.0
+
+
+class GroundConfig(_Section):
+    method: Literal["angle", "plane"] = "angle"
+    max_slope_deg: float = 10.0  # angle between consecutive beams along a column
+    start_angle_deg: float = 15.0  # max slope from the sensor to the first ground point
+    sensor_height: float | None = None  # metres above ground; None = estimate per scan
+    ground_band: float = 0.20  # points this close above the ground surface count as ground
+    grid_cell: float = 2.0  # metres; cell size of the height-above-ground surface
+
+
+class SegmentationConfig(_Section):
+    # Range-difference thresholds |r_a - r_b| <= base + slope * min(r_a, r_b).
+    vertical_base: float = 0.30
+    vertical_slope: float = 0.08
+    horizontal_base: float = 0.25
+    horizontal_slope: float = 0.03
+    use_angle_criterion: bool = False
+    angle_threshold_deg: float = 10.0  # depth_clustering's beta criterion when enabled
+    min_points: int = 3  # segments smaller than this are dropped (label 0)
+
+
+class SampleConfig(_Section):
+    sigma: int = 8  # valid when n > sigma ...
+    rho: float = 3.0  # ... and n / distance > rho
+    size: int = 64  # canvas side S (paper: 256)
+    cuboid_hwl: tuple[float, float, float] = (2.4, 5.0, 5.0)
+    max_height: float = 6.0  # height channel 0..max_height m -> 0..255
+    max_range: float = 80.0  # range channel 0..max_range m -> 0..255
+    foreground_channel: bool = True  # 4th channel marks the segment's own points
+
+    @property
+    def channels(self) -> int:
+        return 4 if self.foreground_channel else 3
+
+
+class AssociationConfig(_Section):
+    min_overlap: float = 0.3  # share of a segment's points that must vote for its match
+    min_score: float = 0.35
+    max_centroid_distance: float = 1.5  # metres, for motion-predicted centroid matching
+    use_motion_prediction: bool = True
+    max_point_ratio: float = 3.0  # reject links whose point counts differ more than this
+
+
+class ModelConfig(_Section):
+    num_classes: int = 7
+    width: int = 32  # channels of the first conv block
+    depth: int = 4  # conv blocks
+    dropout: float = 0.3
+
+
+class TrainingConfig(_Section):
+    epochs: int = 30
+    batch_labelled: int = 32  # m
+    pairs_per_label: int = 5  # n = 5 m
+    gamma: float = Field(default=1.0, ge=0.0, le=1.0)
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    loss_threshold: float = 0.5  # model selection: best val F among checkpoints with train loss below this
+    balance_weight: float = 0.0  # marginal-entropy term, 0 = the paper's loss
+    device: str = "auto"  # auto | cpu | cuda
+
+
+class PipelineConfig(_Section):
+    sensor: SensorConfig = SensorConfig()
+    range_image: RangeImageConfig = RangeImageConfig()
+    ground: GroundConfig = GroundConfig()
+    segmentation: SegmentationConfig = SegmentationConfig()
+    samples: SampleConfig = SampleConfig()
+    association: AssociationConfig = AssociationConfig()
+    model: ModelConfig = ModelConfig()
+    training: TrainingConfig = TrainingConfig()
+
+    def dump(self, path: str | Path) -> None:
+        """Write the full config actually used, as YAML."""
+        Path(path).write_text(yaml.safe_dump(self.model_dump(mode="json"), sort_keys=False))
+
+    def override(self, updates: dict) -> PipelineConfig:
+        """A copy with nested `updates` applied ({"samples": {"size": 256}})."""
+        return _validate(_merge(self.model_dump(), updates), "overrides")
+
+
+def _merge(base: dict, updates: dict) -> dict:
+    out = dict(base)
+    for key, value in updates.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _validate(data: dict, where: str) -> PipelineConfig:
+    try:
+        return PipelineConfig.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(str(p) for p in first["loc"])
+        raise ConfigError(f"{where}: field {field}: {first['msg']}") from exc
+
+
+def load_config(path: str | Path | None = None) -> PipelineConfig:
+    """Defaults, with the overrides of a YAML file applied when `path` is given."""
+    if path is None:
+        return PipelineConfig()
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{p}: cannot read config: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: config must be a mapping of sections")
+    return _validate(_merge(PipelineConfig().model_dump(), data), str(p))

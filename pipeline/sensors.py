@@ -1,0 +1,129 @@
+"""Sensor models: beam elevations, range-image width, rate and range limits.
+
+Rows of a range image follow the beams from the top: row 0 is the beam with the highest
+elevation. `SensorModel.elevations_deg` is therefore sorted in descending order.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import DataError
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """A spinning multi-beam LiDAR.
+
+    elevations_deg: (R,) beam elevations in degrees, descending (row 0 = top beam).
+    width: azimuth bins of one revolution (range-image columns).
+    """
+
+    name: str
+    elevations_deg: tuple[float, ...]
+    width: int
+    frequency_hz: float = 10.0
+    min_range: float = 1.0
+    max_range: float = 100.0
+
+    def __post_init__(self) -> None:
+        el = np.asarray(self.elevations_deg)
+        if el.ndim != 1 or len(el) < 2:
+            raise ValueError(f"sensor {self.name}: needs at least two beam elevations")
+        if np.any(np.diff(el) >= 0):
+            raise ValueError(f"sensor {self.name}: elevations must be strictly descending (row 0 = top)")
+        if self.width < 8:
+            raise ValueError(f"sensor {self.name}: width must be >= 8, got {self.width}")
+
+    @property
+    def n_rings(self) -> int:
+        return len(self.elevations_deg)
+
+    def elevations_rad(self) -> np.ndarray:
+        """(R,) float64 beam elevations in radians, descending."""
+        return np.deg2rad(np.asarray(self.elevations_deg, dtype=np.float64))
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "elevations_deg": list(self.elevations_deg),
+            "width": self.width,
+            "frequency_hz": self.frequency_hz,
+            "min_range": self.min_range,
+            "max_range": self.max_range,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SensorModel:
+        return cls(
+            name=str(d["name"]),
+            elevations_deg=tuple(float(x) for x in d["elevations_deg"]),
+            width=int(d["width"]),
+            frequency_hz=float(d.get("frequency_hz", 10.0)),
+            min_range=float(d.get("min_range", 1.0)),
+            max_range=float(d.get("max_range", 100.0)),
+        )
+
+
+def _hdl32e() -> SensorModel:
+    # 32 beams from +10.67 deg down to -30.67 deg in 1.333 deg steps.
+    el = np.linspace(10.67, -30.67, 32)
+    return SensorModel("hdl32e", tuple(float(x) for x in el), width=2160, min_range=1.0, max_range=100.0)
+
+
+def _hdl64e() -> SensorModel:
+    # KITTI's HDL-64E: upper block +2.0 .. -8.33 deg (1/3 deg), lower block -8.83 .. -24.33 deg (1/2 deg).
+    upper = np.linspace(2.0, -8.33, 32)
+    lower = np.linspace(-8.83, -24.33, 32)
+    el = np.concatenate([upper, lower])
+    return SensorModel("hdl64e", tuple(float(x) for x in el), width=2048, min_range=2.5, max_range=120.0)
+
+
+def _vlp16() -> SensorModel:
+    el = np.linspace(15.0, -15.0, 16)
+    return SensorModel("vlp16", tuple(float(x) for x in el), width=1800, min_range=0.5, max_range=100.0)
+
+
+PRESETS: dict[str, SensorModel] = {"hdl32e": _hdl32e(), "hdl64e": _hdl64e(), "vlp16": _vlp16()}
+
+
+def get_sensor(name: str) -> SensorModel:
+    """A preset by name (`hdl32e`, `hdl64e`, `vlp16`), or an Ouster metadata json path."""
+    if name in PRESETS:
+        return PRESETS[name]
+    path = Path(name)
+    if path.suffix == ".json" and path.exists():
+        return ouster_from_metadata(path)
+    raise KeyError(f"unknown sensor {name!r}; presets: {', '.join(PRESETS)} or an Ouster metadata .json")
+
+
+def ouster_from_metadata(path: str | Path) -> SensorModel:
+    """Build a sensor model from an Ouster metadata json (legacy or v2+ layout)."""
+    path = Path(path)
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DataError(path, f"cannot read Ouster metadata: {exc}") from exc
+    altitudes = meta.get("beam_altitude_angles") or meta.get("beam_intrinsics", {}).get("beam_altitude_angles")
+    mode = meta.get("lidar_mode") or meta.get("config_params", {}).get("lidar_mode")
+    product = meta.get("prod_line") or meta.get("sensor_info", {}).get("prod_line", "ouster")
+    if not altitudes or not mode:
+        raise DataError(path, "Ouster metadata lacks beam_altitude_angles or lidar_mode")
+    cols, rate = (int(v) for v in str(mode).split("x"))
+    el = np.asarray(altitudes, dtype=np.float64)
+    # Ouster lists beams top-down already; enforce strict descent for degenerate duplicates.
+    order = np.argsort(-el, kind="stable")
+    el = el[order]
+    el = el - np.arange(len(el)) * 1e-6
+    return SensorModel(
+        f"ouster-{product}".lower().replace(" ", "-"),
+        tuple(float(x) for x in el),
+        width=cols,
+        frequency_hz=float(rate),
+        min_range=0.3,
+        max_range=200.0,
+    )
