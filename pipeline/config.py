@@ -74,6 +74,7 @@ class AssociationConfig(_Section):
 class ModelConfig(_Section):
     num_classes: int = 7
     width: int = 32  # channels of the first conv block
+    max_width: int = 128  # channel cap of later blocks (width doubles per block)
     depth: int = 4  # conv blocks
     dropout: float = 0.3
 
@@ -88,6 +89,11 @@ class TrainingConfig(_Section):
     seed: int = 0
     loss_threshold: float = 0.5  # model selection: best val F among checkpoints with train loss below this
     balance_weight: float = 0.0  # marginal-entropy term, 0 = the paper's loss
+    weighted_pairs: bool = True  # scale each pair's L_c term by its weight (association score)
+    steps_per_epoch: int | None = None  # None = one pass over the larger of labels / pairs
+    augment: bool = False  # random horizontal flip and small shifts of the canvases
+    augment_shift: float = 0.0625  # max shift as a fraction of the canvas side
+    eval_batch: int = 256
     device: str = "auto"  # auto | cpu | cuda
 
 

@@ -1,0 +1,219 @@
+"""The sample classifier: a compact CNN over the (C, S, S) sample canvas giving K class logits.
+
+Used as a siamese pair with shared weights: training runs one forward over the concatenation
+of labelled samples and both sides of the constraint pairs (`pipeline.training`).
+Inference needs this module only: `load_checkpoint` rebuilds the model from a checkpoint,
+`predict` turns uint8 canvases into class probabilities and `embed` into feature vectors.
+
+Architecture (nanoGPT style, one dataclass config)::
+
+    depth x [conv3x3 -> BN -> ReLU -> maxpool 2]   channels width, 2 width, ... capped at max_width
+    global average pool -> dropout -> linear K
+
+Global pooling makes the same network run on S=64 and S=256 canvases.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from pipeline.classes import SAMPLE_CLASSES
+from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
+from pipeline.errors import DataError
+
+CHECKPOINT_FORMAT = "tracklabel-cnn/1"
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Everything needed to build the network; stored in every checkpoint."""
+
+    in_channels: int = 4  # C: 3 (height, range, intensity) or 4 (+ foreground mask)
+    size: int = 64  # S: canvas side; any S divisible by 2**depth works (global pooling)
+    num_classes: int = 7  # K
+    width: int = 32  # channels of the first block
+    max_width: int = 128  # channel cap of later blocks
+    depth: int = 4  # conv blocks, each halving the resolution
+    dropout: float = 0.3
+
+    @classmethod
+    def from_configs(cls, model: ModelConfig, samples: SampleConfig) -> NetConfig:
+        return cls(
+            in_channels=samples.channels,
+            size=samples.size,
+            num_classes=model.num_classes,
+            width=model.width,
+            max_width=model.max_width,
+            depth=model.depth,
+            dropout=model.dropout,
+        )
+
+    def block_channels(self) -> list[int]:
+        return [min(self.width * 2**i, self.max_width) for i in range(self.depth)]
+
+
+class SampleCNN(nn.Module):
+    def __init__(self, config: NetConfig) -> None:
+        super().__init__()
+        if config.size % (2**config.depth):
+            raise ValueError(f"canvas size {config.size} is not divisible by 2**depth = {2**config.depth}")
+        self.config = config
+        layers: list[nn.Module] = []
+        c_in = config.in_channels
+        for c_out in config.block_channels():
+            layers += [
+                nn.Conv2d(c_in, c_out, kernel_size=3, padding=1, bias=False),
+                nn.BatchNorm2d(c_out),
+                nn.ReLU(inplace=True),
+                nn.MaxPool2d(2),
+            ]
+            c_in = c_out
+        self.body = nn.Sequential(*layers)
+        self.dropout = nn.Dropout(config.dropout)
+        self.head = nn.Linear(c_in, config.num_classes)
+        self.feature_dim = c_in
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """Embeddings (B, D) of float canvases (B, C, S, S) in [0, 1]."""
+        assert x.ndim == 4 and x.shape[1] == self.config.in_channels, x.shape
+        h = self.body(x)  # (B, D, S / 2**depth, S / 2**depth)
+        return h.mean(dim=(2, 3))  # (B, D): global average pool
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Logits (B, K) of float canvases (B, C, S, S) in [0, 1]."""
+        return self.head(self.dropout(self.features(x)))  # (B, K)
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+
+def build_model(config: NetConfig) -> SampleCNN:
+    return SampleCNN(config)
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """`auto` = CUDA when present, else CPU; `cpu` / `cuda` / `cuda:N` as given."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def to_input(batch: torch.Tensor) -> torch.Tensor:
+    """uint8 canvases (B, C, S, S) -> float32 in [0, 1], same shape."""
+    return batch.float().div_(255.0)
+
+
+def _check_samples(samples: np.ndarray, config: NetConfig) -> None:
+    if samples.ndim != 4 or samples.shape[1] != config.in_channels or samples.dtype != np.uint8:
+        raise DataError(
+            None,
+            f"samples: expected uint8 (M, {config.in_channels}, S, S), got {samples.dtype} {samples.shape}",
+        )
+
+
+@torch.no_grad()
+def _batched(model: SampleCNN, samples: np.ndarray, batch: int, fn: str) -> np.ndarray:
+    _check_samples(samples, model.config)
+    device = next(model.parameters()).device
+    was_training = model.training
+    model.eval()
+    out = []
+    try:
+        for start in range(0, len(samples), batch):
+            x = to_input(torch.from_numpy(samples[start : start + batch]).to(device))  # (b, C, S, S)
+            if fn == "probs":
+                out.append(torch.softmax(model(x), dim=1).cpu().numpy())  # (b, K)
+            else:
+                out.append(model.features(x).cpu().numpy())  # (b, D)
+    finally:
+        model.train(was_training)
+    width = model.config.num_classes if fn == "probs" else model.feature_dim
+    return np.concatenate(out).astype(np.float32) if out else np.zeros((0, width), np.float32)
+
+
+def predict(model: SampleCNN, samples: np.ndarray, batch: int = 256) -> np.ndarray:
+    """Class probabilities (M, K) float32 of uint8 canvases (M, C, S, S), in eval mode."""
+    return _batched(model, samples, batch, "probs")
+
+
+def embed(model: SampleCNN, samples: np.ndarray, batch: int = 256) -> np.ndarray:
+    """Feature vectors (M, D) float32 of uint8 canvases (M, C, S, S), e.g. for k-center anchors."""
+    return _batched(model, samples, batch, "features")
+
+
+@dataclass(frozen=True)
+class CheckpointMeta:
+    """What a checkpoint says about itself besides the weights."""
+
+    net: NetConfig
+    model_config: ModelConfig
+    sample_config: SampleConfig
+    classes: tuple[str, ...]
+    metrics: dict[str, Any] = field(default_factory=dict)
+    training_config: TrainingConfig | None = None
+
+
+def save_checkpoint(
+    path: str | Path,
+    model: SampleCNN,
+    model_config: ModelConfig,
+    sample_config: SampleConfig,
+    metrics: dict[str, Any] | None = None,
+    training_config: TrainingConfig | None = None,
+    classes: tuple[str, ...] = SAMPLE_CLASSES,
+) -> Path:
+    """Write a self-describing checkpoint (plain types + tensors, loadable with weights_only)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "net": asdict(model.config),
+        "model_config": model_config.model_dump(mode="json"),
+        "sample_config": sample_config.model_dump(mode="json"),
+        "training_config": None if training_config is None else training_config.model_dump(mode="json"),
+        "classes": list(classes),
+        "metrics": metrics or {},
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tuple[SampleCNN, CheckpointMeta]:
+    """Rebuild the model (eval mode, on `device`) and its metadata from a checkpoint file."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, "checkpoint not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt files
+        raise DataError(path, f"cannot read checkpoint: {exc}") from exc
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise DataError(path, f"not a {CHECKPOINT_FORMAT} checkpoint")
+    try:
+        net = NetConfig(**payload["net"])
+        meta = CheckpointMeta(
+            net=net,
+            model_config=ModelConfig.model_validate(payload["model_config"]),
+            sample_config=SampleConfig.model_validate(payload["sample_config"]),
+            classes=tuple(payload["classes"]),
+            metrics=dict(payload.get("metrics") or {}),
+            training_config=None
+            if payload.get("training_config") is None
+            else TrainingConfig.model_validate(payload["training_config"]),
+        )
+        model = build_model(net)
+        model.load_state_dict(payload["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise DataError(path, f"inconsistent checkpoint: {exc}") from exc
+    model.to(resolve_device(str(device)) if isinstance(device, str) else device)
+    model.eval()
+    return model, meta
