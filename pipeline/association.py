@@ -1,0 +1,142 @@
+"""Frame-to-frame association of segments into tracks.
+
+For frame t, every point of a valid segment is moved into frame t-1 with the ego-motion
+(`T_prev_curr = inv(T_world_prev) @ T_world_curr`) and projected into t-1's range image. A point
+votes for the t-1 segment owning that pixel when its range agrees with the pixel's range. The link
+score of (a, b) is the share of a's points that vote for b. Tracks that move (constant-velocity
+state) are also matched by predicted centroid when the overlap is weak. Pairs are solved one-to-one
+with the Hungarian method. Precision beats recall (a wrong link teaches the model a wrong equality),
+so a segment whose votes split between two t-1 segments (a merge) or whose point count jumps is
+left unlinked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from pipeline.config import AssociationConfig
+from pipeline.range_image import azimuth_columns, elevation_rows
+from pipeline.sensors import SensorModel
+
+
+@dataclass(frozen=True)
+class AssociationFrame:
+    """What association keeps of a frame.
+
+    seg_pixel: (H, W) int32 valid-segment id per pixel, -1 = none; range: (H, W) float32 pixel range.
+    n_points: (S,) int32; centroid_world: (S, 3) float64; valid: (S,) bool.
+    T_world_lidar: (4, 4) float64 or None; time: seconds.
+    """
+
+    seg_pixel: np.ndarray
+    range: np.ndarray
+    n_points: np.ndarray
+    centroid_world: np.ndarray
+    valid: np.ndarray
+    T_world_lidar: np.ndarray | None
+    time: float
+
+
+@dataclass(frozen=True)
+class Links:
+    """prev: (S,) int32 matched t-1 segment per t segment, -1 = none; score: (S,) float32, NaN = none."""
+
+    prev: np.ndarray
+    score: np.ndarray
+
+
+def vote_matrix(
+    points: np.ndarray,
+    seg_point: np.ndarray,
+    n_curr: int,
+    prev: AssociationFrame,
+    T_prev_curr: np.ndarray,
+    sensor: SensorModel,
+) -> np.ndarray:
+    """(S_t, S_{t-1}) int64 votes: points of each t segment that land on each t-1 segment."""
+    n_prev = len(prev.n_points)
+    votes = np.zeros((n_curr, n_prev), dtype=np.int64)
+    m = seg_point >= 0
+    if not m.any() or n_prev == 0:
+        return votes
+    p = points[m].astype(np.float64) @ T_prev_curr[:3, :3].T + T_prev_curr[:3, 3]
+    h, w = prev.seg_pixel.shape
+    rows = elevation_rows(p, sensor).astype(np.int64)
+    cols = azimuth_columns(p, w).astype(np.int64)
+    target = prev.seg_pixel[rows, cols]
+    r_proj = np.linalg.norm(p, axis=1)
+    r_pix = prev.range[rows, cols]
+    agree = (target >= 0) & (np.abs(r_proj - r_pix) <= 0.3 + 0.03 * r_proj)
+    a = seg_point[m][agree].astype(np.int64)
+    b = target[agree].astype(np.int64)
+    np.add.at(votes, (a, b), 1)
+    return votes
+
+
+def associate(
+    curr_points: np.ndarray,
+    curr_seg_point: np.ndarray,
+    curr: AssociationFrame,
+    prev: AssociationFrame,
+    prev_velocity: np.ndarray,
+    sensor: SensorModel,
+    config: AssociationConfig,
+) -> Links:
+    """Link the valid segments of `curr` to those of `prev`.
+
+    curr_seg_point: (N,) valid-segment id per point of `curr`, -1 = none.
+    prev_velocity: (S_{t-1}, 3) world velocity (m/s) of the track each t-1 segment belongs to.
+    """
+    n_curr, n_prev = len(curr.n_points), len(prev.n_points)
+    links = Links(np.full(n_curr, -1, np.int32), np.full(n_curr, np.nan, np.float32))
+    if n_curr == 0 or n_prev == 0 or curr.T_world_lidar is None or prev.T_world_lidar is None:
+        return links
+    T_prev_curr = np.linalg.inv(prev.T_world_lidar) @ curr.T_world_lidar
+    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)
+    n_a = np.maximum(curr.n_points, 1).astype(np.float64)
+    share = votes / n_a[:, None]  # (S_t, S_{t-1}) share of a's points voting for b
+
+    # 1. ambiguity: a segment whose votes split between two t-1 segments is a likely merge
+    if n_prev >= 2:
+        top2 = np.sort(share, axis=1)[:, -2:]
+        ambiguous = top2[:, 0] > 0.5 * top2[:, 1]
+        ambiguous &= top2[:, 0] >= 0.1
+        share[ambiguous] = 0.0
+    score = np.where(share >= config.min_overlap, share, 0.0)
+
+    # 2. moving tracks: predicted-centroid matching where the overlap is weak
+    dt = max(curr.time - prev.time, 1e-3)
+    if config.use_motion_prediction:
+        speed = np.linalg.norm(prev_velocity, axis=1)
+        moving = speed > 0.5
+        if moving.any():
+            pred = prev.centroid_world + prev_velocity * dt  # (S_{t-1}, 3)
+            dist = np.linalg.norm(curr.centroid_world[:, None, :2] - pred[None, moving, :2], axis=2)
+            cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
+            weak = score[:, moving] < config.min_score
+            score[:, moving] = np.where(weak, np.maximum(score[:, moving], cscore), score[:, moving])
+
+    # 3. gates: point counts must be comparable, centroids must be near after ego-motion
+    ratio = curr.n_points[:, None] / np.maximum(prev.n_points[None, :], 1)
+    bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
+    max_jump = config.max_centroid_distance + np.linalg.norm(prev_velocity, axis=1)[None, :] * dt * 2.0
+    jump = np.linalg.norm(curr.centroid_world[:, None, :] - prev.centroid_world[None, :, :], axis=2)
+    score[bad_ratio | (jump > max_jump + 1.0)] = 0.0
+    score[:, ~prev.valid] = 0.0
+    score[~curr.valid, :] = 0.0
+
+    # 4. one-to-one
+    rows_any = np.flatnonzero(score.max(axis=1) >= config.min_score)
+    if len(rows_any) == 0:
+        return links
+    cols_any = np.flatnonzero(score[rows_any].max(axis=0) >= config.min_score)
+    sub = score[np.ix_(rows_any, cols_any)]
+    r, c = linear_sum_assignment(-sub)
+    ok = sub[r, c] >= config.min_score
+    a, b = rows_any[r[ok]], cols_any[c[ok]]
+    links.prev[a] = b
+    links.score[a] = sub[r[ok], c[ok]]
+    return links

@@ -1,0 +1,150 @@
+"""Ground removal and height above ground.
+
+1. Angle-based labelling along each range-image column (as in depth_clustering): walking up
+   from the bottom beam, a point is ground while the slope from the last ground point stays under
+   `max_slope_deg` (the first one is compared with the ground under the sensor).
+2. A ground surface on a `grid_cell` grid (mean z of ground points per cell, empty cells filled
+   from the nearest filled cell, bilinear lookup) gives every point its height above ground.
+3. Non-ground points within `ground_band` of that surface are ground too (curbs, low grass).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy import ndimage
+
+from pipeline.config import GroundConfig
+from pipeline.range_image import RangeImage
+from pipeline.scan import Scan
+
+
+@dataclass(frozen=True)
+class GroundResult:
+    """ground: (N,) bool per point; height: (N,) float32 metres above the ground surface;
+    sensor_height: metres of the sensor above the ground under it."""
+
+    ground: np.ndarray
+    height: np.ndarray
+    sensor_height: float
+
+
+@njit(cache=True)
+def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height):  # pragma: no cover - numba
+    h, w = index.shape
+    out = np.zeros(xy.shape[0], dtype=np.bool_)
+    for c in range(w):
+        last_xy = 0.0
+        last_z = -sensor_height
+        first = True
+        for r in range(h - 1, -1, -1):
+            i = index[r, c]
+            if i < 0:
+                continue
+            dxy = xy[i] - last_xy
+            dz = abs(z[i] - last_z)
+            lim = tan_start if first else tan_slope
+            if dxy > 0.0 and dz <= lim * dxy + tol:
+                out[i] = True
+                last_xy = xy[i]
+                last_z = z[i]
+                first = False
+    return out
+
+
+def estimate_sensor_height(scan: Scan, image: RangeImage) -> float:
+    """Sensor height (m) from the lowest beams' points 2–15 m away (robust median)."""
+    h = image.shape[0]
+    pts = scan.points
+    xy = np.hypot(pts[:, 0], pts[:, 1])
+    low = (image.row >= h - max(2, h // 8)) & (xy > 2.0) & (xy < 15.0) & image.kept
+    if low.sum() < 20:
+        return 1.8
+    return float(-np.percentile(pts[low, 2], 30))
+
+
+def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None = None) -> GroundResult:
+    """Ground mask and height above ground for every point of `scan`."""
+    config = config or GroundConfig()
+    n = len(scan)
+    if n == 0:
+        return GroundResult(np.zeros(0, bool), np.zeros(0, np.float32), config.sensor_height or 1.8)
+    pts = scan.points
+    xy = np.hypot(pts[:, 0], pts[:, 1])
+    sensor_h = config.sensor_height if config.sensor_height is not None else estimate_sensor_height(scan, image)
+    ground = _column_walk(
+        image.index,
+        xy,
+        pts[:, 2],
+        np.tan(np.deg2rad(config.max_slope_deg)),
+        np.tan(np.deg2rad(config.start_angle_deg)),
+        0.05,
+        sensor_h,
+    )
+    surface_z = _surface_height(pts, ground, sensor_h, config.grid_cell)
+    height = pts[:, 2] - surface_z
+    ground = (ground | (np.abs(height) <= config.ground_band)) & image.kept
+    return GroundResult(ground=ground, height=height, sensor_height=float(sensor_h))
+
+
+@njit(cache=True)
+def _surface_kernel(points, ground, cell, fallback):  # pragma: no cover - numba
+    n = points.shape[0]
+    lo0 = np.inf
+    lo1 = np.inf
+    hi0 = -np.inf
+    hi1 = -np.inf
+    for i in range(n):
+        lo0 = min(lo0, points[i, 0])
+        lo1 = min(lo1, points[i, 1])
+        hi0 = max(hi0, points[i, 0])
+        hi1 = max(hi1, points[i, 1])
+    lo0 -= cell
+    lo1 -= cell
+    g0 = int((hi0 - lo0) / cell) + 3
+    g1 = int((hi1 - lo1) / cell) + 3
+    sums = np.zeros((g0, g1))
+    counts = np.zeros((g0, g1), dtype=np.int32)
+    for i in range(n):
+        if ground[i]:
+            a = int((points[i, 0] - lo0) / cell)
+            b = int((points[i, 1] - lo1) / cell)
+            sums[a, b] += points[i, 2]
+            counts[a, b] += 1
+    return sums, counts, lo0, lo1
+
+
+@njit(cache=True)
+def _bilinear_kernel(points, grid, lo0, lo1, cell):  # pragma: no cover - numba
+    n = points.shape[0]
+    g0, g1 = grid.shape
+    out = np.empty(n, dtype=np.float32)
+    for i in range(n):
+        u = (points[i, 0] - lo0) / cell - 0.5
+        v = (points[i, 1] - lo1) / cell - 0.5
+        a = min(max(int(np.floor(u)), 0), g0 - 2)
+        b = min(max(int(np.floor(v)), 0), g1 - 2)
+        fu = min(max(u - a, 0.0), 1.0)
+        fv = min(max(v - b, 0.0), 1.0)
+        out[i] = (
+            grid[a, b] * (1 - fu) * (1 - fv)
+            + grid[a + 1, b] * fu * (1 - fv)
+            + grid[a, b + 1] * (1 - fu) * fv
+            + grid[a + 1, b + 1] * fu * fv
+        )
+    return out
+
+
+def _surface_height(pts: np.ndarray, ground: np.ndarray, sensor_h: float, cell: float) -> np.ndarray:
+    """(N,) ground-surface z under each point, from a grid of ground points' mean z."""
+    if ground.sum() < 3:
+        return np.full(len(pts), -sensor_h, dtype=np.float32)
+    sums, counts, lo0, lo1 = _surface_kernel(pts, ground, cell, -sensor_h)
+    empty = counts == 0
+    grid = np.where(empty, 0.0, sums / np.maximum(counts, 1))
+    if empty.any():
+        _, (ii, jj) = ndimage.distance_transform_edt(empty, return_indices=True)
+        grid = grid[ii, jj]
+    return _bilinear_kernel(pts, grid, lo0, lo1, cell)

@@ -1,0 +1,254 @@
+"""The orchestrator: a sequence in, per-frame segments, samples and track ids out.
+
+Per frame (in parallel when `workers` > 1):
+  1. project the scan to a range image;
+  2. estimate the ground and the height above it;
+  3. grow segments;
+  4. compute segment statistics and the validity rule;
+  5. render the samples of valid segments.
+Then, in frame order:
+  6. associate valid segments with the previous frame's and extend tracks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.association import AssociationFrame, associate
+from pipeline.config import PipelineConfig
+from pipeline.errors import DataError
+from pipeline.ground import estimate_ground
+from pipeline.range_image import project
+from pipeline.samples import SegmentTable, render_samples, segment_table
+from pipeline.scan import Scan, SequenceSource
+from pipeline.segmentation import segment
+from pipeline.sensors import SensorModel
+
+
+@dataclass(frozen=True)
+class FrameSegments(SegmentTable):
+    """SegmentTable plus tracking, arrays of length S.
+
+    centroid_world: (S, 3) float64 (lidar centroid when there are no poses);
+    track_id: (S,) int64 global track id >= 1 for valid segments, 0 for the others;
+    link_score: (S,) float32 score of the link to the previous frame, NaN where a track starts.
+    """
+
+    centroid_world: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    track_id: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+    link_score: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Everything the pipeline knows of one frame.
+
+    segment: (N,) int32 local segment id per point, -1 = ground / unsegmented.
+    ground: (N,) bool; height: (N,) float32 metres above ground.
+    seg_pixel: (H, W) int32 segment id per range-image pixel, -1 = none.
+    samples: (V, C, S, S) uint8 of the valid segments; sample_segment: (V,) int32 their segment ids.
+    """
+
+    index: int
+    name: str
+    scan: Scan
+    segment: np.ndarray
+    ground: np.ndarray
+    height: np.ndarray
+    seg_pixel: np.ndarray
+    range_pixels: np.ndarray
+    segments: FrameSegments
+    samples: np.ndarray
+    sample_segment: np.ndarray
+    T_world_lidar: np.ndarray | None
+    time: float
+    timings_ms: dict[str, float]
+
+    def track_labels(self) -> np.ndarray:
+        """(N,) uint32 track id per point: 0 for ground, unsegmented points and invalid segments."""
+        out = np.zeros(len(self.segment), dtype=np.uint32)
+        m = self.segment >= 0
+        out[m] = self.segments.track_id[self.segment[m]].astype(np.uint32)
+        return out
+
+
+@dataclass(frozen=True)
+class _FrameCore:
+    index: int
+    name: str
+    scan: Scan
+    segment: np.ndarray
+    ground: np.ndarray
+    height: np.ndarray
+    seg_pixel: np.ndarray
+    range_pixels: np.ndarray
+    table: SegmentTable
+    samples: np.ndarray
+    sample_segment: np.ndarray
+    timings_ms: dict[str, float]
+
+
+def _only_valid(ids: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """`ids` (any shape, -1 = none) with the ids of invalid segments replaced by -1."""
+    lut = np.append(np.where(valid, np.arange(len(valid)), -1), -1).astype(np.int32)
+    return lut[ids]  # id -1 picks the appended -1
+
+
+def process_scan(
+    scan: Scan, sensor: SensorModel, config: PipelineConfig, index: int = 0, name: str = "", samples: bool = True
+) -> _FrameCore:
+    """Steps 1–5 for one scan (no association)."""
+    t0 = time.perf_counter()
+    image = project(scan, sensor, config.range_image)
+    t1 = time.perf_counter()
+    g = estimate_ground(scan, image, config.ground)
+    t2 = time.perf_counter()
+    seg = segment(image, g.ground, sensor, config.segmentation)
+    t3 = time.perf_counter()
+    table = segment_table(scan.points, seg.point, seg.count, config.samples)
+    if samples:
+        canv, canv_seg = render_samples(scan, image, g.height, seg.point, table, sensor, config.samples)
+    else:
+        canv = np.zeros((0, config.samples.channels, config.samples.size, config.samples.size), np.uint8)
+        canv_seg = np.zeros(0, np.int32)
+    t4 = time.perf_counter()
+    # the pixel map association uses only holds valid segments
+    valid_pixel = _only_valid(seg.pixel, table.valid)
+    timings = {
+        "project": 1e3 * (t1 - t0),
+        "ground": 1e3 * (t2 - t1),
+        "segment": 1e3 * (t3 - t2),
+        "samples": 1e3 * (t4 - t3),
+    }
+    return _FrameCore(
+        index, name, scan, seg.point, g.ground, g.height, valid_pixel.astype(np.int32), image.range, table,
+        canv, canv_seg, timings,
+    )
+
+
+def _load_and_process(args: tuple) -> _FrameCore | DataError:
+    source, index, sensor, config, samples = args
+    try:
+        scan = source.frame(index)
+    except DataError as exc:
+        return exc
+    return process_scan(scan, sensor, config, index, source.frame_name(index), samples)
+
+
+class SequenceProcessor:
+    """Runs the pipeline over a sequence and assigns global track ids.
+
+    Without poses every valid segment becomes its own one-frame track (`linked` is False).
+    Corrupt frames are skipped and reported through `on_skip(index, error)`.
+    """
+
+    def __init__(self, config: PipelineConfig, sensor: SensorModel) -> None:
+        self.config = config
+        self.sensor = sensor
+        self.next_track = 1
+        self.linked = True
+
+    def iter_frames(
+        self,
+        source: SequenceSource,
+        progress: bool = False,
+        workers: int = 1,
+        start: int = 0,
+        stop: int | None = None,
+        samples: bool = True,
+        poses: np.ndarray | None = None,
+        on_skip: Callable[[int, DataError], None] | None = None,
+    ) -> Iterator[FrameResult]:
+        """Yield a FrameResult per frame in order; `poses` overrides the source's own."""
+        poses = source.poses if poses is None else poses
+        self.linked = poses is not None
+        stop = len(source) if stop is None else min(stop, len(source))
+        times = source.times
+        jobs = [(source, i, self.sensor, self.config, samples) for i in range(start, stop)]
+        prev: AssociationFrame | None = None
+        prev_tracks = np.zeros(0, np.int64)
+        prev_vel = np.zeros((0, 3))
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(jobs), unit="frame", desc="process")
+        if workers > 1:
+            pool = ProcessPoolExecutor(max_workers=workers)
+            results = pool.map(_load_and_process, jobs, chunksize=4)
+        else:
+            pool = None
+            results = map(_load_and_process, jobs)
+        try:
+            for job, core in zip(jobs, results, strict=True):
+                i = job[1]
+                if bar is not None:
+                    bar.update(1)
+                if isinstance(core, DataError):
+                    if on_skip is not None:
+                        on_skip(i, core)
+                    prev = None  # do not link across a missing frame
+                    continue
+                T = None if poses is None else np.asarray(poses[i], dtype=np.float64)
+                t_s = float(times[i]) if times is not None else i / self.sensor.frequency_hz
+                t0 = time.perf_counter()
+                fr, prev, prev_tracks, prev_vel = self._track(core, T, t_s, prev, prev_tracks, prev_vel)
+                fr.timings_ms["associate"] = 1e3 * (time.perf_counter() - t0)
+                yield fr
+        finally:
+            if bar is not None:
+                bar.close()
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+
+    def _track(
+        self,
+        core: _FrameCore,
+        T: np.ndarray | None,
+        t_s: float,
+        prev: AssociationFrame | None,
+        prev_tracks: np.ndarray,
+        prev_vel: np.ndarray,
+    ) -> tuple[FrameResult, AssociationFrame, np.ndarray, np.ndarray]:
+        table = core.table
+        n = len(table)
+        cw = table.centroid.astype(np.float64)
+        if T is not None:
+            cw = cw @ T[:3, :3].T + T[:3, 3]
+        curr = AssociationFrame(core.seg_pixel, core.range_pixels, table.n_points, cw, table.valid, T, t_s)
+        track_id = np.zeros(n, np.int64)
+        score = np.full(n, np.nan, np.float32)
+        vel = np.zeros((n, 3))
+        matched = np.full(n, -1, np.int32)
+        if prev is not None and T is not None:
+            valid_point = _only_valid(core.segment, table.valid)
+            links = associate(
+                core.scan.points, valid_point, curr, prev, prev_vel, self.sensor, self.config.association
+            )
+            matched = links.prev
+            score = links.score
+        has = matched >= 0
+        track_id[has] = prev_tracks[matched[has]]
+        dt = max(t_s - (prev.time if prev is not None else t_s - 0.1), 1e-3)
+        if has.any() and prev is not None:
+            meas = (cw[has] - prev.centroid_world[matched[has]]) / dt
+            old = prev_vel[matched[has]]
+            vel[has] = np.where(np.linalg.norm(old, axis=1, keepdims=True) > 0, 0.5 * old + 0.5 * meas, meas)
+        new = table.valid & ~has
+        track_id[new] = np.arange(self.next_track, self.next_track + int(new.sum()))
+        self.next_track += int(new.sum())
+        segs = FrameSegments(
+            n_points=table.n_points, centroid=table.centroid, range=table.range, valid=table.valid,
+            centroid_world=cw, track_id=track_id, link_score=score,
+        )
+        fr = FrameResult(
+            core.index, core.name, core.scan, core.segment, core.ground, core.height, core.seg_pixel,
+            core.range_pixels, segs, core.samples, core.sample_segment, T, t_s, dict(core.timings_ms),
+        )
+        return fr, curr, track_id, vel

@@ -1,0 +1,110 @@
+"""Spherical projection of a scan onto a range image.
+
+Layout (see docs/conventions.md): rows are beams (row 0 = top beam, taken from `Scan.ring`),
+columns are azimuth bins, `c = floor((0.5 - atan2(y, x) / (2 pi)) * W) mod W`, so column W/2
+looks forward and columns wrap behind the sensor. Each pixel keeps the nearest point that
+falls into it; every point keeps its own pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pipeline.config import RangeImageConfig
+from pipeline.scan import Scan
+from pipeline.sensors import SensorModel
+
+
+@dataclass(frozen=True)
+class RangeImage:
+    """A projected scan.
+
+    index: (H, W) int32 point index of the pixel's nearest point, -1 = empty.
+    range: (H, W) float32 range of that point in metres, 0 = empty.
+    row:   (N,) int16 pixel row of every point of the scan.
+    col:   (N,) int32 pixel column of every point of the scan.
+    point_range: (N,) float32 range of every point.
+    kept:  (N,) bool, points inside [min_range, max_range] (others have no pixel role).
+    """
+
+    index: np.ndarray
+    range: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    point_range: np.ndarray
+    kept: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.index.shape  # type: ignore[return-value]
+
+    def owner_mask(self) -> np.ndarray:
+        """(N,) bool: points that own their pixel (the nearest point of it)."""
+        owner = np.zeros(len(self.row), dtype=bool)
+        idx = self.index[self.index >= 0]
+        owner[idx] = True
+        return owner
+
+
+def azimuth_columns(points: np.ndarray, width: int) -> np.ndarray:
+    """(N,) int32 column of each (N, 3) point for a range image `width` columns wide."""
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    col = np.floor((0.5 - phi / (2.0 * np.pi)) * width).astype(np.int64)
+    return np.mod(col, width).astype(np.int32)
+
+
+def column_azimuth(col: np.ndarray | float, width: int) -> np.ndarray:
+    """Azimuth (rad) of the centre of column(s) `col`; inverse of `azimuth_columns`."""
+    return (0.5 - (np.asarray(col, dtype=np.float64) + 0.5) / width) * 2.0 * np.pi
+
+
+def elevation_rows(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
+    """(N,) int16 row of the beam whose elevation is nearest to each point's elevation."""
+    el = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
+    beams = sensor.elevations_rad()[::-1]  # ascending for searchsorted
+    pos = np.clip(np.searchsorted(beams, el), 1, len(beams) - 1)
+    nearer_low = (el - beams[pos - 1]) < (beams[pos] - el)
+    asc = np.where(nearer_low, pos - 1, pos)
+    return (len(beams) - 1 - asc).astype(np.int16)
+
+
+@njit(cache=True)
+def _project_kernel(points, ring, height, width, min_range, max_range):  # pragma: no cover - numba
+    n = points.shape[0]
+    index = np.full((height, width), -1, dtype=np.int32)
+    rimg = np.zeros((height, width), dtype=np.float32)
+    col = np.empty(n, dtype=np.int32)
+    rng = np.empty(n, dtype=np.float32)
+    kept = np.zeros(n, dtype=np.bool_)
+    two_pi = 2.0 * np.pi
+    for i in range(n):
+        x = points[i, 0]
+        y = points[i, 1]
+        z = points[i, 2]
+        r = np.sqrt(x * x + y * y + z * z)
+        rng[i] = r
+        c = int(np.floor((0.5 - np.arctan2(y, x) / two_pi) * width)) % width
+        col[i] = c
+        row = ring[i]
+        if r < min_range or r > max_range or row < 0 or row >= height:
+            continue
+        kept[i] = True
+        j = index[row, c]
+        if j < 0 or r < rimg[row, c]:
+            index[row, c] = i
+            rimg[row, c] = r
+    return index, rimg, col, rng, kept
+
+
+def project(scan: Scan, sensor: SensorModel, config: RangeImageConfig | None = None) -> RangeImage:
+    """Project `scan` onto an (H, W) range image; H = sensor beams, W = config width or the sensor's."""
+    config = config or RangeImageConfig()
+    height = sensor.n_rings
+    width = config.width or sensor.width
+    index, rimg, col, rng, kept = _project_kernel(
+        scan.points, scan.ring, height, width, np.float32(config.min_range), np.float32(config.max_range)
+    )
+    return RangeImage(index=index, range=rimg, row=scan.ring, col=col, point_range=rng, kept=kept)

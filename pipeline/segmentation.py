@@ -1,0 +1,137 @@
+"""Region growing over 4-connected non-ground range-image pixels.
+
+Two neighbours join when their range difference is under a threshold that grows with range
+(separate vertical and horizontal thresholds); optionally they must also pass depth_clustering's
+angle criterion. Columns wrap around at W-1 -> 0. The flood fill runs in numba.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pipeline.config import SegmentationConfig
+from pipeline.range_image import RangeImage
+from pipeline.sensors import SensorModel
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """pixel: (H, W) int32 segment id per pixel, -1 = none; point: (N,) int32 per point, -1 = none;
+    count: number of segments (ids are 0..count-1)."""
+
+    pixel: np.ndarray
+    point: np.ndarray
+    count: int
+
+
+@njit(cache=True)
+def _grow(rng, ok, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha):  # pragma: no cover - numba
+    h, w = rng.shape
+    labels = np.full((h, w), -1, dtype=np.int32)
+    stack_r = np.empty(h * w, dtype=np.int32)
+    stack_c = np.empty(h * w, dtype=np.int32)
+    nxt = 0
+    for r0 in range(h):
+        for c0 in range(w):
+            if not ok[r0, c0] or labels[r0, c0] >= 0:
+                continue
+            labels[r0, c0] = nxt
+            top = 0
+            stack_r[0] = r0
+            stack_c[0] = c0
+            top = 1
+            while top > 0:
+                top -= 1
+                r = stack_r[top]
+                c = stack_c[top]
+                d1 = rng[r, c]
+                for k in range(4):
+                    if k == 0:
+                        nr, nc, vert = r - 1, c, True
+                    elif k == 1:
+                        nr, nc, vert = r + 1, c, True
+                    elif k == 2:
+                        nr, nc, vert = r, c - 1, False
+                    else:
+                        nr, nc, vert = r, c + 1, False
+                    if nr < 0 or nr >= h:
+                        continue
+                    if nc < 0:
+                        nc += w
+                    elif nc >= w:
+                        nc -= w
+                    if not ok[nr, nc] or labels[nr, nc] >= 0:
+                        continue
+                    d2 = rng[nr, nc]
+                    dmin = min(d1, d2)
+                    dmax = max(d1, d2)
+                    if vert:
+                        thr = vb + vs * dmin
+                    else:
+                        thr = hb + hs * dmin
+                    if dmax - dmin > thr:
+                        continue
+                    if use_angle:
+                        a = v_alpha[min(r, nr)] if vert else h_alpha
+                        # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
+                        num = dmin * np.sin(a)
+                        den = dmax - dmin * np.cos(a)
+                        if den > 0.0 and num < tan_beta * den:
+                            continue
+                    labels[nr, nc] = nxt
+                    stack_r[top] = nr
+                    stack_c[top] = nc
+                    top += 1
+            nxt += 1
+    return labels, nxt
+
+
+def segment(
+    image: RangeImage,
+    ground: np.ndarray,
+    sensor: SensorModel,
+    config: SegmentationConfig | None = None,
+) -> Segmentation:
+    """Segment the non-ground pixels of `image`; `ground` is the (N,) per-point ground mask."""
+    config = config or SegmentationConfig()
+    h, w = image.shape
+    index = image.index
+    occupied = index >= 0
+    ok = occupied.copy()
+    ok[occupied] = ~ground[index[occupied]]
+    el = sensor.elevations_rad()
+    v_alpha = np.abs(np.diff(el)) if len(el) == h else np.full(h - 1, np.deg2rad(1.0))
+    labels, count = _grow(
+        image.range,
+        ok,
+        config.vertical_base,
+        config.vertical_slope,
+        config.horizontal_base,
+        config.horizontal_slope,
+        config.use_angle_criterion,
+        np.tan(np.deg2rad(config.angle_threshold_deg)),
+        v_alpha.astype(np.float32),
+        np.float32(2.0 * np.pi / w),
+    )
+    # drop tiny segments and renumber densely
+    sizes = np.bincount(labels[labels >= 0], minlength=count)
+    keep = sizes >= max(1, config.min_points)
+    remap = np.full(count + 1, -1, dtype=np.int32)
+    remap[:count][keep] = np.arange(int(keep.sum()), dtype=np.int32)
+    pixel = remap[labels]  # labels -1 -> remap[-1] = -1
+    # every point takes its pixel's segment when its range agrees with the pixel's nearest point
+    n = len(image.row)
+    point = np.full(n, -1, dtype=np.int32)
+    cand = np.flatnonzero(image.kept & ~ground)
+    if len(cand):
+        r = image.row[cand].astype(np.int64)
+        c = image.col[cand].astype(np.int64)
+        seg = pixel[r, c]
+        pr = image.range[r, c]
+        tol = config.horizontal_base + config.horizontal_slope * pr
+        agree = (seg >= 0) & (np.abs(image.point_range[cand] - pr) <= tol)
+        point[cand[agree]] = seg[agree]
+    return Segmentation(pixel=pixel, point=point, count=int(keep.sum()))
