@@ -99,6 +99,56 @@ def inspect(
             typer.echo(f"  {name:<10} {count:>10}  {100.0 * count / total:5.1f}%")
 
 
+@app.command()
+@friendly_errors
+def process(
+    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    workers: Annotated[int, typer.Option(min=1, help="Processes for the per-frame stages.")] = 1,
+    samples: Annotated[bool, typer.Option("--samples", help="Also write the samples as .npz.")] = False,
+    size: Annotated[int | None, typer.Option(help="Sample canvas size (default from config).")] = None,
+    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+) -> None:
+    """Segment, sample and associate a sequence: OUT/tracks/*.label, tracks.json, summary.json."""
+    from pipeline.config import load_config
+    from pipeline.pipeline import run_process
+
+    cfg = load_config(config)
+    if size is not None:
+        cfg = cfg.override({"samples": {"size": size}})
+    summary = run_process(
+        seq, out, cfg, sensor=sensor, poses=poses, workers=workers, samples=samples, progress=True,
+        log=lambda m: typer.echo(f"warning: {m}", err=True),
+    )
+    typer.echo(
+        f"{summary['frames']} frames, {summary['segments']} segments ({summary['valid_segments']} valid), "
+        f"{summary['tracks']} tracks ({summary['tracks_multi_frame']} multi-frame), "
+        f"{summary['constraint_pairs']} constraint pairs, {summary['frames_per_second']} frames/s -> {out}"
+    )
+
+
+@app.command()
+@friendly_errors
+def evaluate(
+    seq: Annotated[Path, typer.Argument(help="The sequence, with SemanticKITTI labels.")],
+    out: Annotated[Path, typer.Argument(help="The output folder of `tracklabel process`.")],
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the metrics here.")] = None,
+) -> None:
+    """Segment purity, over-segmentation and association precision/recall against labels."""
+    import json
+
+    from pipeline.evaluation import format_table
+    from pipeline.pipeline import evaluate_folder
+
+    result = evaluate_folder(seq, out, progress=True)
+    target = json_out or (out / "evaluation.json")
+    target.write_text(json.dumps(result, indent=2))
+    typer.echo(format_table(result))
+    typer.echo(f"metrics written to {target}")
+
+
 def main() -> None:
     """Entry point of the `tracklabel` script."""
     try:

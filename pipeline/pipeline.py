@@ -1,0 +1,203 @@
+"""The only module that joins the algorithm to the dataset loaders.
+
+`run_process` opens a sequence, resolves its sensor and poses, runs the SequenceProcessor and
+writes `OUT/tracks/NNNNNN.label`, `OUT/tracks.json`, `OUT/summary.json`, `OUT/config.yaml` and,
+with samples on, `OUT/samples/NNNNNN.npz`. `evaluate_folder` scores such an output against the
+sequence's SemanticKITTI labels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import PipelineConfig
+from pipeline.errors import DataError
+from pipeline.evaluation import FrameTruth, evaluate_frames, object_keys
+from pipeline.io import open_sequence
+from pipeline.processing import SequenceProcessor
+from pipeline.scan import Scan, SequenceSource
+from pipeline.sensors import SensorModel, get_sensor
+from pipeline.tracks import TrackBuilder, read_tracks
+
+
+def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
+    """The sensor with its range-image width fitted to the scan's points per ring.
+
+    A sensor spinning faster than its preset (nuScenes runs the HDL-32E at 20 Hz) gives fewer
+    points per ring; a too-wide image would leave every other column empty and cut every object
+    into slivers.
+    """
+    if len(scan) == 0:
+        return sensor
+    per_ring = np.bincount(scan.ring[scan.ring >= 0].astype(np.int64), minlength=sensor.n_rings)
+    most = int(np.percentile(per_ring, 95))
+    if most >= 0.75 * sensor.width or most < 64:
+        return sensor
+    width = int(np.ceil(most * 1.005))
+    return dataclasses.replace(sensor, width=width, frequency_hz=sensor.frequency_hz * sensor.width / width)
+
+
+def resolve_sensor(source: SequenceSource, name: str) -> SensorModel:
+    """`auto` takes the reader's sensor, fitted to the first readable frame; otherwise a preset or json."""
+    sensor = source.sensor if name == "auto" else get_sensor(name)
+    for i in range(min(len(source), 3)):
+        try:
+            return fit_width(source.frame(i), sensor)
+        except DataError:
+            continue
+    return sensor
+
+
+def resolve_poses(source: SequenceSource, poses: str, progress: bool = False) -> np.ndarray | None:
+    """`file`: the sequence's own poses (None when it has none); `icp`: estimate with KISS-ICP."""
+    if poses == "file":
+        return source.poses
+    if poses == "icp":
+        from pipeline.odometry import estimate_poses
+
+        return estimate_poses(source, progress=progress)
+    raise DataError(None, f"--poses must be 'file' or 'icp', got {poses!r}")
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    if not values:
+        return {"median": 0.0, "p95": 0.0}
+    a = np.asarray(values)
+    return {"median": round(float(np.median(a)), 3), "p95": round(float(np.percentile(a, 95)), 3)}
+
+
+def run_process(
+    path: str | Path,
+    out: str | Path,
+    config: PipelineConfig | None = None,
+    sensor: str = "auto",
+    poses: str = "file",
+    workers: int = 1,
+    samples: bool = False,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+    fmt: str = "auto",
+) -> dict:
+    """Process a sequence into track labels, tracks.json and summary.json; returns the summary."""
+    config = config or PipelineConfig()
+    log = log or (lambda _m: None)
+    out = Path(out)
+    source = open_sequence(path, fmt)
+    if len(source) == 0:
+        raise DataError(path, "sequence has no frames")
+    sens = resolve_sensor(source, sensor if sensor != "auto" else config.sensor.name)
+    pose_arr = resolve_poses(source, poses, progress)
+    if pose_arr is None:
+        log("no poses (pass --poses icp to estimate them): frames are segmented but not linked into tracks")
+    (out / "tracks").mkdir(parents=True, exist_ok=True)
+    if samples:
+        (out / "samples").mkdir(exist_ok=True)
+    config.dump(out / "config.yaml")
+
+    skipped: list[dict[str, str]] = []
+
+    def on_skip(i: int, err: DataError) -> None:
+        skipped.append({"frame": source.frame_name(i), "error": str(err)})
+        log(f"skipped frame {source.frame_name(i)}: {err}")
+
+    proc = SequenceProcessor(config, sens)
+    builder = TrackBuilder()
+    timings: dict[str, list[float]] = {}
+    names: list[str] = []
+    n_segments = n_valid = n_samples = 0
+    t0 = time.perf_counter()
+    for fr in proc.iter_frames(source, progress=progress, workers=workers, samples=samples,
+                               poses=pose_arr, on_skip=on_skip):
+        fr.track_labels().tofile(out / "tracks" / f"{fr.name}.label")
+        if samples:
+            np.savez_compressed(
+                out / "samples" / f"{fr.name}.npz",
+                samples=fr.samples,
+                segment=fr.sample_segment,
+                track_id=fr.segments.track_id[fr.sample_segment],
+            )
+        builder.add(fr)
+        names.append(fr.name)
+        n_segments += len(fr.segments)
+        n_valid += int(fr.segments.valid.sum())
+        n_samples += len(fr.samples)
+        for k, v in fr.timings_ms.items():
+            timings.setdefault(k, []).append(v)
+    elapsed = time.perf_counter() - t0
+    builder.write(out / "tracks.json", proc.linked, names)
+    lengths = np.asarray([len(t.frames) for t in builder.tracks.values()] or [0])
+    per_frame = [sum(v) for v in zip(*(timings[k] for k in ("project", "ground", "segment")), strict=True)] \
+        if timings else []
+    summary = {
+        "sequence": str(path),
+        "format": source.format,
+        "sensor": sens.name,
+        "range_image": [sens.n_rings, sens.width],
+        "poses": "none" if pose_arr is None else poses,
+        "linked": proc.linked,
+        "frames": len(names),
+        "skipped": skipped,
+        "segments": n_segments,
+        "valid_segments": n_valid,
+        "samples": n_samples,
+        "tracks": len(builder.tracks),
+        "tracks_multi_frame": int((lengths > 1).sum()),
+        "tracks_spanning_all_frames": int((lengths == len(names)).sum()) if names else 0,
+        "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in builder.tracks.values())),
+        "mean_track_length": float(lengths.mean()),
+        "ms": {k: _stats(v) for k, v in timings.items()},
+        "ms_project_ground_segment": _stats(per_frame),
+        "seconds": round(elapsed, 3),
+        "frames_per_second": round(len(names) / elapsed, 2) if elapsed > 0 else None,
+        "workers": workers,
+        "sample_size": config.samples.size if samples else None,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) -> dict:
+    """Evaluate `tracklabel process` output `out` against the labels of sequence `seq`."""
+    out = Path(out)
+    tracks_file = out / "tracks.json"
+    if not tracks_file.exists():
+        raise DataError(tracks_file, "missing: run `tracklabel process` first")
+    tracks, doc = read_tracks(tracks_file)
+    source = open_sequence(seq)
+    names = [source.frame_name(i) for i in range(len(source))]
+    pos_of_name = {n: i for i, n in enumerate(names)}
+    frames: list[FrameTruth] = []
+    kept_names = doc["frames"]
+    iterator = kept_names
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(kept_names, unit="frame", desc="evaluate")
+    index_of: dict[int, int] = {}
+    for k, name in enumerate(iterator):
+        if name not in pos_of_name:
+            raise DataError(out, f"frame {name} of tracks.json is not in {seq}")
+        scan = source.frame(pos_of_name[name])
+        if scan.semantic is None or scan.instance is None:
+            raise DataError(seq, f"frame {name} has no labels: evaluation needs SemanticKITTI labels")
+        label_file = out / "tracks" / f"{name}.label"
+        track = np.fromfile(label_file, dtype=np.uint32)
+        if len(track) != len(scan):
+            raise DataError(label_file, f"has {len(track)} ids but the scan has {len(scan)} points")
+        key, inst = object_keys(scan.semantic, scan.instance)
+        frames.append(FrameTruth(track, key, inst, scan.points))
+        index_of[pos_of_name[name]] = k
+    links = []
+    for t in tracks:
+        for a, b in zip(t.frames[:-1], t.frames[1:], strict=True):
+            if a in index_of and b in index_of and index_of[b] == index_of[a] + 1:
+                links.append((index_of[a], t.id))
+    result = evaluate_frames(frames, links)
+    result["frames"] = len(frames)
+    return result

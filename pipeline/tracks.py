@@ -1,0 +1,88 @@
+"""Tracks: chains of linked segments, built from FrameResults, and their files.
+
+`tracks.json` layout::
+
+    {"linked": true, "frames": [names...],
+     "tracks": [{"id": 7, "frames": [3, 4, 5], "points": [120, 131, 118],
+                 "centroids": [[x, y, z], ...] (world frame, or lidar frame when unlinked),
+                 "scores": [0.91, 0.88]}]}          # one score per link (len(frames) - 1)
+
+Consecutive frames of a track are must-link constraint pairs.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.processing import FrameResult
+
+
+@dataclass
+class Track:
+    """One track: frame indices (ascending, consecutive), per-frame point counts and centroids,
+    and the score of each link (len(frames) - 1)."""
+
+    id: int
+    frames: list[int] = field(default_factory=list)
+    points: list[int] = field(default_factory=list)
+    centroids: list[list[float]] = field(default_factory=list)
+    scores: list[float] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {
+            "id": self.id,
+            "frames": self.frames,
+            "points": self.points,
+            "centroids": [[round(v, 3) for v in c] for c in self.centroids],
+            "scores": [round(s, 4) for s in self.scores],
+        }
+
+
+class TrackBuilder:
+    """Accumulates tracks from FrameResults in frame order."""
+
+    def __init__(self) -> None:
+        self.tracks: dict[int, Track] = {}
+
+    def add(self, fr: FrameResult) -> None:
+        seg = fr.segments
+        for s in np.flatnonzero(seg.track_id > 0):
+            tid = int(seg.track_id[s])
+            tr = self.tracks.get(tid)
+            if tr is None:
+                tr = self.tracks[tid] = Track(tid)
+            elif not np.isnan(seg.link_score[s]):
+                tr.scores.append(float(seg.link_score[s]))
+            tr.frames.append(fr.index)
+            tr.points.append(int(seg.n_points[s]))
+            tr.centroids.append([float(v) for v in seg.centroid_world[s]])
+
+    def constraint_pairs(self) -> list[tuple[int, int, int, float]]:
+        """(track id, frame i, frame i+1, link score) for every link."""
+        return [
+            (t.id, t.frames[k], t.frames[k + 1], t.scores[k])
+            for t in self.tracks.values()
+            for k in range(len(t.frames) - 1)
+        ]
+
+    def write(self, path: str | Path, linked: bool, frame_names: list[str]) -> None:
+        data = {
+            "linked": linked,
+            "frames": frame_names,
+            "tracks": [t.to_dict() for t in sorted(self.tracks.values(), key=lambda t: t.id)],
+        }
+        Path(path).write_text(json.dumps(data, separators=(",", ":")))
+
+
+def read_tracks(path: str | Path) -> tuple[list[Track], dict]:
+    """Tracks and the raw document of a `tracks.json`."""
+    data = json.loads(Path(path).read_text())
+    tracks = [
+        Track(t["id"], list(t["frames"]), list(t["points"]), list(t["centroids"]), list(t["scores"]))
+        for t in data["tracks"]
+    ]
+    return tracks, data
