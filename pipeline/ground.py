@@ -113,7 +113,18 @@ def _surface_kernel(points, ground, cell, fallback):  # pragma: no cover - numba
             b = int((points[i, 1] - lo1) / cell)
             sums[a, b] += points[i, 2]
             counts[a, b] += 1
-    return sums, counts, lo0, lo1
+    # second pass: trimmed mean without points well above the first mean (feet of objects)
+    mean = sums / np.maximum(counts, 1)
+    sums2 = np.zeros((g0, g1))
+    counts2 = np.zeros((g0, g1), dtype=np.int32)
+    for i in range(n):
+        if ground[i]:
+            a = int((points[i, 0] - lo0) / cell)
+            b = int((points[i, 1] - lo1) / cell)
+            if points[i, 2] <= mean[a, b] + 0.05:
+                sums2[a, b] += points[i, 2]
+                counts2[a, b] += 1
+    return sums2, counts2, lo0, lo1
 
 
 @njit(cache=True)

@@ -1,0 +1,97 @@
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.config import GroundConfig, RangeImageConfig, SegmentationConfig
+from pipeline.ground import estimate_ground
+from pipeline.range_image import project
+from pipeline.scan import Scan
+from pipeline.segmentation import segment
+from pipeline.sensors import PRESETS
+from tests.pipeline.scans import add_box, flat_ground, scan_from_range_image
+
+SENSOR = PRESETS["hdl32e"]
+W = 360
+
+
+def _scene() -> np.ndarray:
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(8, 20), slice(100, 110), 12.0)  # object A
+    add_box(rimg, slice(8, 20), slice(111, 118), 18.0)  # object B, right next to A in the image
+    add_box(rimg, slice(10, 16), slice(355, 360), 9.0)  # object C across the seam ...
+    add_box(rimg, slice(10, 16), slice(0, 6), 9.0)  # ... continues at column 0
+    return rimg
+
+
+def _segment(scan: Scan, cfg: SegmentationConfig | None = None):
+    img = project(scan, SENSOR, RangeImageConfig(width=W))
+    g = estimate_ground(scan, img, GroundConfig(sensor_height=1.8))
+    return img, g, segment(img, g.ground, SENSOR, cfg)
+
+
+def test_segmentation_ground_plane_is_ground():
+    scan = scan_from_range_image(flat_ground(SENSOR, W), SENSOR)
+    _, g, seg = _segment(scan)
+    assert g.ground.mean() > 0.99
+    assert seg.count == 0
+
+
+def test_segmentation_splits_objects_at_range_jumps_and_wraps_the_seam():
+    scan = scan_from_range_image(_scene(), SENSOR)
+    img, g, seg = _segment(scan)
+    r = img.point_range
+    above = scan.points[:, 2] > -1.8 + 0.25  # clear of the ground band
+    assert not g.ground[above].any()
+    a, b, c = (np.isclose(r, d) & above for d in (12.0, 18.0, 9.0))
+    for obj in (a, b, c):
+        ids = np.unique(seg.point[obj])
+        assert len(ids) == 1 and ids[0] >= 0  # one segment per object, across the seam for C
+    assert len({int(seg.point[a][0]), int(seg.point[b][0]), int(seg.point[c][0])}) == 3
+
+
+def test_segmentation_height_above_ground_of_object_points():
+    scan = scan_from_range_image(_scene(), SENSOR)
+    img, g, seg = _segment(scan)
+    obj = np.isclose(img.point_range, 12.0) & (scan.points[:, 2] > -1.8 + 0.25)
+    expected = scan.points[obj, 2] + 1.8
+    # cells right under an object see only its foot (the ground behind is occluded): 0.1 m slack
+    assert np.abs(g.height[obj] - expected).max() < 0.1
+
+
+@settings(max_examples=15, deadline=None)
+@given(shift=st.integers(0, W - 1))
+def test_segmentation_labels_are_invariant_to_column_rotation(shift):
+    rimg = _scene()
+    base = scan_from_range_image(rimg, SENSOR)
+    rolled = scan_from_range_image(np.roll(rimg, shift, axis=1), SENSOR)
+    _, _, s0 = _segment(base)
+    _, _, s1 = _segment(rolled)
+    # same partition: map each scan's points to (row, range) groups -> compare partitions via pixels
+    img0 = project(base, SENSOR, RangeImageConfig(width=W))
+    img1 = project(rolled, SENSOR, RangeImageConfig(width=W))
+    lab0 = np.full((SENSOR.n_rings, W), -1)
+    lab1 = np.full((SENSOR.n_rings, W), -1)
+    lab0[img0.row, img0.col] = s0.point
+    lab1[img1.row, img1.col] = s1.point
+    lab1 = np.roll(lab1, -shift, axis=1)
+    assert ((lab0 >= 0) == (lab1 >= 0)).all()
+    m = lab0 >= 0
+    pairs = np.unique(np.stack([lab0[m], lab1[m]], axis=1), axis=0)
+    # a bijection between segment ids
+    assert len(np.unique(pairs[:, 0])) == len(pairs) == len(np.unique(pairs[:, 1]))
+
+
+def test_segmentation_angle_criterion_is_optional_and_stricter():
+    scan = scan_from_range_image(_scene(), SENSOR)
+    _, _, plain = _segment(scan)
+    _, _, strict = _segment(scan, SegmentationConfig(use_angle_criterion=True, angle_threshold_deg=60.0))
+    assert strict.count >= plain.count
+
+
+def test_segmentation_too_few_points_gives_no_segments():
+    pts = np.array([[5.0, 0.0, 0.0], [5.0, 0.1, 0.0]], np.float32)
+    scan = Scan(pts, np.ones(2, np.float32), np.array([10, 10], np.int16))
+    _, _, seg = _segment(scan)
+    assert seg.count == 0 and (seg.point == -1).all()
