@@ -3,7 +3,7 @@
 For frame t, every point of a valid segment is moved into frame t-1 with the ego-motion
 (`T_prev_curr = inv(T_world_prev) @ T_world_curr`) and projected into t-1's range image. A point
 votes for the t-1 segment owning that pixel when its range agrees with the pixel's range. The link
-score of (a, b) is the share of a's points that vote for b. Tracks that move (constant-velocity
+score of (a, b) is votes(a -> b) / max(n_a, n_b). Tracks that move (constant-velocity
 state) are also matched by predicted centroid when the overlap is weak. Pairs are solved one-to-one
 with the Hungarian method. Precision beats recall (a wrong link teaches the model a wrong equality),
 so a segment whose votes split between two t-1 segments (a merge) or whose point count jumps is
@@ -98,14 +98,17 @@ def associate(
     votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)
     n_a = np.maximum(curr.n_points, 1).astype(np.float64)
     share = votes / n_a[:, None]  # (S_t, S_{t-1}) share of a's points voting for b
+    # link score: votes over the larger of the two segments, so that the pieces of a split do not
+    # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
+    overlap = votes / np.maximum(n_a[:, None], prev.n_points[None, :].astype(np.float64))
 
     # 1. ambiguity: a segment whose votes split between two t-1 segments is a likely merge
     if n_prev >= 2:
         top2 = np.sort(share, axis=1)[:, -2:]
         ambiguous = top2[:, 0] > 0.5 * top2[:, 1]
         ambiguous &= top2[:, 0] >= 0.1
-        share[ambiguous] = 0.0
-    score = np.where(share >= config.min_overlap, share, 0.0)
+        overlap[ambiguous] = 0.0
+    score = np.where(share >= config.min_overlap, overlap, 0.0)
 
     # 2. moving tracks: predicted-centroid matching where the overlap is weak
     dt = max(curr.time - prev.time, 1e-3)

@@ -1,0 +1,116 @@
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.config import PipelineConfig
+from pipeline.errors import DataError
+from pipeline.processing import SequenceProcessor
+from pipeline.sensors import PRESETS
+from tests.pipeline.memory_source import MemorySource
+from tests.pipeline.scans import add_box, flat_ground, scan_from_range_image
+
+W = 360
+SENSOR = dataclasses.replace(PRESETS["hdl32e"], width=W)
+CFG = PipelineConfig().override({"ground": {"sensor_height": 1.8}})
+
+
+def _frame(objects: list[tuple[int, int, float]]) -> tuple:
+    """A scan with boxes (first col, last col exclusive, range) over rows 6..14; returns scan, gt."""
+    rimg = flat_ground(SENSOR, W)
+    gt_img = np.zeros_like(rimg, dtype=np.int64)
+    for k, (c0, c1, r) in enumerate(objects, start=1):
+        add_box(rimg, slice(6, 14), slice(c0, c1), r)
+        gt_img[6:14, c0:c1] = np.where(np.isclose(rimg[6:14, c0:c1], r), k, gt_img[6:14, c0:c1])
+    scan = scan_from_range_image(rimg, SENSOR)
+    rows, cols = np.nonzero(rimg > 0)
+    return scan, gt_img[rows, cols]
+
+
+def _run(frames: list[list[tuple[int, int, float]]]):
+    built = [_frame(f) for f in frames]
+    poses = np.tile(np.eye(4), (len(frames), 1, 1))
+    src = MemorySource([b[0] for b in built], SENSOR, poses)
+    results = list(SequenceProcessor(CFG, SENSOR).iter_frames(src))
+    return results, [b[1] for b in built]
+
+
+def _dominant(fr, gt) -> dict[int, int]:
+    """track id -> dominant GT object of its segment in this frame."""
+    out = {}
+    tl = fr.track_labels()
+    for t in np.unique(tl[tl > 0]):
+        vals, cnt = np.unique(gt[tl == t], return_counts=True)
+        out[int(t)] = int(vals[np.argmax(cnt)])
+    return out
+
+
+def _links(results, gts) -> list[tuple[int, int]]:
+    """(object in frame t-1, object in frame t) for every link."""
+    pairs = []
+    for a, b, ga, gb in zip(results[:-1], results[1:], gts[:-1], gts[1:], strict=True):
+        da, db = _dominant(a, ga), _dominant(b, gb)
+        pairs += [(da[t], db[t]) for t in db if t in da]
+    return pairs
+
+
+def test_association_static_objects_link_across_frames():
+    frames = [[(100, 106, 12.0), (140, 150, 20.0)]] * 4
+    results, gts = _run(frames)
+    links = _links(results, gts)
+    assert len(links) == 2 * 3 and all(a == b for a, b in links)
+
+
+def test_association_merge_does_not_link_different_objects():
+    # two objects with a gap, then touching (one merged segment), then apart again
+    frames = [[(100, 106, 12.0), (108, 114, 12.2)], [(100, 106, 12.0), (106, 112, 12.2)],
+              [(100, 106, 12.0), (108, 114, 12.2)]]
+    results, gts = _run(frames)
+    assert int(results[1].segments.valid.sum()) == 1  # the touching objects form one segment
+    assert all(a == b for a, b in _links(results, gts))
+
+
+def test_association_split_links_only_the_larger_piece():
+    # merged first (one segment dominated by object 1), then apart: object 2's piece must not link
+    frames = [[(100, 110, 12.0), (110, 116, 12.2)], [(100, 110, 12.0), (112, 118, 12.2)]]
+    results, gts = _run(frames)
+    assert int(results[0].segments.valid.sum()) == 1 and int(results[1].segments.valid.sum()) == 2
+    links = _links(results, gts)
+    assert links == [(1, 1)]
+
+
+def test_association_without_poses_makes_one_frame_tracks():
+    built = [_frame([(100, 106, 12.0)]) for _ in range(3)]
+    src = MemorySource([b[0] for b in built], SENSOR, poses=None)
+    proc = SequenceProcessor(CFG, SENSOR)
+    results = list(proc.iter_frames(src))
+    ids = [set(np.unique(r.track_labels())) - {0} for r in results]
+    assert not proc.linked
+    assert all(len(i) == 1 for i in ids) and len(set.union(*ids)) == 3
+
+
+def test_processing_skips_a_corrupt_frame_and_goes_on():
+    built = [_frame([(100, 106, 12.0)]) for _ in range(3)]
+    scans = [built[0][0], DataError("000001.bin", "size 7 bytes is not a multiple of the 16-byte record"),
+             built[2][0]]
+    src = MemorySource(scans, SENSOR, np.tile(np.eye(4), (3, 1, 1)))
+    skipped = []
+    results = list(SequenceProcessor(CFG, SENSOR).iter_frames(src, on_skip=lambda i, e: skipped.append(i)))
+    assert [r.index for r in results] == [0, 2] and skipped == [1]
+    # no link across the missing frame
+    assert set(np.unique(results[0].track_labels())).isdisjoint(set(np.unique(results[1].track_labels())) - {0})
+
+
+def test_processing_samples_have_documented_layout():
+    results, _ = _run([[(100, 106, 12.0)]])
+    fr = results[0]
+    assert fr.samples.dtype == np.uint8
+    assert fr.samples.shape[1:] == (4, CFG.samples.size, CFG.samples.size)
+    assert len(fr.samples) == len(fr.sample_segment) == int(fr.segments.valid.sum()) >= 1
+    s = fr.samples[0]
+    fg = s[3] == 255
+    assert fg.any() and (s[1][fg] > 0).all()  # foreground pixels carry a range
+    # foreground = the object 12 m away
+    r = s[1][fg].astype(float) - 1
+    assert np.allclose(r / 254 * CFG.samples.max_range, 12.0, atol=0.4)
