@@ -1,0 +1,480 @@
+"""Semi-supervised training of the sample CNN on labels plus must-link constraints (Mei et al.).
+
+The loss is the paper's, Eq. (8):
+
+    L   = L_l + L_c
+    L_l = -1/M sum_i ln P_{y_i}(x_i)                        (mean cross-entropy, M labelled samples)
+    L_c = gamma/N sum_n w_n (1 - sum_k P_k(x_i) P_k(x_j))   (N constraint pairs, gamma in [0, 1])
+
+with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
+- `weighted_pairs` with pair weights < 1: automatic constraints weighted by their association score;
+- `balance_weight` b > 0 adds b (ln K - H(mean_b P(x_b))) over the pair samples: maximising the
+  entropy of the batch-mean prediction keeps constraints-only training from collapsing onto one
+  class (the paper reports everything becoming "trunk").
+
+Each step holds m labelled samples and n = pairs_per_label * m pairs, run as one siamese forward
+over [labelled; pair left sides; pair right sides]. M = 0 (constraints only) and N = 0 (labels
+only) are the degenerate cases. Model selection follows the paper: the best validation F among
+the epochs whose training loss is below `loss_threshold`, else the epoch of lowest loss.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import random
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from pipeline.classes import SAMPLE_CLASSES
+from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
+from pipeline.errors import ConfigError, DataError
+from pipeline.metrics import ClassificationReport, classification_report
+from pipeline.model import (
+    NetConfig,
+    SampleCNN,
+    build_model,
+    predict,
+    resolve_device,
+    save_checkpoint,
+    to_input,
+)
+
+__all__ = [
+    "LabelledSamples",
+    "LossParts",
+    "TrainingData",
+    "TrainProgress",
+    "TrainResult",
+    "evaluate",
+    "predict",
+    "seed_everything",
+    "semi_supervised_loss",
+    "stratified_split",
+    "train",
+]
+
+
+def seed_everything(seed: int) -> None:
+    """The one seed helper: Python, numpy and torch (CPU and CUDA), deterministic cuDNN."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)  # noqa: NPY002 - seeds code that uses the global numpy RNG
+    torch.manual_seed(seed)
+    torch.cuda.manual_seed_all(seed)
+    torch.backends.cudnn.deterministic = True
+    torch.backends.cudnn.benchmark = False
+
+
+@dataclass(frozen=True)
+class LabelledSamples:
+    """samples: (M, C, S, S) uint8 canvases; labels: (M,) int64 class ids 0..K-1."""
+
+    samples: np.ndarray
+    labels: np.ndarray
+
+    def __post_init__(self) -> None:
+        assert self.samples.ndim == 4 and self.samples.dtype == np.uint8, (self.samples.dtype, self.samples.shape)
+        assert self.labels.shape == (len(self.samples),), (self.labels.shape, len(self.samples))
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+
+@dataclass(frozen=True)
+class TrainingData:
+    """The training pool: canvases, which of them are labelled, and must-link pairs among them.
+
+    samples:      (M, C, S, S) uint8 canvases.
+    labelled:     (L,) int64 indices into `samples` of the labelled samples.
+    labels:       (L,) int64 class id (0..K-1) of each labelled sample.
+    pairs:        (P, 2) int64 indices into `samples`: must-link constraints.
+    pair_weights: (P,) float32 weight per pair: 1.0 verified, the association score for automatic pairs.
+    """
+
+    samples: np.ndarray
+    labelled: np.ndarray
+    labels: np.ndarray
+    pairs: np.ndarray
+    pair_weights: np.ndarray
+
+    def __post_init__(self) -> None:
+        m = len(self.samples)
+        assert self.samples.ndim == 4 and self.samples.dtype == np.uint8, (self.samples.dtype, self.samples.shape)
+        assert self.labelled.ndim == 1 and self.labels.shape == self.labelled.shape, (
+            self.labelled.shape,
+            self.labels.shape,
+        )
+        assert self.pairs.ndim == 2 and self.pairs.shape[1] == 2, self.pairs.shape
+        assert self.pair_weights.shape == (len(self.pairs),), (self.pair_weights.shape, self.pairs.shape)
+        for name, idx in (("labelled", self.labelled), ("pairs", self.pairs)):
+            if idx.size and (idx.min() < 0 or idx.max() >= m):
+                raise DataError(None, f"{name}: indices outside 0..{m - 1}")
+
+    @classmethod
+    def build(
+        cls,
+        samples: np.ndarray,
+        labelled: np.ndarray | None = None,
+        labels: np.ndarray | None = None,
+        pairs: np.ndarray | None = None,
+        pair_weights: np.ndarray | None = None,
+    ) -> TrainingData:
+        """Coerce dtypes; missing parts are empty (no labels / no pairs), pair weights default to 1."""
+        lab = np.zeros(0, np.int64) if labelled is None else np.asarray(labelled, np.int64)
+        y = np.zeros(0, np.int64) if labels is None else np.asarray(labels, np.int64)
+        pr = np.zeros((0, 2), np.int64) if pairs is None else np.asarray(pairs, np.int64).reshape(-1, 2)
+        w = np.ones(len(pr), np.float32) if pair_weights is None else np.asarray(pair_weights, np.float32)
+        return cls(np.ascontiguousarray(samples), lab, y, pr, w)
+
+    @classmethod
+    def labelled_only(cls, data: LabelledSamples) -> TrainingData:
+        return cls.build(data.samples, np.arange(len(data)), data.labels)
+
+
+@dataclass(frozen=True)
+class LossParts:
+    """Scalar tensors: total = labelled + constraint + balance (each 0 when its part is empty/off)."""
+
+    total: torch.Tensor
+    labelled: torch.Tensor
+    constraint: torch.Tensor
+    balance: torch.Tensor
+
+
+def semi_supervised_loss(
+    logits_labelled: torch.Tensor,
+    labels: torch.Tensor,
+    logits_i: torch.Tensor,
+    logits_j: torch.Tensor,
+    gamma: float,
+    pair_weights: torch.Tensor | None = None,
+    balance_weight: float = 0.0,
+) -> LossParts:
+    """The paper's L = L_l + L_c, plus the optional class-balance term.
+
+    logits_labelled: (m, K) of the labelled samples, labels (m,) int64; m may be 0.
+    logits_i, logits_j: (n, K) of the two sides of the n pairs; n may be 0.
+    pair_weights: (n,) w_n, None = all 1 (the paper).
+    """
+    m, n = len(logits_labelled), len(logits_i)
+    if m == 0 and n == 0:
+        raise ValueError("a batch needs labelled samples or pairs")
+    zero = (logits_labelled if m else logits_i).new_zeros(())
+    l_l = F.cross_entropy(logits_labelled, labels) if m else zero
+    l_c, l_b = zero, zero
+    if n:
+        p_i = torch.softmax(logits_i, dim=1)  # (n, K)
+        p_j = torch.softmax(logits_j, dim=1)  # (n, K)
+        disagree = 1.0 - (p_i * p_j).sum(dim=1)  # (n,) P(y_i != y_j)
+        if pair_weights is not None:
+            disagree = disagree * pair_weights
+        l_c = gamma * disagree.sum() / n
+        if balance_weight > 0:
+            p_mean = torch.cat([p_i, p_j]).mean(dim=0)  # (K,) batch-mean prediction
+            entropy = -(p_mean * torch.log(p_mean.clamp_min(1e-12))).sum()
+            l_b = balance_weight * (math.log(p_mean.numel()) - entropy)
+    return LossParts(l_l + l_c + l_b, l_l, l_c, l_b)
+
+
+def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator) -> torch.Tensor:
+    """Random horizontal flip and integer shifts (zero fill) of each canvas in (B, C, S, S)."""
+    b, _, s, _ = x.shape
+    dev = x.device
+    flip = torch.rand(b, generator=generator) < 0.5
+    x = torch.where(flip.to(dev)[:, None, None, None], x.flip(3), x)
+    if max_shift <= 0:
+        return x
+    shifts = torch.randint(-max_shift, max_shift + 1, (2, b), generator=generator).to(dev)  # (2, B)
+    padded = F.pad(x, (max_shift,) * 4)  # (B, C, S + 2 pad, S + 2 pad)
+    base = torch.arange(s, device=dev) + max_shift  # (S,)
+    rows = base[None, :] - shifts[0][:, None]  # (B, S)
+    cols = base[None, :] - shifts[1][:, None]  # (B, S)
+    bi = torch.arange(b, device=dev)[:, None, None]  # (B, 1, 1)
+    out = padded.permute(0, 2, 3, 1)[bi, rows[:, :, None], cols[:, None, :]]  # (B, S, S, C)
+    return out.permute(0, 3, 1, 2).contiguous()  # (B, C, S, S)
+
+
+@dataclass(frozen=True)
+class TrainProgress:
+    """Reported to the progress callback every few steps and after each epoch."""
+
+    epoch: int  # 0-based
+    epochs: int
+    step: int  # steps done in this epoch
+    steps_per_epoch: int
+    loss: float  # running mean training loss of this epoch
+    val_f: float | None = None  # set on the epoch-end report when a validation set is given
+    epoch_done: bool = False
+
+    @property
+    def fraction(self) -> float:
+        return (self.epoch * self.steps_per_epoch + self.step) / max(self.epochs * self.steps_per_epoch, 1)
+
+
+@dataclass(frozen=True)
+class EpochRecord:
+    epoch: int
+    loss: float  # mean total loss over the epoch's steps
+    loss_labelled: float
+    loss_constraint: float
+    loss_balance: float
+    val_f: float  # NaN without a validation set
+    seconds: float
+    samples_per_s: float  # canvases through forward + backward per second
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """model: the selected model (eval mode); history: one record per finished epoch."""
+
+    model: SampleCNN
+    history: list[EpochRecord]
+    selected_epoch: int  # index into history, -1 when no epoch finished
+    selection: str  # "val_f_below_threshold" | "lowest_loss" | "last_below_threshold" | "none"
+    val_report: ClassificationReport | None
+    checkpoint: Path | None
+    cancelled: bool = False
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def train_loss(self) -> np.ndarray:
+        return np.array([r.loss for r in self.history])
+
+    @property
+    def val_f(self) -> np.ndarray:
+        return np.array([r.val_f for r in self.history])
+
+
+def evaluate(model: SampleCNN, data: LabelledSamples, batch: int = 256) -> ClassificationReport:
+    """Per-class precision/recall/F of the model's arg-max on labelled samples."""
+    pred = predict(model, data.samples, batch).argmax(axis=1)
+    k = model.config.num_classes
+    return classification_report(data.labels, pred, k, tuple(SAMPLE_CLASSES[:k]))
+
+
+def stratified_split(labels: np.ndarray, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train_idx, val_idx) int64 indices into `labels`, each class split `val_fraction` to validation."""
+    rng = np.random.default_rng(seed)
+    labels = np.asarray(labels)
+    train_parts, val_parts = [], []
+    for k in np.unique(labels):
+        idx = rng.permutation(np.flatnonzero(labels == k))
+        n_val = int(round(len(idx) * val_fraction))
+        val_parts.append(idx[:n_val])
+        train_parts.append(idx[n_val:])
+    cat = lambda parts: np.sort(np.concatenate(parts)).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
+    return cat(train_parts), cat(val_parts)
+
+
+class _Cycler:
+    """Endless shuffled passes over range(n), drawn in chunks."""
+
+    def __init__(self, n: int, rng: np.random.Generator) -> None:
+        self.n, self.rng = n, rng
+        self.order = rng.permutation(n)
+        self.pos = 0
+
+    def take(self, k: int) -> np.ndarray:
+        out = []
+        while k > 0:
+            if self.pos == self.n:
+                self.order, self.pos = self.rng.permutation(self.n), 0
+            chunk = self.order[self.pos : self.pos + k]
+            out.append(chunk)
+            self.pos += len(chunk)
+            k -= len(chunk)
+        return np.concatenate(out)
+
+
+def _select(history: list[EpochRecord], threshold: float) -> tuple[int, str]:
+    if not history:
+        return -1, "none"
+    loss = np.array([r.loss for r in history])
+    vf = np.array([r.val_f for r in history])
+    below = loss < threshold
+    if below.any():
+        if np.isfinite(vf[below]).any():
+            cand = np.flatnonzero(below & np.isfinite(vf))
+            return int(cand[np.argmax(vf[cand])]), "val_f_below_threshold"
+        return int(np.flatnonzero(below)[-1]), "last_below_threshold"
+    return int(np.argmin(loss)), "lowest_loss"
+
+
+def train(
+    data: TrainingData,
+    config: TrainingConfig,
+    model_config: ModelConfig,
+    sample_config: SampleConfig,
+    val: LabelledSamples | None = None,
+    checkpoint_dir: str | Path | None = None,
+    init_model: SampleCNN | None = None,
+    progress: Callable[[TrainProgress], None] | bool = False,
+    stop: Callable[[], bool] | None = None,
+) -> TrainResult:
+    """Train the CNN on labels + constraints; return the model chosen by the paper's rule.
+
+    init_model: start from these weights (fine-tuning); else a fresh network from the configs.
+    checkpoint_dir: when given, the selected model is written there as `best.pt` and the last
+        epoch as `last.pt` (each a self-describing checkpoint, see `pipeline.model`).
+    progress: a callback receiving `TrainProgress`, True for a tqdm bar on stderr, False for none.
+    stop: polled every step; returning True ends training early (`cancelled=True`), keeping the
+        best epoch so far.
+    """
+    num_l, num_p = len(data.labelled), len(data.pairs)
+    if num_l == 0 and num_p == 0:
+        raise DataError(None, "training data holds neither labels nor pairs")
+    k = model_config.num_classes
+    if num_l and (data.labels.min() < 0 or data.labels.max() >= k):
+        raise DataError(None, f"labels: class ids outside 0..{k - 1}")
+    if data.samples.shape[1:] != (sample_config.channels, sample_config.size, sample_config.size):
+        raise ConfigError(
+            f"samples are {data.samples.shape[1:]}, sample config says "
+            f"({sample_config.channels}, {sample_config.size}, {sample_config.size})"
+        )
+    if config.batch_labelled < 1 or config.pairs_per_label < 0:
+        raise ConfigError("training.batch_labelled must be >= 1 and training.pairs_per_label >= 0")
+
+    seed_everything(config.seed)
+    device = resolve_device(config.device)
+    rng = np.random.default_rng(config.seed)
+    gen = torch.Generator().manual_seed(config.seed)
+
+    net = NetConfig.from_configs(model_config, sample_config)
+    model = copy.deepcopy(init_model) if init_model is not None else build_model(net)
+    if model.config != net:
+        raise ConfigError(f"init model {model.config} does not match configs {net}")
+    model.to(device).train()
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+
+    # batch composition: m labelled samples and n = pairs_per_label * m pairs per step
+    m = min(config.batch_labelled, num_l)
+    n = min(config.pairs_per_label * config.batch_labelled, num_p)
+    if m == 0 and n == 0:  # labels only with pairs_per_label = 0 cannot happen; pairs only with ppl = 0
+        n = min(config.batch_labelled, num_p)
+    steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
+    steps = max(steps, 1)
+    lab_cycle = _Cycler(num_l, rng) if m else None
+    pair_cycle = _Cycler(num_p, rng) if n else None
+
+    samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
+    labels_t = torch.from_numpy(data.labels).to(device)  # (L,)
+    pairs_np = data.pairs
+    use_w = config.weighted_pairs and bool(np.any(data.pair_weights != 1.0))
+    weights_t = torch.from_numpy(data.pair_weights).to(device)  # (P,)
+    max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
+
+    bar = None
+    if progress is True:
+        from tqdm import tqdm
+
+        bar = tqdm(total=config.epochs * steps, desc="train", unit="step", leave=False)
+    report = progress if callable(progress) else None
+    every = max(1, steps // 10)
+
+    history: list[EpochRecord] = []
+    selected_state: dict[str, torch.Tensor] | None = None
+    selected_report: ClassificationReport | None = None
+    cancelled = False
+    try:
+        for epoch in range(config.epochs):
+            t0 = time.perf_counter()
+            model.train()
+            sums = np.zeros(4)
+            seen = 0
+            done = 0
+            for step in range(steps):
+                if stop is not None and stop():
+                    cancelled = True
+                    break
+                li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
+                pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
+                idx = np.concatenate([data.labelled[li], pairs_np[pi, 0], pairs_np[pi, 1]])  # (m + 2n,)
+                x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
+                if config.augment:
+                    x = augment_batch(x, max_shift, gen)
+                logits = model(x)  # (m + 2n, K)
+                parts = semi_supervised_loss(
+                    logits[:m],
+                    labels_t[torch.from_numpy(li).to(device)],
+                    logits[m : m + len(pi)],
+                    logits[m + len(pi) :],
+                    gamma=config.gamma,
+                    pair_weights=weights_t[torch.from_numpy(pi).to(device)] if use_w else None,
+                    balance_weight=config.balance_weight,
+                )
+                if not torch.isfinite(parts.total):
+                    raise ConfigError(f"training diverged (loss {float(parts.total)}) at epoch {epoch}; lower training.lr")
+                opt.zero_grad(set_to_none=True)
+                parts.total.backward()
+                opt.step()
+                sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
+                seen += len(idx)
+                done = step + 1
+                if bar is not None:
+                    bar.update(1)
+                if report is not None and done % every == 0 and done < steps:
+                    report(TrainProgress(epoch, config.epochs, done, steps, sums[0] / done))
+            if done == 0:
+                break
+            means = sums / done
+            val_report = evaluate(model, val, config.eval_batch) if val is not None and len(val) else None
+            val_f = val_report.mean_f if val_report is not None else float("nan")
+            seconds = time.perf_counter() - t0
+            rec = EpochRecord(epoch, *map(float, means), val_f, seconds, seen / max(seconds, 1e-9))
+            history.append(rec)
+            # The final choice is always an epoch that was the choice when it finished, so one
+            # copy of the weights suffices.
+            if _select(history, config.loss_threshold)[0] == epoch:
+                selected_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
+                selected_report = val_report
+            if report is not None:
+                report(TrainProgress(epoch, config.epochs, done, steps, rec.loss, val_f, epoch_done=True))
+            if bar is not None:
+                bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
+            if cancelled:
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+
+    selected, how = _select(history, config.loss_threshold)
+    last_state = None
+    if selected >= 0:
+        assert selected_state is not None
+        if selected != len(history) - 1:
+            last_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
+        model.load_state_dict(selected_state)
+    model.eval()
+
+    metrics: dict[str, Any] = {
+        "selected_epoch": selected,
+        "selection": how,
+        "epochs_run": len(history),
+        "cancelled": cancelled,
+        "train_loss": [r.loss for r in history],
+        "val_f": [None if math.isnan(r.val_f) else r.val_f for r in history],
+        "samples_per_s": float(np.mean([r.samples_per_s for r in history])) if history else None,
+        "num_labelled": num_l,
+        "num_pairs": num_p,
+        "device": str(device),
+    }
+    if selected_report is not None:
+        metrics["val"] = selected_report.to_dict()
+
+    ckpt = None
+    if checkpoint_dir is not None and selected >= 0:
+        out = Path(checkpoint_dir)
+        ckpt = save_checkpoint(out / "best.pt", model, model_config, sample_config, metrics, config)
+        last = model
+        if last_state is not None:
+            last = build_model(net)
+            last.load_state_dict(last_state)
+        save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config)
+    return TrainResult(model, history, selected, how, selected_report, ckpt, cancelled, metrics)
