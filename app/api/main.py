@@ -1,0 +1,11 @@
+"""The `/api/v1` router: one sub-router per resource."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from app.api.routes import datasets, exports, frames, health, jobs, review, tracks, users
+
+api_router = APIRouter()
+for module in (health, users, datasets, frames, tracks, review, exports, jobs):
+    api_router.include_router(module.router)

@@ -1,0 +1,117 @@
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+from sqlalchemy import select
+
+from app import crud
+from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
+from app.core.errors import Invalid, NotFound
+from app.jobs.registry import get_job_type
+from app.models import Dataset, Job, Sequence
+from app.schemas import (
+    DatasetCreate,
+    DatasetDetail,
+    DatasetPublic,
+    IngestRequest,
+    JobPublic,
+    SequencePublic,
+    SequenceStats,
+)
+
+router = APIRouter(tags=["datasets"])
+
+
+def _public(session: SessionDep, ds: Dataset) -> DatasetPublic:
+    seqs = session.scalars(select(Sequence).where(Sequence.dataset_id == ds.id).order_by(Sequence.id)).all()
+    return DatasetPublic(
+        id=ds.id,
+        name=ds.name,
+        path=ds.path,
+        created_at=ds.created_at,
+        sequences=[SequencePublic.model_validate(s) for s in seqs],
+    )
+
+
+def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_id: int) -> Job:
+    ingest = get_job_type("ingest")
+    params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force})
+    assert ingest.prepare is not None
+    ingest.prepare(session, params)
+    job = crud.create_job(session, "ingest", params.model_dump(), user_id)
+    seq = session.get(Sequence, sequence_id)
+    assert seq is not None
+    seq.ingest_job_id = job.id
+    return job
+
+
+@router.post("/datasets", status_code=status.HTTP_201_CREATED)
+def register_dataset(
+    body: DatasetCreate, admin: AdminUser, session: WriteSessionDep, settings: SettingsDep
+) -> DatasetPublic:
+    """Register a sequence by its path under a configured data root (admin).
+
+    A path with `..` or outside the roots is refused with 403. With `ingest` (default) the ingest
+    job is queued at once; its id is the sequence's `ingest_job_id`.
+    """
+    from pipeline.errors import TracklabelError
+    from pipeline.io.registry import detect_format, reader_names
+
+    path = crud.resolve_registration_path(body.path, settings.data_roots)
+    if body.format != "auto" and body.format not in reader_names():
+        raise Invalid(f"unknown format {body.format!r}; known: {', '.join(reader_names())}")
+    if body.config:
+        from pipeline.config import PipelineConfig
+
+        try:
+            PipelineConfig().override(body.config)
+        except TracklabelError as exc:
+            raise Invalid(f"config: {exc}") from exc
+    try:
+        fmt = detect_format(path) if body.format == "auto" else body.format
+    except TracklabelError as exc:
+        raise Invalid(str(exc)) from exc
+    ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id)
+    if body.ingest:
+        _queue_ingest(session, seq.id, False, admin.id)
+    session.commit()
+    return _public(session, ds)
+
+
+@router.get("/datasets")
+def list_datasets(_user: CurrentUser, session: SessionDep) -> list[DatasetPublic]:
+    """Registered datasets with their sequences."""
+    return [_public(session, ds) for ds in session.scalars(select(Dataset).order_by(Dataset.id)).all()]
+
+
+@router.get("/datasets/{dataset_id}")
+def inspect_dataset(dataset_id: IdPath, _user: CurrentUser, session: SessionDep) -> DatasetDetail:
+    """A dataset with per-sequence counts of frames, segments, samples, tracks and constraints."""
+    ds = session.get(Dataset, dataset_id)
+    if ds is None:
+        raise NotFound(f"dataset {dataset_id} not found")
+    pub = _public(session, ds)
+    stats = []
+    for sp in pub.sequences:
+        seq = session.get(Sequence, sp.id)
+        assert seq is not None
+        stats.append(SequenceStats(sequence=sp, **crud.sequence_stats(session, seq)))
+    return DatasetDetail(**pub.model_dump(), stats=stats)
+
+
+@router.get("/sequences/{sequence_id}")
+def read_sequence(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) -> SequencePublic:
+    """One sequence: path, format, sensor, ingest status."""
+    seq = session.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    return SequencePublic.model_validate(seq)
+
+
+@router.post("/sequences/{sequence_id}/ingest", status_code=status.HTTP_202_ACCEPTED)
+def ingest_sequence(
+    sequence_id: IdPath, body: IngestRequest, admin: AdminUser, session: WriteSessionDep
+) -> JobPublic:
+    """Queue the ingest job of a sequence (admin). `force` redoes a ready sequence and drops its reviews."""
+    job = _queue_ingest(session, sequence_id, body.force, admin.id)
+    session.commit()
+    return JobPublic.model_validate(job)

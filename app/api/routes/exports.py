@@ -1,0 +1,92 @@
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Query, Response
+from fastapi.responses import StreamingResponse
+
+from app import crud, exports
+from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
+from app.core.errors import NotFound
+from app.models import Sequence
+from app.schemas import ProgressStats
+
+router = APIRouter(prefix="/exports", tags=["exports"])
+
+SeqQuery = Annotated[int | None, Query(ge=1, le=2**31 - 1, description="One sequence; all when omitted.")]
+Format = Literal["jsonl", "npz"]
+
+
+@router.get(
+    "/constraints",
+    response_class=Response,
+    responses={200: {"content": {"application/x-ndjson": {}, "application/x-npz": {}}}},
+)
+def export_constraints(
+    _user: CurrentUser,
+    session: SessionDep,
+    artifacts: ArtifactsDep,
+    sequence_id: SeqQuery = None,
+    verified_only: bool = True,
+    format: Format = "jsonl",
+) -> Response:
+    """Must-link pairs of samples with their association scores, inside the kept range of tracks
+    that are not discarded: only accepted tracks' (verified) by default, or with the automatic ones.
+    `jsonl`: one pair per line; `npz`: samples, sample_segment, pairs (P,2), score, verified, track_id."""
+    rows = exports.constraint_rows(session, sequence_id, verified_only)
+    if format == "npz":
+        return Response(exports.constraints_npz(session, artifacts, rows), media_type="application/x-npz")
+    return StreamingResponse(exports.jsonl(rows), media_type="application/x-ndjson")
+
+
+@router.get(
+    "/labels",
+    response_class=Response,
+    responses={200: {"content": {"application/x-ndjson": {}, "application/x-npz": {}}}},
+)
+def export_labels(
+    _user: CurrentUser,
+    session: SessionDep,
+    artifacts: ArtifactsDep,
+    sequence_id: SeqQuery = None,
+    format: Format = "jsonl",
+) -> Response:
+    """Labelled samples (valid samples in the kept range of accepted, labelled tracks).
+    `npz`: samples, label (class index), segment_id, track_id, frame_index."""
+    rows = exports.label_rows(session, sequence_id)
+    if format == "npz":
+        return Response(exports.labels_npz(session, artifacts, rows), media_type="application/x-npz")
+    return StreamingResponse(exports.jsonl(rows), media_type="application/x-ndjson")
+
+
+@router.get(
+    "/semantickitti/{sequence_id}",
+    response_class=StreamingResponse,
+    responses={200: {"content": {"application/x-tar": {}}}},
+)
+def export_semantickitti(
+    sequence_id: IdPath,
+    _user: CurrentUser,
+    session: SessionDep,
+    artifacts: ArtifactsDep,
+    include_ground: bool = False,
+) -> StreamingResponse:
+    """Per-frame SemanticKITTI `.label` files as a streamed tar: class from the track label,
+    instance = track id (chunked with `chunk_map.json` past 65,535 tracks). Points of tracks that
+    are not accepted with a class are 0 (unlabelled); `include_ground` writes the automatic ground."""
+    seq = session.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    plan = exports.semantickitti_plan(session, seq, include_ground)
+    session.close()
+    return StreamingResponse(
+        exports.semantickitti_tar(plan, artifacts),
+        media_type="application/x-tar",
+        headers={"Content-Disposition": f'attachment; filename="labels_{sequence_id}.tar"'},
+    )
+
+
+@router.get("/stats")
+def export_stats(_user: CurrentUser, session: SessionDep, sequence_id: SeqQuery = None) -> ProgressStats:
+    """Progress: tracks by status and reviewed, samples labelled per class, constraint counts."""
+    return ProgressStats(**crud.progress_stats(session, sequence_id))

@@ -1,0 +1,60 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response
+from sqlalchemy import func, select
+
+from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
+from app.artifacts import PAYLOAD_ARRAYS, frame_payload
+from app.core.errors import NotFound
+from app.models import Frame, Sequence
+from app.schemas import FrameList, FramePublic
+
+router = APIRouter(tags=["frames"])
+
+NPZ_MEDIA_TYPE = "application/x-npz"
+
+
+@router.get("/sequences/{sequence_id}/frames")
+def list_frames(
+    sequence_id: IdPath,
+    _user: CurrentUser,
+    session: SessionDep,
+    limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+    offset: Annotated[int, Query(ge=0, le=2**31)] = 0,
+) -> FrameList:
+    """Frames of a sequence in order (only frames whose ingest batch committed)."""
+    if session.get(Sequence, sequence_id) is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    rows = session.scalars(
+        select(Frame).where(Frame.sequence_id == sequence_id).order_by(Frame.index).limit(limit).offset(offset)
+    ).all()
+    total = session.scalar(select(func.count()).select_from(Frame).where(Frame.sequence_id == sequence_id)) or 0
+    return FrameList(items=[FramePublic.model_validate(f) for f in rows], total=int(total))
+
+
+@router.get("/frames/{frame_id}")
+def read_frame(frame_id: IdPath, _user: CurrentUser, session: SessionDep) -> FramePublic:
+    """One frame's metadata."""
+    frame = session.get(Frame, frame_id)
+    if frame is None:
+        raise NotFound(f"frame {frame_id} not found")
+    return FramePublic.model_validate(frame)
+
+
+@router.get(
+    "/frames/{frame_id}/payload",
+    response_class=Response,
+    responses={200: {"content": {NPZ_MEDIA_TYPE: {}}, "description": "uncompressed .npz"}},
+)
+def frame_payload_route(frame_id: IdPath, _user: CurrentUser, session: SessionDep, artifacts: ArtifactsDep) -> Response:
+    """The viewer payload of a frame: an uncompressed `.npz` with `points` (N,3) float32 (lidar
+    frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none) and `track` (N,)
+    int64 (database track id, 0 = none). Load with `numpy.load(io.BytesIO(body))`."""
+    rel = session.scalar(select(Frame.artifact).where(Frame.id == frame_id))
+    if rel is None:
+        raise NotFound(f"frame {frame_id} not found")
+    session.close()  # release the connection before the file work
+    body = frame_payload(artifacts.read_arrays(rel, PAYLOAD_ARRAYS))
+    return Response(content=body, media_type=NPZ_MEDIA_TYPE, headers={"Cache-Control": "private, max-age=3600"})

@@ -1,0 +1,37 @@
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response, status
+
+from app import crud
+from app.api.deps import CurrentUser, IdPath, SettingsDep, WriteSessionDep
+from app.schemas import TrackPublic
+
+router = APIRouter(prefix="/review", tags=["review"])
+
+
+@router.post(
+    "/next", response_model=TrackPublic, responses={204: {"description": "no unreviewed track is free"}}
+)
+def next_track(
+    user: CurrentUser,
+    session: WriteSessionDep,
+    settings: SettingsDep,
+    sequence_id: Annotated[int | None, Query(ge=1, le=2**31 - 1)] = None,
+) -> TrackPublic | Response:
+    """Lease the next unreviewed track to the caller for `review_lease_seconds`.
+
+    Two operators never get the same track while its lease runs; the caller's own live lease is
+    returned again; an expired lease frees the track. 204 when nothing is left.
+    """
+    track = crud.lease_next_track(session, user, settings.review_lease_seconds, sequence_id)
+    if track is None:
+        return Response(status_code=status.HTTP_204_NO_CONTENT)
+    return TrackPublic.model_validate(track)
+
+
+@router.post("/{track_id}/release", status_code=status.HTTP_204_NO_CONTENT)
+def release(track_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> None:
+    """Give back the caller's lease on a track."""
+    crud.release_lease(session, track_id, user)

@@ -1,0 +1,159 @@
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Query, Response
+from sqlalchemy import select
+
+from app import crud
+from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.core.errors import NotFound
+from app.models import Frame, Segment
+from app.schemas import (
+    AcceptAction,
+    DiscardAction,
+    EventPublic,
+    LabelAction,
+    SegmentPublic,
+    TrackDetail,
+    TrackList,
+    TrackPublic,
+    TrackStatus,
+    TruncateAction,
+    UndoAction,
+)
+from pipeline.classes import SAMPLE_CLASSES
+
+router = APIRouter(tags=["tracks"])
+
+ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
+assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
+SortKey = Literal[tuple(k for key in crud.TRACK_SORTS for k in (key, f"-{key}"))]  # type: ignore[valid-type]
+BIG = 2**31 - 1
+
+
+@router.get("/tracks")
+def list_tracks(
+    _user: CurrentUser,
+    session: SessionDep,
+    sequence_id: Annotated[int | None, Query(ge=1, le=BIG)] = None,
+    status: TrackStatus | None = None,
+    label: ClassName | None = None,
+    unlabelled: bool | None = None,
+    min_length: Annotated[int | None, Query(ge=0, le=BIG)] = None,
+    max_length: Annotated[int | None, Query(ge=0, le=BIG)] = None,
+    predicted_class: ClassName | None = None,
+    min_confidence: Annotated[float | None, Query(ge=0.0, le=1.0)] = None,
+    max_confidence: Annotated[float | None, Query(ge=0.0, le=1.0)] = None,
+    sort: SortKey = "id",
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    offset: Annotated[int, Query(ge=0, le=BIG)] = 0,
+) -> TrackList:
+    """Tracks filtered by status, class, length (frames), predicted class and confidence; sorted by
+    `sort` (`-` = descending) and paginated."""
+    flt = crud.TrackFilter(
+        sequence_id, status, label, unlabelled, min_length, max_length, predicted_class, min_confidence, max_confidence
+    )
+    rows, total = crud.list_tracks(session, flt, sort, limit, offset)
+    return TrackList(items=[TrackPublic.model_validate(t) for t in rows], total=total, limit=limit, offset=offset)
+
+
+@router.get("/tracks/{track_id}")
+def read_track(track_id: IdPath, _user: CurrentUser, session: SessionDep) -> TrackDetail:
+    """A track with its segments per frame; each sample is served as PNG at `sample_url`."""
+    track = crud.get_track(session, track_id)
+    segs = [
+        SegmentPublic(
+            id=s.id,
+            frame_id=s.frame_id,
+            frame_index=s.frame_index,
+            local_id=s.local_id,
+            n_points=s.n_points,
+            centroid=(s.cx, s.cy, s.cz),
+            centroid_world=(s.wx, s.wy, s.wz),
+            range=s.range,
+            valid=s.valid,
+            link_score=s.link_score,
+            in_kept_range=track.keep_start <= s.frame_index <= track.keep_end,
+            sample_url=None if s.sample_index is None else f"/api/v1/segments/{s.id}/sample.png",
+        )
+        for s in crud.track_segments(session, track_id)
+    ]
+    return TrackDetail(**TrackPublic.model_validate(track).model_dump(), segments=segs)
+
+
+@router.get("/tracks/{track_id}/events")
+def track_events(track_id: IdPath, _user: CurrentUser, session: SessionDep) -> list[EventPublic]:
+    """The track's append-only event log (who, when, action, before, after)."""
+    crud.get_track(session, track_id)
+    return [EventPublic.model_validate(e) for e in crud.track_events(session, track_id)]
+
+
+def _act(session: WriteSessionDep, track_id: int, user: CurrentUser, action: str, version: int, **kw: object) -> TrackPublic:
+    track = crud.apply_action(session, track_id, user, action, version, sample_classes=SAMPLE_CLASSES, **kw)  # type: ignore[arg-type]
+    return TrackPublic.model_validate(track)
+
+
+@router.post("/tracks/{track_id}/accept")
+def accept_track(track_id: IdPath, body: AcceptAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+    """Accept the track (its constraints become verified). Stale `version` -> 409."""
+    return _act(session, track_id, user, "accept", body.version)
+
+
+@router.post("/tracks/{track_id}/discard")
+def discard_track(track_id: IdPath, body: DiscardAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+    """Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409."""
+    return _act(session, track_id, user, "discard", body.version)
+
+
+@router.post("/tracks/{track_id}/truncate")
+def truncate_track(track_id: IdPath, body: TruncateAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+    """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 422."""
+    return _act(session, track_id, user, "truncate", body.version, start=body.start, end=body.end)
+
+
+@router.post("/tracks/{track_id}/label")
+def label_track(track_id: IdPath, body: LabelAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+    """Give the whole track one class (and accept it); an unknown class -> 422."""
+    return _act(session, track_id, user, "label", body.version, label=body.label)
+
+
+@router.post("/tracks/{track_id}/undo")
+def undo_track(track_id: IdPath, body: UndoAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+    """Revert the caller's last not-yet-undone action on this track (409 when there is none)."""
+    return _act(session, track_id, user, "undo", body.version)
+
+
+@router.get(
+    "/segments/{segment_id}/sample.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}, "description": "the sample"}},
+)
+def segment_sample(
+    segment_id: IdPath,
+    _user: CurrentUser,
+    session: SessionDep,
+    artifacts: ArtifactsDep,
+    channel: Annotated[int | None, Query(ge=0, le=15)] = None,
+) -> Response:
+    """A segment's sample as PNG: its channels side by side in grey (height, range, intensity,
+    foreground mask), or only `channel`."""
+    import cv2
+    import numpy as np
+
+    row = session.execute(
+        select(Segment.sample_index, Frame.artifact).join(Frame, Frame.id == Segment.frame_id).where(Segment.id == segment_id)
+    ).first()
+    if row is None or row.sample_index is None:
+        raise NotFound(f"segment {segment_id} has no sample")
+    samples = artifacts.read_arrays(row.artifact, ("samples",))["samples"]
+    sample = samples[row.sample_index]  # (C, S, S)
+    if channel is not None:
+        if channel >= len(sample):
+            raise NotFound(f"sample has {len(sample)} channels")
+        image = sample[channel]
+    else:
+        image = np.concatenate(list(sample), axis=1)  # (S, C*S)
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(image))
+    assert ok
+    return Response(content=png.tobytes(), media_type="image/png")

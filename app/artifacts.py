@@ -1,0 +1,101 @@
+"""Per-frame artifact files: one compressed `.npz` per frame, next to the database.
+
+A frame row stores the path relative to the artifact root. Layout of a frame file::
+
+    points         (N, 3) float32  lidar frame, metres
+    intensity      (N,)   float32  in [0, 1]
+    segment        (N,)   int32    local segment id, -1 = ground / none
+    ground         (N,)   bool     ground mask
+    track          (N,)   int64    database track id of the point's segment, 0 = none
+    samples        (V, C, S, S) uint8  the frame's samples (see pipeline/config.py SampleConfig)
+    sample_segment (V,)   int32    local segment id of each sample
+
+Files are written to a temporary name and renamed, so a reader never sees a partial file.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FrameArtifact:
+    """The arrays of one frame (shapes in the module docstring)."""
+
+    points: np.ndarray
+    intensity: np.ndarray
+    segment: np.ndarray
+    ground: np.ndarray
+    track: np.ndarray
+    samples: np.ndarray
+    sample_segment: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.points)
+        assert self.points.shape == (n, 3) and self.points.dtype == np.float32, self.points.shape
+        assert self.intensity.shape == (n,) and self.intensity.dtype == np.float32
+        assert self.segment.shape == (n,) and self.segment.dtype == np.int32
+        assert self.ground.shape == (n,) and self.ground.dtype == np.bool_
+        assert self.track.shape == (n,) and self.track.dtype == np.int64
+        assert self.samples.ndim == 4 and self.samples.dtype == np.uint8, self.samples.shape
+        assert self.sample_segment.shape == (len(self.samples),) and self.sample_segment.dtype == np.int32
+
+
+class ArtifactStore:
+    """Reads and writes frame artifacts under `root`."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    def frame_relpath(self, sequence_id: int, index: int) -> str:
+        return f"seq_{sequence_id:06d}/{index:06d}.npz"
+
+    def path(self, relpath: str) -> Path:
+        return self.root / relpath
+
+    def write_frame(self, sequence_id: int, index: int, frame: FrameArtifact) -> str:
+        """Write one frame atomically; returns its relative path."""
+        rel = self.frame_relpath(sequence_id, index)
+        dest = self.path(rel)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **frame.__dict__)
+        os.replace(tmp, dest)
+        return rel
+
+    def read_frame(self, relpath: str) -> FrameArtifact:
+        with np.load(self.path(relpath)) as z:
+            return FrameArtifact(**{k: z[k] for k in FrameArtifact.__dataclass_fields__})
+
+    def read_arrays(self, relpath: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+        """Only the named arrays of a frame (npz members are decompressed lazily)."""
+        with np.load(self.path(relpath)) as z:
+            return {k: z[k] for k in names}
+
+    def remove_sequence(self, sequence_id: int) -> None:
+        folder = self.root / f"seq_{sequence_id:06d}"
+        if folder.is_dir():
+            for f in folder.iterdir():
+                f.unlink(missing_ok=True)
+
+
+PAYLOAD_ARRAYS = ("points", "intensity", "segment", "track")
+
+
+def frame_payload(arrays: dict[str, np.ndarray]) -> bytes:
+    """The viewer payload: an uncompressed `.npz` of points (N,3) f32, intensity (N,) f32,
+    segment (N,) int32 and track (N,) int64 (database track id, 0 = none)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
+        for name in PAYLOAD_ARRAYS:
+            arr = np.ascontiguousarray(arrays[name])
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, arr, allow_pickle=False)
+    return buf.getvalue()

@@ -1,0 +1,92 @@
+"""The service's one validated config: `Settings`, read from `TRACKLABEL_*` environment variables.
+
+Loaded once at the edge (CLI, `create_app`, worker) and passed down explicitly; nothing below
+reads the environment. Defaults give an embedded SQLite database under `data_dir`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Service settings. Every field is read from `TRACKLABEL_<FIELD>` (case-insensitive)."""
+
+    model_config = SettingsConfigDict(env_prefix="TRACKLABEL_", extra="ignore")
+
+    data_dir: Path = Path("data")
+    # SQLAlchemy URL; None = sqlite file `<data_dir>/tracklabel.db`.
+    database_url: str | None = None
+    # Per-frame artifact files (compressed .npz); None = `<data_dir>/artifacts`.
+    artifact_dir: Path | None = None
+    # Folders under which sequences may be registered (os.pathsep- or comma-separated in the env);
+    # empty = `<data_dir>` only.
+    data_roots: Annotated[list[Path], NoDecode] = Field(default_factory=list)
+    # Optional YAML of pipeline overrides used by ingest jobs.
+    pipeline_config: Path | None = None
+
+    # Jobs and worker.
+    job_lease_seconds: float = Field(default=30.0, gt=0)
+    job_heartbeat_seconds: float = Field(default=5.0, gt=0)
+    job_max_attempts: int = Field(default=3, ge=1)
+    worker_poll_seconds: float = Field(default=1.0, gt=0)
+    # Extra modules imported at start-up that register job types (plugins, tests).
+    job_modules: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    ingest_batch_frames: int = Field(default=10, ge=1)
+
+    # Review queue: how long `next` reserves a track for its operator.
+    review_lease_seconds: float = Field(default=300.0, gt=0)
+
+    # HTTP server (`tracklabel serve`).
+    host: str = "127.0.0.1"
+    port: int = Field(default=8000, ge=0, le=65535)
+    embedded_worker: bool = True  # `serve` runs one worker thread in-process
+
+    @field_validator("data_roots", mode="before")
+    @classmethod
+    def _split_roots(cls, value: object) -> object:
+        if isinstance(value, str):
+            parts = [p for chunk in value.split(",") for p in chunk.split(os.pathsep)]
+            return [p.strip() for p in parts if p.strip()]
+        return value
+
+    @field_validator("job_modules", mode="before")
+    @classmethod
+    def _split_modules(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [p.strip() for p in value.split(",") if p.strip()]
+        return value
+
+    @model_validator(mode="after")
+    def _fill_defaults(self) -> Settings:
+        if self.database_url is None:
+            self.database_url = f"sqlite:///{(self.data_dir / 'tracklabel.db').as_posix()}"
+        if self.artifact_dir is None:
+            self.artifact_dir = self.data_dir / "artifacts"
+        if not self.data_roots:
+            self.data_roots = [self.data_dir]
+        return self
+
+    @property
+    def db_url(self) -> str:
+        assert self.database_url is not None
+        return self.database_url
+
+    @property
+    def artifacts_path(self) -> Path:
+        assert self.artifact_dir is not None
+        return self.artifact_dir
+
+    @property
+    def is_sqlite(self) -> bool:
+        return self.db_url.startswith("sqlite")
+
+
+def get_settings() -> Settings:
+    """Settings from the environment (call at the edge only)."""
+    return Settings()

@@ -1,0 +1,99 @@
+"""Engine and sessions.
+
+SQLite (the embedded default) runs in WAL mode with foreign keys on and a busy timeout. pysqlite's
+own transaction handling is switched off and we emit `BEGIN` ourselves, so that write sessions can
+open with `BEGIN IMMEDIATE`: a deferred transaction that reads first and writes later fails with
+SQLITE_BUSY (no wait) when another writer committed in between; an immediate one queues instead.
+PostgreSQL uses ordinary transactions; writers lock rows (`FOR UPDATE [SKIP LOCKED]`) where needed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.core.config import Settings
+
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+
+
+def _install_sqlite_hooks(engine: Engine) -> None:
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_conn, _record) -> None:  # noqa: ANN001
+        dbapi_conn.isolation_level = None  # we issue BEGIN ourselves (see module docstring)
+        cur = dbapi_conn.cursor()
+        cur.execute("PRAGMA journal_mode=WAL")
+        cur.execute("PRAGMA foreign_keys=ON")
+        cur.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        cur.execute("PRAGMA synchronous=NORMAL")
+        cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(conn) -> None:  # noqa: ANN001
+        mode = "IMMEDIATE" if conn.get_execution_options().get("sqlite_immediate") else "DEFERRED"
+        conn.exec_driver_sql(f"BEGIN {mode}")
+
+
+def make_engine(url: str, echo: bool = False) -> Engine:
+    """An engine for `url`; SQLite files get their folder created and the pragmas above."""
+    u = make_url(url)
+    if u.get_backend_name() == "sqlite":
+        if u.database and u.database != ":memory:":
+            Path(u.database).parent.mkdir(parents=True, exist_ok=True)
+        engine = create_engine(url, echo=echo, connect_args={"check_same_thread": False, "timeout": 30})
+        _install_sqlite_hooks(engine)
+        return engine
+    return create_engine(url, echo=echo, pool_pre_ping=True, pool_size=10, max_overflow=20)
+
+
+@dataclass
+class Database:
+    """An engine with a read session factory and a write session factory.
+
+    `read()` sessions begin deferred; `write()` sessions begin IMMEDIATE on SQLite, so the
+    whole transaction holds the write lock and never fails on a stale snapshot.
+    """
+
+    engine: Engine
+    read: sessionmaker[Session]
+    write: sessionmaker[Session]
+
+    @classmethod
+    def from_url(cls, url: str) -> Database:
+        engine = make_engine(url)
+        writer = engine.execution_options(sqlite_immediate=True)
+        return cls(
+            engine=engine,
+            read=sessionmaker(engine, expire_on_commit=False),
+            write=sessionmaker(writer, expire_on_commit=False),
+        )
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Database:
+        return cls.from_url(settings.db_url)
+
+    @property
+    def dialect(self) -> str:
+        return self.engine.dialect.name
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+
+def wait_for_db(engine: Engine, timeout_s: float = 60.0, interval_s: float = 1.0) -> None:
+    """Block until `SELECT 1` succeeds (start-up order: wait for the DB, upgrade, seed)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with engine.connect() as conn:
+                conn.execute(text("SELECT 1"))
+            return
+        except Exception:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(interval_s)

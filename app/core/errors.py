@@ -1,0 +1,29 @@
+"""Service errors: raised by crud and jobs, turned into HTTP responses in `app.main`."""
+
+from __future__ import annotations
+
+
+class ServiceError(Exception):
+    status_code = 400
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.detail = detail
+
+
+class NotFound(ServiceError):
+    status_code = 404
+
+
+class Forbidden(ServiceError):
+    status_code = 403
+
+
+class Conflict(ServiceError):
+    status_code = 409
+
+
+class Invalid(ServiceError):
+    """A well-formed request that names something impossible (unknown class, bad frame range)."""
+
+    status_code = 422

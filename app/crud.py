@@ -1,0 +1,625 @@
+"""Database operations used by routes, jobs and the CLI. Routes stay thin and call these.
+
+Write operations take a session from `Database.write` (BEGIN IMMEDIATE on SQLite) and commit
+themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import timedelta
+from pathlib import Path, PurePath
+from typing import Any
+
+from sqlalchemy import Integer, delete, func, insert, literal, or_, select, update
+from sqlalchemy.orm import Session
+
+from app.core.errors import Conflict, Forbidden, Invalid, NotFound
+from app.core.security import hash_token, new_token, token_display_prefix
+from app.models import (
+    AnchorProposal,
+    AnnotationEvent,
+    ApiToken,
+    Dataset,
+    Frame,
+    Job,
+    Label,
+    PairConstraint,
+    Segment,
+    Sequence,
+    Track,
+    User,
+    utcnow,
+)
+
+# ----------------------------------------------------------------------------- users and tokens
+
+
+@dataclass(frozen=True)
+class AuthUser:
+    """The caller, detached from any session."""
+
+    id: int
+    name: str
+    role: str
+
+    @property
+    def is_admin(self) -> bool:
+        return self.role == "admin"
+
+
+def create_user(session: Session, name: str, role: str, created_by_id: int | None = None) -> tuple[User, str]:
+    """Create a user and a first token; returns the user and the token (shown once). Commits."""
+    if role not in ("operator", "admin"):
+        raise Invalid(f"unknown role {role!r}; valid: operator, admin")
+    if session.scalar(select(User.id).where(User.name == name)) is not None:
+        raise Conflict(f"user {name!r} exists")
+    user = User(name=name, role=role, created_by_id=created_by_id, active=True)
+    session.add(user)
+    session.flush()
+    token = _add_token(session, user.id)
+    session.commit()
+    return user, token
+
+
+def create_token(session: Session, user_id: int) -> str:
+    """A new token for an existing user. Commits."""
+    if session.get(User, user_id) is None:
+        raise NotFound(f"user {user_id} not found")
+    token = _add_token(session, user_id)
+    session.commit()
+    return token
+
+
+def _add_token(session: Session, user_id: int) -> str:
+    token = new_token()
+    session.add(ApiToken(user_id=user_id, token_hash=hash_token(token), prefix=token_display_prefix(token)))
+    return token
+
+
+def user_for_token(session: Session, token: str) -> AuthUser | None:
+    """The active user owning an unrevoked `token`, or None."""
+    row = session.execute(
+        select(User.id, User.name, User.role)
+        .join(ApiToken, ApiToken.user_id == User.id)
+        .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None), User.active.is_(True))
+    ).first()
+    return None if row is None else AuthUser(id=row.id, name=row.name, role=row.role)
+
+
+# ----------------------------------------------------------------------------- datasets
+
+
+def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
+    """The real path of `raw` if it lies under one of `roots`.
+
+    `..` anywhere, or a (symlink-resolved) path outside every root -> Forbidden (403);
+    a path under a root that does not exist -> NotFound. Relative paths are tried against each root.
+    """
+    if "\x00" in raw:
+        raise Invalid("path contains a NUL byte")
+    pure = PurePath(raw)
+    if ".." in pure.parts:
+        raise Forbidden("paths with '..' are refused")
+    real_roots = [r.resolve() for r in roots]
+    candidates = [Path(pure)] if pure.is_absolute() else [r / pure for r in real_roots]
+    inside = False
+    for cand in candidates:
+        try:
+            real = cand.resolve()
+        except (OSError, RuntimeError, ValueError) as exc:
+            raise Invalid(f"cannot resolve path: {exc}") from exc
+        if any(real == r or real.is_relative_to(r) for r in real_roots):
+            inside = True
+            if real.exists():
+                return real
+    if not inside:
+        raise Forbidden("path is outside the configured data roots")
+    raise NotFound(f"no such file or folder under the data roots: {raw}")
+
+
+def create_dataset(
+    session: Session,
+    path: Path,
+    name: str | None,
+    fmt: str,
+    config: dict[str, Any] | None,
+    user_id: int,
+) -> tuple[Dataset, Sequence]:
+    """Register one sequence path (already resolved and checked). Flushes, does not commit."""
+    ds = Dataset(name=name or path.name, path=str(path), created_by_id=user_id)
+    session.add(ds)
+    session.flush()
+    seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config)
+    session.add(seq)
+    session.flush()
+    return ds, seq
+
+
+def sequence_stats(session: Session, seq: Sequence) -> dict[str, Any]:
+    by_status = dict(
+        session.execute(
+            select(Track.status, func.count()).where(Track.sequence_id == seq.id).group_by(Track.status)
+        ).all()
+    )
+    frames, segments, samples = session.execute(
+        select(func.count(), func.coalesce(func.sum(Frame.n_segments), 0), func.coalesce(func.sum(Frame.n_samples), 0))
+        .where(Frame.sequence_id == seq.id)
+    ).one()
+    constraints = session.scalar(select(func.count()).where(PairConstraint.sequence_id == seq.id)) or 0
+    return {
+        "frames": int(frames),
+        "segments": int(segments),
+        "samples": int(samples),
+        "tracks": int(sum(by_status.values())),
+        "tracks_by_status": {k: int(v) for k, v in by_status.items()},
+        "constraints": int(constraints),
+    }
+
+
+# ----------------------------------------------------------------------------- jobs
+
+
+def create_job(session: Session, job_type: str, params: dict[str, Any], user_id: int | None) -> Job:
+    """Queue a job (params already validated by its job type). Flushes, does not commit."""
+    job = Job(type=job_type, params=params, status="queued", created_by_id=user_id, message="queued")
+    session.add(job)
+    session.flush()
+    return job
+
+
+def cancel_job(session: Session, job_id: int) -> Job:
+    """Cancel a queued job at once; ask a running one to stop at its next checkpoint. Commits."""
+    job = session.scalars(select(Job).where(Job.id == job_id).with_for_update()).first()
+    if job is None:
+        raise NotFound(f"job {job_id} not found")
+    if job.status == "queued":
+        job.status = "cancelled"
+        job.finished_at = utcnow()
+        job.message = "cancelled before it started"
+    elif job.status == "running":
+        job.cancel_requested = True
+        job.message = "cancel requested"
+    else:
+        raise Conflict(f"job {job_id} is already {job.status}")
+    session.commit()
+    return job
+
+
+# ----------------------------------------------------------------------------- tracks
+
+TRACK_SORTS = {
+    "id": Track.id,
+    "length": Track.length,
+    "n_samples": Track.n_samples,
+    "n_points": Track.n_points,
+    "mean_range": Track.mean_range,
+    "confidence": Track.predicted_confidence,
+    "updated_at": Track.updated_at,
+    "first_frame": Track.first_frame,
+}
+
+
+@dataclass(frozen=True)
+class TrackFilter:
+    sequence_id: int | None = None
+    status: str | None = None
+    label: str | None = None
+    unlabelled: bool | None = None
+    min_length: int | None = None
+    max_length: int | None = None
+    predicted_class: str | None = None
+    min_confidence: float | None = None
+    max_confidence: float | None = None
+
+    def clauses(self) -> list[Any]:
+        c: list[Any] = []
+        if self.sequence_id is not None:
+            c.append(Track.sequence_id == self.sequence_id)
+        if self.status is not None:
+            c.append(Track.status == self.status)
+        if self.label is not None:
+            c.append(Track.label == self.label)
+        if self.unlabelled is True:
+            c.append(Track.label.is_(None))
+        elif self.unlabelled is False:
+            c.append(Track.label.is_not(None))
+        if self.min_length is not None:
+            c.append(Track.length >= self.min_length)
+        if self.max_length is not None:
+            c.append(Track.length <= self.max_length)
+        if self.predicted_class is not None:
+            c.append(Track.predicted_class == self.predicted_class)
+        if self.min_confidence is not None:
+            c.append(Track.predicted_confidence >= self.min_confidence)
+        if self.max_confidence is not None:
+            c.append(Track.predicted_confidence <= self.max_confidence)
+        return c
+
+
+def list_tracks(
+    session: Session, flt: TrackFilter, sort: str, limit: int, offset: int
+) -> tuple[list[Track], int]:
+    """A page of tracks and the total matching `flt`. `sort` is a key of TRACK_SORTS, '-' = descending."""
+    desc = sort.startswith("-")
+    col = TRACK_SORTS[sort.lstrip("-")]
+    clauses = flt.clauses()
+    order = [col.desc() if desc else col.asc(), Track.id.desc() if desc else Track.id.asc()]
+    if sort.lstrip("-") == "confidence":  # NULLs last either way, identically on both databases
+        order.insert(0, col.is_(None))
+    rows = session.scalars(select(Track).where(*clauses).order_by(*order).limit(limit).offset(offset)).all()
+    total = session.scalar(select(func.count()).select_from(Track).where(*clauses)) or 0
+    return list(rows), int(total)
+
+
+def get_track(session: Session, track_id: int) -> Track:
+    track = session.get(Track, track_id)
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    return track
+
+
+def track_segments(session: Session, track_id: int) -> list[Segment]:
+    return list(
+        session.scalars(select(Segment).where(Segment.track_id == track_id).order_by(Segment.frame_index)).all()
+    )
+
+
+def track_events(session: Session, track_id: int) -> list[AnnotationEvent]:
+    return list(
+        session.scalars(
+            select(AnnotationEvent).where(AnnotationEvent.track_id == track_id).order_by(AnnotationEvent.id)
+        ).all()
+    )
+
+
+REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end")
+
+
+def review_state(track: Track) -> dict[str, Any]:
+    """The part of a track that actions change (what events record before and after)."""
+    return {f: getattr(track, f) for f in REVIEW_FIELDS}
+
+
+def initial_review_state(track: Track) -> dict[str, Any]:
+    """The state a track had when ingest created it."""
+    return {"status": "pending", "label": None, "keep_start": track.first_frame, "keep_end": track.last_frame}
+
+
+def rebuild_review_state(session: Session, track: Track) -> dict[str, Any]:
+    """The review state replayed from the event log alone (it must equal `review_state(track)`)."""
+    state = initial_review_state(track)
+    for ev in track_events(session, track.id):
+        if ev.before != state:
+            raise Conflict(f"event log of track {track.id} is inconsistent at event {ev.id}")
+        state = dict(ev.after)
+    return state
+
+
+def apply_action(
+    session: Session,
+    track_id: int,
+    user: AuthUser,
+    action: str,
+    version: int,
+    *,
+    label: str | None = None,
+    start: int | None = None,
+    end: int | None = None,
+    sample_classes: tuple[str, ...] = (),
+) -> Track:
+    """Apply one review action if `version` is current; write its event; commit.
+
+    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid.
+    """
+    track = session.scalars(select(Track).where(Track.id == track_id).with_for_update()).first()
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    seq_status = session.scalar(select(Sequence.status).where(Sequence.id == track.sequence_id))
+    if seq_status != "ready":
+        raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
+    if track.version != version:
+        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+
+    before = review_state(track)
+    after = dict(before)
+    reverts: AnnotationEvent | None = None
+    if action == "accept":
+        after["status"] = "accepted"
+    elif action == "discard":
+        after["status"] = "discarded"
+    elif action == "label":
+        if label not in sample_classes:
+            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
+        after["label"] = label
+        after["status"] = "accepted"  # labelling a track is accepting it with that class
+    elif action == "truncate":
+        assert start is not None and end is not None
+        if not (track.first_frame <= start <= end <= track.last_frame):
+            raise Invalid(
+                f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
+            )
+        after["keep_start"], after["keep_end"] = start, end
+    elif action == "undo":
+        reverts = _last_undoable_event(session, track_id, user.id)
+        if reverts is None:
+            raise Conflict(f"nothing to undo: no action of {user.name} on track {track_id} is left to undo")
+        for f in REVIEW_FIELDS:
+            if reverts.before.get(f) != reverts.after.get(f):
+                after[f] = reverts.before.get(f)
+    else:
+        raise Invalid(f"unknown action {action!r}")
+
+    if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
+        length, n_samples = session.execute(
+            select(func.count(), func.coalesce(func.sum(Segment.valid.cast(Integer)), 0)).where(
+                Segment.track_id == track_id,
+                Segment.frame_index.between(after["keep_start"], after["keep_end"]),
+            )
+        ).one()
+        if length == 0:
+            raise Invalid(f"frame range {after['keep_start']}..{after['keep_end']} keeps no segment of the track")
+        track.length, track.n_samples = int(length), int(n_samples)
+
+    now = utcnow()
+    track.status, track.label = after["status"], after["label"]
+    track.keep_start, track.keep_end = after["keep_start"], after["keep_end"]
+    track.version = version + 1
+    track.updated_at = now
+    track.reviewed_by_id = user.id
+    if after["status"] != "pending":
+        track.lease_user_id, track.lease_expires_at = None, None
+    session.add(
+        AnnotationEvent(
+            track_id=track_id,
+            user_id=user.id,
+            action=action,
+            created_at=now,
+            version_before=version,
+            version_after=version + 1,
+            before=before,
+            after=after,
+            reverts_event_id=None if reverts is None else reverts.id,
+        )
+    )
+    session.flush()
+    _refresh_labels(session, track, user.id, sample_classes)
+    session.commit()
+    return track
+
+
+def _last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:
+    """The caller's latest non-undo event on the track that no undo has reverted yet."""
+    reverted = select(AnnotationEvent.reverts_event_id).where(
+        AnnotationEvent.track_id == track_id, AnnotationEvent.reverts_event_id.is_not(None)
+    )
+    return session.scalars(
+        select(AnnotationEvent)
+        .where(
+            AnnotationEvent.track_id == track_id,
+            AnnotationEvent.user_id == user_id,
+            AnnotationEvent.action != "undo",
+            AnnotationEvent.id.not_in(reverted),
+        )
+        .order_by(AnnotationEvent.id.desc())
+        .limit(1)
+    ).first()
+
+
+def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
+    """Materialise the labelled samples of a track: its valid segments in the kept range when it is
+    accepted with a class; none otherwise."""
+    session.execute(delete(Label).where(Label.track_id == track.id))
+    if track.status != "accepted" or track.label is None:
+        return
+    cls_index = sample_classes.index(track.label)
+    src = select(
+        Segment.sequence_id,
+        Segment.id,
+        Segment.track_id,
+        literal(track.label),
+        literal(cls_index),
+        literal("track"),
+        literal(user_id),
+        literal(utcnow()),
+    ).where(
+        Segment.track_id == track.id,
+        Segment.valid.is_(True),
+        Segment.frame_index.between(track.keep_start, track.keep_end),
+    )
+    session.execute(
+        insert(Label).from_select(
+            ["sequence_id", "segment_id", "track_id", "class_name", "class_index", "source", "user_id", "created_at"],
+            src,
+        )
+    )
+
+
+# ----------------------------------------------------------------------------- review queue
+
+
+def lease_next_track(
+    session: Session, user: AuthUser, lease_seconds: float, sequence_id: int | None = None
+) -> Track | None:
+    """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
+    unleased (or lease-expired) pending track with the most samples. Commits."""
+    now = utcnow()
+    ready = select(Sequence.id).where(Sequence.status == "ready")
+    base = [Track.status == "pending", Track.sequence_id.in_(ready)]
+    if sequence_id is not None:
+        base.append(Track.sequence_id == sequence_id)
+    own = session.scalars(
+        select(Track)
+        .where(*base, Track.lease_user_id == user.id, Track.lease_expires_at > now)
+        .order_by(Track.id)
+        .limit(1)
+        .with_for_update()
+    ).first()
+    track = own
+    for _ in range(5):
+        if track is not None:
+            break
+        cand = session.scalars(
+            select(Track)
+            .where(*base, or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now))
+            .order_by(Track.n_samples.desc(), Track.id)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+        ).first()
+        if cand is None:
+            session.rollback()
+            return None
+        # Conditional update: only wins if nobody leased it since we read it.
+        res = session.execute(
+            update(Track)
+            .where(
+                Track.id == cand.id,
+                Track.status == "pending",
+                or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now),
+            )
+            .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
+            .execution_options(synchronize_session=False)
+        )
+        if res.rowcount == 1:
+            track = cand
+    if track is None:
+        session.rollback()
+        return None
+    track.lease_user_id = user.id
+    track.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    session.commit()
+    return track
+
+
+def release_lease(session: Session, track_id: int, user: AuthUser) -> None:
+    """Give back the caller's lease on a track (no-op when they hold none). Commits."""
+    session.execute(
+        update(Track)
+        .where(Track.id == track_id, Track.lease_user_id == user.id)
+        .values(lease_user_id=None, lease_expires_at=None)
+    )
+    session.commit()
+
+
+# ----------------------------------------------------------------------------- ingest helpers
+
+
+def clear_sequence_rows(session: Session, sequence_id: int) -> None:
+    """Delete everything ingest wrote for a sequence (children first). Does not commit."""
+    tracks = select(Track.id).where(Track.sequence_id == sequence_id)
+    session.execute(delete(Label).where(Label.sequence_id == sequence_id))
+    session.execute(delete(AnchorProposal).where(AnchorProposal.sequence_id == sequence_id))
+    session.execute(delete(PairConstraint).where(PairConstraint.sequence_id == sequence_id))
+    session.execute(update(AnnotationEvent).where(AnnotationEvent.track_id.in_(tracks)).values(reverts_event_id=None))
+    session.execute(delete(AnnotationEvent).where(AnnotationEvent.track_id.in_(tracks)))
+    session.execute(delete(Segment).where(Segment.sequence_id == sequence_id))
+    session.execute(delete(Track).where(Track.sequence_id == sequence_id))
+    session.execute(delete(Frame).where(Frame.sequence_id == sequence_id))
+
+
+# ----------------------------------------------------------------------------- statistics
+
+
+def progress_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
+    """Tracks by status, reviewed tracks, samples labelled per class, constraint counts."""
+    t_where = [] if sequence_id is None else [Track.sequence_id == sequence_id]
+    by_status = {
+        k: int(v)
+        for k, v in session.execute(
+            select(Track.status, func.count()).where(*t_where).group_by(Track.status)
+        ).all()
+    }
+    l_where = [] if sequence_id is None else [Label.sequence_id == sequence_id]
+    per_class = {
+        k: int(v)
+        for k, v in session.execute(
+            select(Label.class_name, func.count()).where(*l_where).group_by(Label.class_name)
+        ).all()
+    }
+    s_where = [Segment.valid.is_(True)] + ([] if sequence_id is None else [Segment.sequence_id == sequence_id])
+    samples = session.scalar(select(func.count()).select_from(Segment).where(*s_where)) or 0
+    c_where = [] if sequence_id is None else [PairConstraint.sequence_id == sequence_id]
+    automatic = session.scalar(select(func.count()).select_from(PairConstraint).where(*c_where)) or 0
+    verified = session.scalar(
+        select(func.count()).select_from(verified_constraints_query(sequence_id).subquery())
+    ) or 0
+    return {
+        "tracks": sum(by_status.values()),
+        "tracks_by_status": by_status,
+        "tracks_reviewed": sum(v for k, v in by_status.items() if k != "pending"),
+        "samples": int(samples),
+        "samples_labelled": sum(per_class.values()),
+        "samples_labelled_per_class": per_class,
+        "constraints_automatic": int(automatic),
+        "constraints_verified": int(verified),
+    }
+
+
+def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
+    """Constraint pairs inside the kept range of non-discarded tracks (accepted only when verified_only).
+
+    Columns: id, track_id, segment_a_id, segment_b_id, frame_a, frame_b, score, verified.
+    """
+    from sqlalchemy.orm import aliased
+
+    sa, sb = aliased(Segment), aliased(Segment)
+    verified = (Track.status == "accepted").label("verified")
+    q = (
+        select(
+            PairConstraint.id,
+            PairConstraint.track_id,
+            PairConstraint.segment_a_id,
+            PairConstraint.segment_b_id,
+            sa.frame_index.label("frame_a"),
+            sb.frame_index.label("frame_b"),
+            PairConstraint.score,
+            verified,
+        )
+        .join(Track, Track.id == PairConstraint.track_id)
+        .join(sa, sa.id == PairConstraint.segment_a_id)
+        .join(sb, sb.id == PairConstraint.segment_b_id)
+        .where(
+            Track.status != "discarded",
+            sa.frame_index >= Track.keep_start,
+            sb.frame_index <= Track.keep_end,
+        )
+        .order_by(PairConstraint.id)
+    )
+    if sequence_id is not None:
+        q = q.where(PairConstraint.sequence_id == sequence_id)
+    if verified_only:
+        q = q.where(Track.status == "accepted")
+    return q
+
+
+def verified_constraints_query(sequence_id: int | None) -> Any:
+    return constraints_query(sequence_id, verified_only=True)
+
+
+def labels_query(sequence_id: int | None) -> Any:
+    """Labelled samples: label id, segment id, track id, frame index, class name and index."""
+    q = (
+        select(
+            Label.segment_id,
+            Label.track_id,
+            Segment.frame_index,
+            Label.class_name,
+            Label.class_index,
+        )
+        .join(Segment, Segment.id == Label.segment_id)
+        .order_by(Label.segment_id)
+    )
+    if sequence_id is not None:
+        q = q.where(Label.sequence_id == sequence_id)
+    return q
+
+
+def track_label_rows(session: Session, sequence_id: int) -> list[Any]:
+    """(track id, key, label, keep_start, keep_end) of accepted, labelled tracks."""
+    return list(
+        session.execute(
+            select(Track.id, Track.key, Track.label, Track.keep_start, Track.keep_end).where(
+                Track.sequence_id == sequence_id, Track.status == "accepted", Track.label.is_not(None)
+            )
+        ).all()
+    )

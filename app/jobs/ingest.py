@@ -1,0 +1,376 @@
+"""`ingest`: run the perception pipeline over a registered sequence and store its results.
+
+1. Roll back whatever an earlier, unfinished attempt wrote for the sequence (rows and artifacts).
+2. Run `SequenceProcessor.iter_frames` in frame order.
+3. Every `ingest_batch_frames` frames, in one transaction: new tracks, frames, segments, constraint
+   pairs and track statistics, with the frames' artifact files written before the commit.
+   A frame row is visible only together with all its segments; a killed attempt leaves whole
+   batches, which the next attempt (another worker, after the lease expires) rolls back and redoes.
+4. Mark the sequence `ready`. Reviews need a ready sequence, so no operator work is lost by step 1.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import insert, select, update
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.artifacts import FrameArtifact
+from app.core.errors import Conflict, NotFound
+from app.jobs.context import JobContext
+from app.jobs.registry import JobType, register
+from app.models import Frame, Job, PairConstraint, Segment, Sequence, Track, utcnow
+
+
+class IngestParams(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    sequence_id: int = Field(ge=1, le=2**31 - 1)
+    force: bool = False  # re-ingest a ready sequence (drops its reviews)
+
+
+class FrameProcessor(Protocol):
+    def iter_frames(self, source: Any, **kwargs: Any) -> Iterator[Any]: ...
+
+
+class IngestBackend:
+    """How ingest opens a sequence and builds the processor (tests substitute a fake)."""
+
+    def open(self, path: str, fmt: str) -> Any:
+        from pipeline.io import open_sequence
+
+        return open_sequence(path, fmt=fmt)
+
+    def processor(self, config: Any, sensor: Any) -> FrameProcessor:
+        from pipeline.processing import SequenceProcessor
+
+        return SequenceProcessor(config, sensor)
+
+    def config(self, settings_path: Path | None, overrides: dict[str, Any] | None) -> Any:
+        from pipeline.config import load_config
+
+        cfg = load_config(settings_path)
+        return cfg.override(overrides) if overrides else cfg
+
+    def sensor(self, source: Any, config: Any) -> Any:
+        name = getattr(getattr(config, "sensor", None), "name", "auto")
+        if name and name != "auto":
+            from pipeline.sensors import get_sensor
+
+            return get_sensor(name)
+        return source.sensor
+
+
+_backend: IngestBackend = IngestBackend()
+
+
+def set_backend(backend: IngestBackend) -> None:
+    """Replace how sequences are opened and processed (tests and plugins)."""
+    global _backend
+    _backend = backend
+
+
+@dataclass
+class _TrackAcc:
+    """Running statistics of one track during ingest."""
+
+    db_id: int
+    first: int
+    last: int
+    length: int = 0
+    n_samples: int = 0
+    n_points: int = 0
+    range_sum: float = 0.0
+    last_segment_id: int | None = None
+
+
+@dataclass
+class _IngestState:
+    sequence_id: int
+    tracks: dict[int, _TrackAcc] = field(default_factory=dict)
+    frames: int = 0
+    segments: int = 0
+    constraints: int = 0
+    skipped: list[str] = field(default_factory=list)
+
+
+def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
+    with ctx.db.write() as s:
+        seq = s.get(Sequence, params.sequence_id)
+        if seq is None:
+            raise NotFound(f"sequence {params.sequence_id} not found")
+        if seq.status == "ready" and seq.ingest_job_id == ctx.job_id:
+            return {"sequence_id": seq.id, **crud.sequence_stats(s, seq)}  # done before a crash; idempotent
+        if seq.status == "ready" and not params.force:
+            raise Conflict(f"sequence {seq.id} is already ingested; pass force=true to redo it")
+        crud.clear_sequence_rows(s, seq.id)
+        seq.status, seq.n_frames, seq.ingest_job_id = "ingesting", 0, ctx.job_id
+        path, fmt, overrides = seq.path, seq.format, seq.config
+        s.commit()
+    ctx.artifacts.remove_sequence(params.sequence_id)
+    ctx.progress(0.0, "opening the sequence")
+
+    source = _backend.open(path, fmt)
+    config = _backend.config(ctx.settings.pipeline_config, overrides)
+    sensor = _backend.sensor(source, config)
+    total = len(source)
+    with ctx.db.write() as s:
+        s.execute(
+            update(Sequence)
+            .where(Sequence.id == params.sequence_id)
+            .values(format=getattr(source, "format", fmt), sensor=_sensor_dict(sensor))
+        )
+        s.commit()
+
+    state = _IngestState(params.sequence_id)
+    processor = _backend.processor(config, sensor)
+
+    def on_skip(index: int, error: Exception) -> None:
+        state.skipped.append(f"frame {index}: {error}")
+
+    batch: list[Any] = []
+    for fr in processor.iter_frames(source, progress=False, workers=1, on_skip=on_skip):
+        batch.append(fr)
+        if len(batch) >= ctx.settings.ingest_batch_frames:
+            _write_batch(ctx, state, batch)
+            batch = []
+            ctx.progress(0.99 * (fr.index + 1) / max(total, 1), f"frame {fr.index + 1}/{total}")
+    if batch:
+        _write_batch(ctx, state, batch)
+    ctx.checkpoint()
+
+    with ctx.db.write() as s:
+        s.execute(
+            update(Sequence).where(Sequence.id == params.sequence_id).values(status="ready", n_frames=state.frames)
+        )
+        s.commit()
+    return {
+        "sequence_id": params.sequence_id,
+        "frames": state.frames,
+        "segments": state.segments,
+        "tracks": len(state.tracks),
+        "constraints": state.constraints,
+        "skipped": state.skipped,
+        "linked": bool(getattr(processor, "linked", True)),
+    }
+
+
+def _sensor_dict(sensor: Any) -> dict[str, Any] | None:
+    to_dict = getattr(sensor, "to_dict", None)
+    return to_dict() if callable(to_dict) else None
+
+
+def _write_batch(ctx: JobContext, state: _IngestState, frames: list[Any]) -> None:
+    """Write a batch of FrameResults in one transaction (see the module docstring)."""
+    with ctx.db.write() as s:
+        _insert_new_tracks(s, state, frames)
+        touched: set[int] = set()
+        for fr in frames:
+            _write_frame(ctx, s, state, fr, touched)
+        if touched:
+            s.execute(
+                update(Track),
+                [
+                    {
+                        "id": state.tracks[k].db_id,
+                        "last_frame": state.tracks[k].last,
+                        "keep_end": state.tracks[k].last,
+                        "length": state.tracks[k].length,
+                        "n_samples": state.tracks[k].n_samples,
+                        "n_points": state.tracks[k].n_points,
+                        "mean_range": state.tracks[k].range_sum / max(state.tracks[k].length, 1),
+                    }
+                    for k in sorted(touched)
+                ],
+            )
+        s.commit()
+
+
+def _insert_new_tracks(s: Session, state: _IngestState, frames: Iterable[Any]) -> None:
+    first_seen: dict[int, int] = {}
+    for fr in frames:
+        for key in np.unique(fr.segments.track_id):
+            k = int(key)
+            if k > 0 and k not in state.tracks and k not in first_seen:
+                first_seen[k] = fr.index
+    if not first_seen:
+        return
+    rows = [
+        {
+            "sequence_id": state.sequence_id,
+            "key": k,
+            "status": "pending",
+            "first_frame": f,
+            "last_frame": f,
+            "keep_start": f,
+            "keep_end": f,
+            "length": 0,
+            "n_samples": 0,
+            "n_points": 0,
+            "mean_range": 0.0,
+            "version": 1,
+            "updated_at": utcnow(),
+        }
+        for k, f in first_seen.items()
+    ]
+    result = s.execute(insert(Track).returning(Track.id, Track.key, sort_by_parameter_order=True), rows)
+    for db_id, key in result.all():
+        state.tracks[int(key)] = _TrackAcc(db_id=int(db_id), first=first_seen[int(key)], last=first_seen[int(key)])
+
+
+def _write_frame(ctx: JobContext, s: Session, state: _IngestState, fr: Any, touched: set[int]) -> None:
+    seg = fr.segments
+    n_seg = len(seg.n_points)
+    keys = np.asarray(seg.track_id, dtype=np.int64)
+    sample_index = np.full(n_seg, -1, np.int64)
+    sample_index[np.asarray(fr.sample_segment, dtype=np.int64)] = np.arange(len(fr.sample_segment))
+    db_track = np.zeros(n_seg, np.int64)
+    for i in np.flatnonzero(keys > 0):
+        db_track[i] = state.tracks[int(keys[i])].db_id
+
+    # artifact first (atomic rename); the row that points at it commits with the batch
+    point_seg = np.asarray(fr.segment, dtype=np.int32)
+    point_track = np.where(point_seg >= 0, db_track[np.maximum(point_seg, 0)], 0).astype(np.int64)
+    rel = ctx.artifacts.write_frame(
+        state.sequence_id,
+        fr.index,
+        FrameArtifact(
+            points=np.asarray(fr.scan.points, dtype=np.float32),
+            intensity=np.asarray(fr.scan.intensity, dtype=np.float32),
+            segment=point_seg,
+            ground=np.asarray(fr.ground, dtype=bool),
+            track=point_track,
+            samples=np.asarray(fr.samples, dtype=np.uint8),
+            sample_segment=np.asarray(fr.sample_segment, dtype=np.int32),
+        ),
+    )
+    pose = getattr(fr, "T_world_lidar", None)
+    frame_id = s.execute(
+        insert(Frame).returning(Frame.id),
+        [
+            {
+                "sequence_id": state.sequence_id,
+                "index": int(fr.index),
+                "name": str(fr.name),
+                "n_points": len(point_seg),
+                "n_segments": n_seg,
+                "n_samples": len(fr.sample_segment),
+                "artifact": rel,
+                "timestamp": _finite(getattr(fr, "time", None)),
+                "pose": None if pose is None else [float(v) for v in np.asarray(pose).reshape(-1)],
+            }
+        ],
+    ).scalar_one()
+    state.frames += 1
+    if n_seg == 0:
+        return
+
+    cen, cw = np.asarray(seg.centroid, np.float64), np.asarray(seg.centroid_world, np.float64)
+    rows = [
+        {
+            "sequence_id": state.sequence_id,
+            "frame_id": frame_id,
+            "frame_index": int(fr.index),
+            "local_id": i,
+            "track_id": int(db_track[i]) or None,
+            "n_points": int(seg.n_points[i]),
+            "cx": float(cen[i, 0]),
+            "cy": float(cen[i, 1]),
+            "cz": float(cen[i, 2]),
+            "wx": float(cw[i, 0]),
+            "wy": float(cw[i, 1]),
+            "wz": float(cw[i, 2]),
+            "range": float(seg.range[i]),
+            "valid": bool(seg.valid[i]),
+            "link_score": _finite(seg.link_score[i]),
+            "sample_index": int(sample_index[i]) if sample_index[i] >= 0 else None,
+        }
+        for i in range(n_seg)
+    ]
+    seg_ids = s.execute(insert(Segment).returning(Segment.id, sort_by_parameter_order=True), rows).scalars().all()
+    state.segments += n_seg
+
+    pairs = []
+    for i in np.flatnonzero(keys > 0):
+        acc = state.tracks[int(keys[i])]
+        prev_id = acc.last_segment_id
+        if prev_id is not None and bool(seg.valid[i]) and sample_index[i] >= 0:
+            score = _finite(seg.link_score[i])
+            pairs.append(
+                {
+                    "sequence_id": state.sequence_id,
+                    "track_id": acc.db_id,
+                    "segment_a_id": prev_id,
+                    "segment_b_id": int(seg_ids[i]),
+                    "score": 0.0 if score is None else score,
+                    "kind": "must_link",
+                }
+            )
+        if bool(seg.valid[i]) and sample_index[i] >= 0:
+            acc.last_segment_id = int(seg_ids[i])
+            acc.n_samples += 1
+        acc.last = int(fr.index)
+        acc.length += 1
+        acc.n_points += int(seg.n_points[i])
+        acc.range_sum += float(seg.range[i])
+        touched.add(int(keys[i]))
+    if pairs:
+        s.execute(insert(PairConstraint), pairs)
+        state.constraints += len(pairs)
+
+
+def _finite(value: Any) -> float | None:
+    if value is None:
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def on_ingest_stop(ctx: JobContext, params: IngestParams, reason: str) -> None:
+    """A failed or cancelled ingest leaves the sequence `failed` (its next ingest rolls back)."""
+    with ctx.db.write() as s:
+        s.execute(update(Sequence).where(Sequence.id == params.sequence_id).values(status="failed"))
+        s.commit()
+
+
+def active_ingest_job(s: Session, sequence_id: int) -> int | None:
+    """The id of a queued or running ingest job of a sequence, if any."""
+    for job_id, params in s.execute(
+        select(Job.id, Job.params).where(Job.type == "ingest", Job.status.in_(("queued", "running")))
+    ).all():
+        if isinstance(params, dict) and params.get("sequence_id") == sequence_id:
+            return int(job_id)
+    return None
+
+
+def prepare_ingest(s: Session, params: IngestParams) -> None:
+    """Checked when an ingest job is created: the sequence exists, is not being ingested already,
+    and is not ready unless `force`."""
+    seq = s.get(Sequence, params.sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {params.sequence_id} not found")
+    active = active_ingest_job(s, params.sequence_id)
+    if active is not None:
+        raise Conflict(f"sequence {params.sequence_id} already has ingest job {active}")
+    if seq.status == "ready" and not params.force:
+        raise Conflict(f"sequence {params.sequence_id} is already ingested; pass force=true to redo it")
+
+
+register(
+    JobType(
+        name="ingest",
+        params=IngestParams,
+        handler=run_ingest,
+        admin_only=True,
+        description="Run segmentation and association over a registered sequence and store the tracks.",
+        on_stop=on_ingest_stop,
+        prepare=prepare_ingest,
+    )
+)

@@ -1,0 +1,68 @@
+"""The FastAPI application factory: `create_app(settings)`.
+
+Start-up order (as in full-stack-fastapi-template): wait for the database, upgrade it, seed;
+`tracklabel serve` does those before building the app. With `embedded_worker`, the app runs one
+worker thread in-process (the embedded SQLite default needs no other process).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from app.api.main import api_router
+from app.artifacts import ArtifactStore
+from app.core.config import Settings
+from app.core.db import Database
+from app.core.errors import ServiceError
+from app.jobs.registry import load_job_types
+
+API_PREFIX = "/api/v1"
+log = logging.getLogger("tracklabel.api")
+
+
+def create_app(settings: Settings | None = None, db: Database | None = None) -> FastAPI:
+    """Build the API for `settings` (from the environment when None)."""
+    from pipeline import __version__
+
+    settings = settings or Settings()
+    load_job_types(settings.job_modules)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        worker = None
+        if settings.embedded_worker:
+            from app.worker import Worker
+
+            worker = Worker(settings, db=app.state.db)
+            worker.start_thread()
+            log.info("in-process worker %s started", worker.worker_id)
+        try:
+            yield
+        finally:
+            if worker is not None:
+                worker.stop_event.set()
+
+    app = FastAPI(
+        title="tracklabel",
+        version=__version__,
+        description="Track-level LiDAR annotation: datasets, frames, tracks, review, exports and jobs.",
+        openapi_url=f"{API_PREFIX}/openapi.json",
+        docs_url=f"{API_PREFIX}/docs",
+        redoc_url=None,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.db = db or Database.from_settings(settings)
+    app.state.artifacts = ArtifactStore(settings.artifacts_path)
+
+    @app.exception_handler(ServiceError)
+    async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+
+    app.include_router(api_router, prefix=API_PREFIX)
+    return app

@@ -1,0 +1,297 @@
+"""SQLAlchemy 2 tables. Heavy arrays never live here: a frame row points at its artifact file.
+
+Times are naive UTC (`utcnow()`), identical on SQLite and PostgreSQL. Constraint names come from
+`NAMING_CONVENTION`, so migrations name them the same on both databases.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    CheckConstraint,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+# 64-bit ids on PostgreSQL; SQLite needs INTEGER PRIMARY KEY to alias the rowid.
+BigId = BigInteger().with_variant(Integer(), "sqlite")
+
+ROLES = ("operator", "admin")
+TRACK_STATUSES = ("pending", "accepted", "discarded")
+SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
+JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
+ACTIONS = ("accept", "discard", "truncate", "label", "undo")
+
+
+def utcnow() -> datetime:
+    """Naive UTC now (the only clock the tables use)."""
+    return datetime.now(UTC).replace(tzinfo=None)
+
+
+def _in(column: str, values: tuple[str, ...]) -> str:
+    return f"{column} IN ({', '.join(repr(v) for v in values)})"
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+
+
+class User(Base):
+    __tablename__ = "users"
+    __table_args__ = (CheckConstraint(_in("role", ROLES), name="role"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    role: Mapped[str] = mapped_column(String(16))
+    active: Mapped[bool] = mapped_column(Boolean, default=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+
+
+class ApiToken(Base):
+    """A bearer token, stored as its SHA-256 (tokens are 256-bit random, so no slow hash is needed)."""
+
+    __tablename__ = "api_tokens"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    prefix: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class Dataset(Base):
+    __tablename__ = "datasets"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(128))
+    path: Mapped[str] = mapped_column(Text)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+
+
+class Sequence(Base):
+    __tablename__ = "sequences"
+    __table_args__ = (CheckConstraint(_in("status", SEQUENCE_STATUSES), name="status"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    dataset_id: Mapped[int] = mapped_column(ForeignKey("datasets.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(128))
+    path: Mapped[str] = mapped_column(Text)
+    format: Mapped[str] = mapped_column(String(32))
+    sensor: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    config: Mapped[dict[str, Any] | None] = mapped_column(JSON)  # pipeline overrides for ingest
+    status: Mapped[str] = mapped_column(String(16), default="registered")
+    n_frames: Mapped[int] = mapped_column(Integer, default=0)
+    ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class Frame(Base):
+    __tablename__ = "frames"
+    __table_args__ = (UniqueConstraint("sequence_id", "index"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    index: Mapped[int] = mapped_column(Integer)
+    name: Mapped[str] = mapped_column(String(128))
+    n_points: Mapped[int] = mapped_column(Integer)
+    n_segments: Mapped[int] = mapped_column(Integer)
+    n_samples: Mapped[int] = mapped_column(Integer)
+    artifact: Mapped[str] = mapped_column(String(255))  # path relative to the artifact dir
+    timestamp: Mapped[float | None] = mapped_column(Float)
+    pose: Mapped[list[float] | None] = mapped_column(JSON)  # T_world_lidar, 16 floats row-major
+
+
+class Track(Base):
+    """A chain of segments. `keep_start..keep_end` is the kept frame range after truncation."""
+
+    __tablename__ = "tracks"
+    __table_args__ = (
+        UniqueConstraint("sequence_id", "key"),
+        CheckConstraint(_in("status", TRACK_STATUSES), name="status"),
+        Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
+        Index("ix_tracks_status_n_samples", "status", "n_samples"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    key: Mapped[int] = mapped_column(BigInteger)  # the pipeline's track id (>= 1, per sequence)
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    first_frame: Mapped[int] = mapped_column(Integer)
+    last_frame: Mapped[int] = mapped_column(Integer)
+    keep_start: Mapped[int] = mapped_column(Integer)
+    keep_end: Mapped[int] = mapped_column(Integer)
+    length: Mapped[int] = mapped_column(Integer, index=True)  # frames with a segment in the kept range
+    n_samples: Mapped[int] = mapped_column(Integer, default=0)  # valid samples in the kept range
+    n_points: Mapped[int] = mapped_column(Integer, default=0)
+    mean_range: Mapped[float] = mapped_column(Float, default=0.0)
+    label: Mapped[str | None] = mapped_column(String(16), index=True)
+    predicted_class: Mapped[str | None] = mapped_column(String(16), index=True)
+    predicted_confidence: Mapped[float | None] = mapped_column(Float, index=True)
+    version: Mapped[int] = mapped_column(Integer, default=1)
+    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    lease_user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class Segment(Base):
+    """One segment of one frame; `sample_index` indexes the frame artifact's samples (None = no sample)."""
+
+    __tablename__ = "segments"
+    __table_args__ = (
+        UniqueConstraint("frame_id", "local_id"),
+        Index("ix_segments_track_frame", "track_id", "frame_index"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    frame_id: Mapped[int] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"))
+    frame_index: Mapped[int] = mapped_column(Integer)
+    local_id: Mapped[int] = mapped_column(Integer)
+    track_id: Mapped[int | None] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"))
+    n_points: Mapped[int] = mapped_column(Integer)
+    cx: Mapped[float] = mapped_column(Float)  # centroid, lidar frame
+    cy: Mapped[float] = mapped_column(Float)
+    cz: Mapped[float] = mapped_column(Float)
+    wx: Mapped[float] = mapped_column(Float)  # centroid, world frame
+    wy: Mapped[float] = mapped_column(Float)
+    wz: Mapped[float] = mapped_column(Float)
+    range: Mapped[float] = mapped_column(Float)
+    valid: Mapped[bool] = mapped_column(Boolean)
+    link_score: Mapped[float | None] = mapped_column(Float)  # link to the previous frame; None = track start
+    sample_index: Mapped[int | None] = mapped_column(Integer)
+
+
+class PairConstraint(Base):
+    """A must-link pair of samples: consecutive valid samples of one track, with the link score."""
+
+    __tablename__ = "constraints"
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    segment_a_id: Mapped[int] = mapped_column(ForeignKey("segments.id", ondelete="CASCADE"))
+    segment_b_id: Mapped[int] = mapped_column(ForeignKey("segments.id", ondelete="CASCADE"))
+    score: Mapped[float] = mapped_column(Float)
+    kind: Mapped[str] = mapped_column(String(16), default="must_link")
+
+
+class Label(Base):
+    """A labelled sample, materialised from its track's decision (accepted, labelled, in the kept range)."""
+
+    __tablename__ = "labels"
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    segment_id: Mapped[int] = mapped_column(ForeignKey("segments.id", ondelete="CASCADE"), unique=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    class_name: Mapped[str] = mapped_column(String(16))
+    class_index: Mapped[int] = mapped_column(Integer)
+    source: Mapped[str] = mapped_column(String(16), default="track")
+    user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class AnnotationEvent(Base):
+    """Append-only log of track actions; `after` of the last event per track is its review state."""
+
+    __tablename__ = "annotation_events"
+    __table_args__ = (
+        CheckConstraint(_in("action", ACTIONS), name="action"),
+        Index("ix_annotation_events_track_id_id", "track_id", "id"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"))
+    user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), index=True)
+    action: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    version_before: Mapped[int] = mapped_column(Integer)
+    version_after: Mapped[int] = mapped_column(Integer)
+    before: Mapped[dict[str, Any]] = mapped_column(JSON)
+    after: Mapped[dict[str, Any]] = mapped_column(JSON)
+    reverts_event_id: Mapped[int | None] = mapped_column(ForeignKey("annotation_events.id", ondelete="SET NULL"))
+
+
+class Job(Base):
+    __tablename__ = "jobs"
+    __table_args__ = (
+        CheckConstraint(_in("status", JOB_STATUSES), name="status"),
+        Index("ix_jobs_status_id", "status", "id"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    type: Mapped[str] = mapped_column(String(32))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    status: Mapped[str] = mapped_column(String(16), default="queued")
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    message: Mapped[str] = mapped_column(Text, default="")
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    error: Mapped[str | None] = mapped_column(Text)
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), index=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    started_at: Mapped[datetime | None] = mapped_column(DateTime)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime)
+    lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)
+    worker_id: Mapped[str | None] = mapped_column(String(128))
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+
+
+class ModelVersion(Base):
+    """A trained model: the checkpoint path (it carries model + pipeline config) and its metrics."""
+
+    __tablename__ = "model_versions"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(128))
+    kind: Mapped[str] = mapped_column(String(32))  # train | finetune
+    path: Mapped[str] = mapped_column(Text)
+    config: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    metrics: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    parent_id: Mapped[int | None] = mapped_column(ForeignKey("model_versions.id", ondelete="SET NULL"))
+    job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+class AnchorProposal(Base):
+    """A track proposed as a fine-tuning anchor, waiting for an operator's confirmation."""
+
+    __tablename__ = "anchor_proposals"
+    __table_args__ = (CheckConstraint(_in("status", ("proposed", "confirmed", "rejected")), name="status"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    model_version_id: Mapped[int | None] = mapped_column(ForeignKey("model_versions.id", ondelete="SET NULL"))
+    proposed_class: Mapped[str | None] = mapped_column(String(16))
+    score: Mapped[float] = mapped_column(Float)
+    status: Mapped[str] = mapped_column(String(16), default="proposed")
+    decided_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)

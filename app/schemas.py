@@ -1,0 +1,254 @@
+"""Pydantic request/response schemas: `XBase`, `XCreate`, `XUpdate`, `XPublic` per resource.
+
+Routes return these, never table models.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Role = Literal["operator", "admin"]
+TrackStatus = Literal["pending", "accepted", "discarded"]
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
+
+
+class _Public(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+
+class _Request(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# ----------------------------------------------------------------------------- users
+class UserBase(_Request):
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
+    role: Role = "operator"
+
+
+class UserCreate(UserBase):
+    pass
+
+
+class UserPublic(_Public):
+    id: int
+    name: str
+    role: Role
+    active: bool
+    created_at: datetime
+
+
+class UserWithToken(BaseModel):
+    user: UserPublic
+    token: str = Field(description="Shown once; only its hash is stored.")
+
+
+# ----------------------------------------------------------------------------- datasets
+class DatasetBase(_Request):
+    path: str = Field(min_length=1, max_length=4096, description="A sequence path under a configured data root.")
+    name: str | None = Field(default=None, max_length=128)
+    format: str = Field(default="auto", max_length=32, pattern=r"^[a-z0-9_]+$")
+
+
+class DatasetCreate(DatasetBase):
+    ingest: bool = Field(default=True, description="Queue the ingest job right away.")
+    config: dict[str, Any] | None = Field(default=None, description="Pipeline config overrides for ingest.")
+
+
+class SequencePublic(_Public):
+    id: int
+    dataset_id: int
+    name: str
+    path: str
+    format: str
+    sensor: dict[str, Any] | None
+    status: SequenceStatus
+    n_frames: int
+    ingest_job_id: int | None
+    created_at: datetime
+
+
+class DatasetPublic(_Public):
+    id: int
+    name: str
+    path: str
+    created_at: datetime
+    sequences: list[SequencePublic] = []
+
+
+class SequenceStats(BaseModel):
+    sequence: SequencePublic
+    frames: int
+    segments: int
+    samples: int
+    tracks: int
+    tracks_by_status: dict[str, int]
+    constraints: int
+
+
+class DatasetDetail(DatasetPublic):
+    stats: list[SequenceStats] = []
+
+
+class IngestRequest(_Request):
+    force: bool = Field(default=False, description="Re-ingest a ready sequence, dropping its reviews.")
+
+
+# ----------------------------------------------------------------------------- frames
+class FramePublic(_Public):
+    id: int
+    sequence_id: int
+    index: int
+    name: str
+    n_points: int
+    n_segments: int
+    n_samples: int
+    timestamp: float | None
+    pose: list[float] | None
+
+
+class FrameList(BaseModel):
+    items: list[FramePublic]
+    total: int
+
+
+# ----------------------------------------------------------------------------- tracks
+class TrackPublic(_Public):
+    id: int
+    sequence_id: int
+    key: int
+    status: TrackStatus
+    first_frame: int
+    last_frame: int
+    keep_start: int
+    keep_end: int
+    length: int
+    n_samples: int
+    n_points: int
+    mean_range: float
+    label: str | None
+    predicted_class: str | None
+    predicted_confidence: float | None
+    version: int
+    updated_at: datetime
+    lease_expires_at: datetime | None = None
+
+
+class TrackList(BaseModel):
+    items: list[TrackPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class SegmentPublic(_Public):
+    id: int
+    frame_id: int
+    frame_index: int
+    local_id: int
+    n_points: int
+    centroid: tuple[float, float, float]
+    centroid_world: tuple[float, float, float]
+    range: float
+    valid: bool
+    link_score: float | None
+    in_kept_range: bool
+    sample_url: str | None
+
+
+class TrackDetail(TrackPublic):
+    segments: list[SegmentPublic]
+
+
+class ActionBase(_Request):
+    version: int = Field(ge=1, le=2**31 - 1, description="The track version the action was decided on.")
+
+
+class AcceptAction(ActionBase):
+    pass
+
+
+class DiscardAction(ActionBase):
+    pass
+
+
+class UndoAction(ActionBase):
+    pass
+
+
+class TruncateAction(ActionBase):
+    start: int = Field(ge=0, le=2**31 - 1, description="First kept frame index.")
+    end: int = Field(ge=0, le=2**31 - 1, description="Last kept frame index (inclusive).")
+
+
+class LabelAction(ActionBase):
+    label: str = Field(min_length=1, max_length=16, description="One of the sample classes.")
+
+
+class EventPublic(_Public):
+    id: int
+    track_id: int
+    user_id: int | None
+    action: str
+    created_at: datetime
+    version_before: int
+    version_after: int
+    before: dict[str, Any]
+    after: dict[str, Any]
+    reverts_event_id: int | None
+
+
+# ----------------------------------------------------------------------------- jobs
+class JobBase(_Request):
+    type: str = Field(min_length=1, max_length=32)
+    params: dict[str, Any] = Field(default_factory=dict)
+
+
+class JobCreate(JobBase):
+    pass
+
+
+class JobPublic(_Public):
+    id: int
+    type: str
+    params: dict[str, Any]
+    status: JobStatus
+    progress: float
+    message: str
+    result: dict[str, Any] | None
+    error: str | None
+    created_by_id: int | None
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    attempts: int
+    cancel_requested: bool
+
+
+class JobTypePublic(BaseModel):
+    name: str
+    admin_only: bool
+    description: str
+    params_schema: dict[str, Any]
+
+
+# ----------------------------------------------------------------------------- exports
+class ProgressStats(BaseModel):
+    tracks: int
+    tracks_by_status: dict[str, int]
+    tracks_reviewed: int
+    samples: int
+    samples_labelled: int
+    samples_labelled_per_class: dict[str, int]
+    constraints_automatic: int
+    constraints_verified: int
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    database: str
+    version: str

@@ -1,0 +1,232 @@
+"""The job worker: `tracklabel worker` or `python -m app.worker`.
+
+It claims the oldest runnable job of a type it knows: a queued one, or a running one whose lease
+has expired (its worker died). The claim is one transaction: BEGIN IMMEDIATE on SQLite (writers
+serialise), `SELECT ... FOR UPDATE SKIP LOCKED` on PostgreSQL (workers skip each other's rows).
+While the job runs, a heartbeat thread renews the lease; progress goes into the job row; a cancel
+request or a lost lease stops the handler at its next checkpoint. A job whose lease expired
+`job_max_attempts` times is marked failed.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import socket
+import threading
+import traceback
+import uuid
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+from pydantic import ValidationError
+from sqlalchemy import or_, select, update
+
+from app.artifacts import ArtifactStore
+from app.core.config import Settings
+from app.core.db import Database
+from app.jobs.context import JobContext, JobStopped
+from app.jobs.registry import get_job_type, load_job_types
+from app.models import Job, utcnow
+
+log = logging.getLogger("tracklabel.worker")
+
+
+@dataclass(frozen=True)
+class ClaimedJob:
+    id: int
+    type: str
+    params: dict[str, Any]
+    attempt: int
+    created_by_id: int | None
+
+
+class Worker:
+    """Claims and runs jobs. `run_once()` runs at most one job; `run_forever()` polls."""
+
+    def __init__(self, settings: Settings, db: Database | None = None, worker_id: str | None = None) -> None:
+        self.settings = settings
+        self.db = db or Database.from_settings(settings)
+        self.artifacts = ArtifactStore(settings.artifacts_path)
+        self.worker_id = worker_id or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
+        self.types = load_job_types(settings.job_modules)
+        self.stop_event = threading.Event()
+
+    # ------------------------------------------------------------------ claiming
+    def claim(self) -> ClaimedJob | None:
+        """Claim one job, or None when nothing is runnable."""
+        lease = timedelta(seconds=self.settings.job_lease_seconds)
+        while True:
+            now = utcnow()
+            with self.db.write() as s:
+                job = s.scalars(
+                    select(Job)
+                    .where(
+                        Job.type.in_(self.types),
+                        or_(Job.status == "queued", (Job.status == "running") & (Job.lease_expires_at < now)),
+                    )
+                    .order_by(Job.id)
+                    .limit(1)
+                    .with_for_update(skip_locked=True)
+                ).first()
+                if job is None:
+                    return None
+                if job.status == "running" and (job.cancel_requested or job.attempts >= self.settings.job_max_attempts):
+                    job.status = "cancelled" if job.cancel_requested else "failed"
+                    job.error = None if job.cancel_requested else f"lease expired after {job.attempts} attempts"
+                    job.finished_at = now
+                    job.lease_expires_at = None
+                    s.commit()
+                    continue
+                job.status = "running"
+                job.worker_id = self.worker_id
+                job.attempts += 1
+                job.lease_expires_at = now + lease
+                job.heartbeat_at = now
+                job.started_at = job.started_at or now
+                job.message = f"claimed by {self.worker_id} (attempt {job.attempts})"
+                claimed = ClaimedJob(job.id, job.type, dict(job.params or {}), job.attempts, job.created_by_id)
+                s.commit()
+                return claimed
+
+    # ------------------------------------------------------------------ running
+    def run_once(self) -> bool:
+        """Claim and run one job; False when there was none."""
+        claimed = self.claim()
+        if claimed is None:
+            return False
+        self.run(claimed)
+        return True
+
+    def run(self, claimed: ClaimedJob) -> None:
+        ctx = JobContext(
+            job_id=claimed.id,
+            attempt=claimed.attempt,
+            worker_id=self.worker_id,
+            db=self.db,
+            settings=self.settings,
+            artifacts=self.artifacts,
+            user_id=claimed.created_by_id,
+        )
+        job_type = get_job_type(claimed.type)
+        stop_beat = threading.Event()
+        beat = threading.Thread(target=self._heartbeat, args=(ctx, stop_beat), daemon=True, name="heartbeat")
+        beat.start()
+        params: Any = None
+        try:
+            params = job_type.params.model_validate(claimed.params)
+            result = job_type.handler(ctx, params)
+        except JobStopped as exc:
+            if exc.reason == "cancelled":
+                self._stop_hook(job_type, ctx, params, "cancelled")
+                self._finish(ctx, "cancelled", message="cancelled at a checkpoint")
+            else:
+                log.warning("job %s: lease lost; another worker owns it now", claimed.id)
+        except (ValidationError, Exception) as exc:  # noqa: BLE001 - a job's failure must not kill the worker
+            log.error("job %s failed: %s", claimed.id, exc)
+            if params is not None:
+                self._stop_hook(job_type, ctx, params, "failed")
+            self._finish(ctx, "failed", error=f"{type(exc).__name__}: {exc}", trace=traceback.format_exc())
+        else:
+            self._finish(ctx, "succeeded", result=result, message="done")
+        finally:
+            stop_beat.set()
+            beat.join(timeout=5)
+
+    def _stop_hook(self, job_type: Any, ctx: JobContext, params: Any, reason: str) -> None:
+        if job_type.on_stop is None:
+            return
+        try:
+            job_type.on_stop(ctx, params, reason)
+        except Exception:  # noqa: BLE001
+            log.exception("job %s: on_stop hook failed", ctx.job_id)
+
+    def _finish(
+        self,
+        ctx: JobContext,
+        status: str,
+        result: dict[str, Any] | None = None,
+        error: str | None = None,
+        message: str = "",
+        trace: str | None = None,
+    ) -> None:
+        values: dict[str, Any] = {
+            "status": status,
+            "finished_at": utcnow(),
+            "lease_expires_at": None,
+            "message": message or status,
+        }
+        if status == "succeeded":
+            values.update(result=result or {}, progress=1.0)
+        if error is not None:
+            values["error"] = error if trace is None else f"{error}\n{trace[-4000:]}"
+        with self.db.write() as s:
+            s.execute(
+                update(Job)
+                .where(Job.id == ctx.job_id, Job.worker_id == self.worker_id, Job.status == "running")
+                .values(**values)
+            )
+            s.commit()
+
+    def _heartbeat(self, ctx: JobContext, stop: threading.Event) -> None:
+        lease = timedelta(seconds=self.settings.job_lease_seconds)
+        while not stop.wait(self.settings.job_heartbeat_seconds):
+            try:
+                with self.db.write() as s:
+                    now = utcnow()
+                    res = s.execute(
+                        update(Job)
+                        .where(Job.id == ctx.job_id, Job.worker_id == self.worker_id, Job.status == "running")
+                        .values(lease_expires_at=now + lease, heartbeat_at=now)
+                    )
+                    cancel = s.scalar(select(Job.cancel_requested).where(Job.id == ctx.job_id))
+                    s.commit()
+                if res.rowcount != 1:
+                    ctx.lease_lost.set()
+                    return
+                if cancel:
+                    ctx.cancelled.set()
+            except Exception:  # noqa: BLE001 - a missed beat is retried; the lease covers several
+                log.exception("job %s: heartbeat failed", ctx.job_id)
+
+    def run_forever(self) -> None:
+        """Poll for jobs until `stop_event` is set."""
+        log.info("worker %s: job types %s", self.worker_id, ", ".join(self.types))
+        while not self.stop_event.is_set():
+            try:
+                ran = self.run_once()
+            except Exception:  # noqa: BLE001 - e.g. the database restarting; poll again
+                log.exception("worker %s: claim failed", self.worker_id)
+                ran = False
+            if not ran:
+                self.stop_event.wait(self.settings.worker_poll_seconds)
+
+    def start_thread(self) -> threading.Thread:
+        """Run `run_forever` in a daemon thread (the in-process worker of `tracklabel serve`)."""
+        t = threading.Thread(target=self.run_forever, daemon=True, name="worker")
+        t.start()
+        return t
+
+
+def main(once: bool = False) -> None:
+    """Run a worker with settings from the environment until SIGTERM/SIGINT."""
+    from app.core.config import get_settings
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    worker = Worker(get_settings())
+    if once:
+        worker.run_once()
+        return
+
+    def _stop(signum: int, _frame: object) -> None:
+        worker.stop_event.set()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    worker.run_forever()
+
+
+if __name__ == "__main__":
+    main()

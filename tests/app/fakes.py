@@ -1,0 +1,117 @@
+"""A fake perception pipeline: deterministic FrameResult-like frames, so that service tests need
+neither real sequences nor the real pipeline's run time.
+
+Object `o` (0-based) is visible in frames [o % 3, F) and is track key o + 1; each frame also has
+one small segment that is not valid (no track) and `ground` ground points.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from app.jobs.ingest import IngestBackend
+
+POINTS_PER_SEGMENT = 20
+SAMPLE_SHAPE = (4, 8, 8)
+
+
+@dataclass
+class FakeSource:
+    path: Path
+    n_frames: int
+    format: str = "fake"
+    sensor: Any = None
+    poses: Any = None
+    times: Any = None
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def frame_name(self, index: int) -> str:
+        return f"{index:06d}"
+
+
+def fake_frame(index: int, n_objects: int, ground: int = 30, key_offset: int = 0) -> SimpleNamespace:
+    objs = [o for o in range(n_objects) if o % 3 <= index]
+    n_seg = len(objs) + 1  # + one invalid segment
+    rng = np.random.default_rng(index)
+    counts = [POINTS_PER_SEGMENT] * len(objs) + [4]
+    seg_of_point = np.concatenate([np.full(c, s, np.int32) for s, c in enumerate(counts)] + [np.full(ground, -1, np.int32)])
+    n = len(seg_of_point)
+    points = rng.normal(size=(n, 3)).astype(np.float32) * 5
+    centroid = np.array([[o * 2.0, index * 0.1, 0.5] for o in objs] + [[0.0, 0.0, 0.0]], np.float32)
+    track_id = np.array([key_offset + o + 1 for o in objs] + [0], np.int64)
+    link = np.array([np.nan if index == o % 3 else 0.9 for o in objs] + [np.nan], np.float32)
+    valid = np.array([True] * len(objs) + [False])
+    samples = np.stack([np.full(SAMPLE_SHAPE, (index * 7 + s) % 256, np.uint8) for s in range(len(objs))])
+    segments = SimpleNamespace(
+        n_points=np.array(counts, np.int32),
+        centroid=centroid,
+        centroid_world=centroid.astype(np.float64),
+        range=np.linalg.norm(centroid, axis=1).astype(np.float32),
+        valid=valid,
+        track_id=track_id,
+        link_score=link,
+    )
+    return SimpleNamespace(
+        index=index,
+        name=f"{index:06d}",
+        scan=SimpleNamespace(points=points, intensity=rng.random(n, dtype=np.float32)),
+        segment=seg_of_point,
+        ground=seg_of_point < 0,
+        segments=segments,
+        samples=samples.reshape(len(objs), *SAMPLE_SHAPE),
+        sample_segment=np.arange(len(objs), dtype=np.int32),
+        T_world_lidar=np.eye(4),
+        time=index * 0.1,
+        timings_ms={},
+    )
+
+
+class FakeProcessor:
+    def __init__(self, n_objects: int, delay_s: float = 0.0, fail_at: int | None = None) -> None:
+        self.n_objects = n_objects
+        self.delay_s = delay_s
+        self.fail_at = fail_at
+        self.linked = True
+
+    def iter_frames(self, source: FakeSource, **_: Any) -> Iterator[SimpleNamespace]:
+        for i in range(len(source)):
+            if self.fail_at is not None and i == self.fail_at:
+                raise RuntimeError(f"fake pipeline failure at frame {i}")
+            if self.delay_s:
+                time.sleep(self.delay_s)
+            yield fake_frame(i, self.n_objects)
+
+
+class FakeBackend(IngestBackend):
+    """Opens any path as a FakeSource of `n_frames` frames."""
+
+    def __init__(self, n_frames: int = 6, n_objects: int = 4, delay_s: float = 0.0, fail_at: int | None = None) -> None:
+        self.n_frames, self.n_objects, self.delay_s, self.fail_at = n_frames, n_objects, delay_s, fail_at
+
+    def open(self, path: str, fmt: str) -> FakeSource:
+        return FakeSource(Path(path), self.n_frames)
+
+    def processor(self, config: Any, sensor: Any) -> FakeProcessor:
+        return FakeProcessor(self.n_objects, self.delay_s, self.fail_at)
+
+    def config(self, settings_path: Any, overrides: Any) -> Any:
+        return None
+
+    def sensor(self, source: Any, config: Any) -> Any:
+        return None
+
+
+def expected_counts(n_frames: int, n_objects: int) -> dict[str, int]:
+    """Rows a fake ingest writes: frames, segments, tracks and constraint pairs."""
+    seg = sum(sum(1 for o in range(n_objects) if o % 3 <= i) + 1 for i in range(n_frames))
+    pairs = sum(max(0, n_frames - (o % 3) - 1) for o in range(n_objects))
+    return {"frames": n_frames, "segments": seg, "tracks": n_objects, "constraints": pairs}
