@@ -40,9 +40,8 @@ class FakeSource:
 
 def fake_frame(index: int, n_objects: int, ground: int = 30, key_offset: int = 0) -> SimpleNamespace:
     objs = [o for o in range(n_objects) if o % 3 <= index]
-    n_seg = len(objs) + 1  # + one invalid segment
     rng = np.random.default_rng(index)
-    counts = [POINTS_PER_SEGMENT] * len(objs) + [4]
+    counts = [POINTS_PER_SEGMENT] * len(objs) + [4]  # + one invalid segment
     seg_of_point = np.concatenate([np.full(c, s, np.int32) for s, c in enumerate(counts)] + [np.full(ground, -1, np.int32)])
     n = len(seg_of_point)
     points = rng.normal(size=(n, 3)).astype(np.float32) * 5

@@ -1,0 +1,77 @@
+"""`tracklabel inspect`: the summary, and a one-line error with exit code 2 for bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from typer.testing import CliRunner
+
+from app.cli import app
+from pipeline.io.semantickitti import read_bin, write_label, write_poses
+from tests.pipeline.test_io_kitti import pose, write_sequence
+
+runner = CliRunner()
+
+
+def inspect(path: Path):
+    return runner.invoke(app, ["inspect", str(path)])
+
+
+def assert_one_line_error(result, name: str) -> None:
+    assert result.exit_code == 2, (result.exit_code, result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and name in lines[0], lines
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_cli_inspect_prints_summary(tmp_path: Path) -> None:
+    result = inspect(write_sequence(tmp_path / "seq", frames=2, cols=100))
+    assert result.exit_code == 0, result.stderr
+    for text in ("format:  kitti", "sensor:  hdl32e", "frames:  2", "poses:   given", "ground"):
+        assert text in result.stdout
+
+
+def test_cli_inspect_warns_about_dropped_rows(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "seq", frames=1, cols=100, labels=False, poses=False)
+    f = root / "velodyne" / "000000.bin"
+    raw = read_bin(f).copy()
+    raw[3, 1] = np.inf
+    raw.tofile(f)
+    result = inspect(root)
+    assert result.exit_code == 0
+    assert "warning: 1 rows with NaN or inf were dropped" in result.stderr
+
+
+def test_cli_inspect_truncated_bin(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "seq", frames=2, cols=100, labels=False)
+    f = root / "velodyne" / "000001.bin"
+    f.write_bytes(f.read_bytes()[:-4])
+    assert_one_line_error(inspect(root), "000001.bin")
+
+
+def test_cli_inspect_label_count_mismatch(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "seq", frames=2, cols=100)
+    write_label(root / "labels" / "000001.label", np.zeros(5, np.uint16), np.zeros(5, np.uint16))
+    assert_one_line_error(inspect(root), "000001.label")
+
+
+def test_cli_inspect_poses_line_count(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "seq", frames=3, cols=100)
+    write_poses(root / "poses.txt", np.stack([pose(0.0)] * 4))
+    assert_one_line_error(inspect(root), "poses.txt")
+
+
+def test_cli_inspect_empty_folder(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    assert_one_line_error(inspect(tmp_path / "empty"), "empty")
+
+
+def test_cli_inspect_unknown_folder(tmp_path: Path) -> None:
+    (tmp_path / "odd").mkdir()
+    (tmp_path / "odd" / "readme.txt").write_text("not lidar")
+    assert_one_line_error(inspect(tmp_path / "odd"), "odd")
+
+
+def test_cli_inspect_missing_path(tmp_path: Path) -> None:
+    assert_one_line_error(inspect(tmp_path / "nope"), "nope")

@@ -1,0 +1,66 @@
+from __future__ import annotations
+
+import time
+
+from sqlalchemy import update
+
+from app.models import Sequence
+
+
+def _next(client, caller, **params):
+    return client.post("/api/v1/review/next", params=params, headers=caller.headers)
+
+
+def test_review_two_operators_get_different_tracks(client, factory):
+    factory.ingested_sequence(n_objects=3)
+    a, b = factory.user(), factory.user()
+    ta, tb = _next(client, a).json(), _next(client, b).json()
+    assert ta["id"] != tb["id"]
+
+
+def test_review_own_lease_is_returned_again(client, factory):
+    factory.ingested_sequence(n_objects=3)
+    a = factory.user()
+    assert _next(client, a).json()["id"] == _next(client, a).json()["id"]
+
+
+def test_review_action_frees_caller_for_the_next_track(client, factory):
+    factory.ingested_sequence(n_objects=3)
+    a = factory.user()
+    t = _next(client, a).json()
+    client.post(f"/api/v1/tracks/{t['id']}/accept", json={"version": t["version"]}, headers=a.headers)
+    assert _next(client, a).json()["id"] != t["id"]
+
+
+def test_review_expired_lease_frees_the_track(client, factory, settings):
+    factory.ingested_sequence(n_objects=1)
+    a, b = factory.user(), factory.user()
+    settings.review_lease_seconds = 0.2
+    t = _next(client, a).json()
+    assert _next(client, b).status_code == 204
+    time.sleep(0.3)
+    assert _next(client, b).json()["id"] == t["id"]
+
+
+def test_review_nothing_left_is_204(client, factory):
+    factory.ingested_sequence(n_objects=1)
+    a = factory.user()
+    t = _next(client, a).json()
+    client.post(f"/api/v1/tracks/{t['id']}/discard", json={"version": 1}, headers=a.headers)
+    assert _next(client, a).status_code == 204
+
+
+def test_review_skips_sequences_still_ingesting(client, factory, db):
+    seq = factory.ingested_sequence(n_objects=2)
+    with db.write() as s:
+        s.execute(update(Sequence).where(Sequence.id == seq).values(status="ingesting"))
+        s.commit()
+    assert _next(client, factory.user()).status_code == 204
+
+
+def test_review_release_gives_the_track_back(client, factory):
+    factory.ingested_sequence(n_objects=1)
+    a, b = factory.user(), factory.user()
+    t = _next(client, a).json()
+    assert client.post(f"/api/v1/review/{t['id']}/release", headers=a.headers).status_code == 204
+    assert _next(client, b).json()["id"] == t["id"]
