@@ -1,0 +1,73 @@
+"""Perception pipeline benchmark (issue 3 targets) on a 200-frame simulated HDL-32E sequence.
+
+Targets: projection + ground + segmentation median <= 5 ms per frame; the whole process run
+>= 20 frames/s with 64x64 samples and >= 10 frames/s with 256x256; segment purity >= 0.97;
+association precision >= 0.99 and recall >= 0.90. Also timings, segment counts and tracks that
+span every frame on the real recordings in ../shared/data/real (no labels there).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+from bench.real_data import kitti_seq09, nuscenes_sweep
+from pipeline.config import PipelineConfig
+from pipeline.pipeline import evaluate_folder, run_process
+
+KEYS = ("frames", "segments", "valid_segments", "samples", "tracks", "tracks_multi_frame",
+        "tracks_spanning_all_frames", "constraint_pairs", "ms_project_ground_segment", "ms",
+        "frames_per_second", "sensor", "range_image")
+
+
+def _pick(summary: dict) -> dict:
+    return {k: summary[k] for k in KEYS if k in summary}
+
+
+def run(out_dir: Path, quick: bool = False) -> dict:
+    from pipeline.simulation import simulate_sequence
+
+    frames = 40 if quick else 200
+    result: dict = {"frames": frames}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        seq = tmp / "sim"
+        t0 = time.perf_counter()
+        simulate_sequence(seq, frames=frames, seed=0)
+        result["simulate_seconds"] = round(time.perf_counter() - t0, 2)
+        runs = {}
+        for size in (64, 256):
+            cfg = PipelineConfig().override({"samples": {"size": size}})
+            for workers in (1, 2):
+                s = run_process(seq, tmp / f"out{size}_{workers}", cfg, workers=workers)
+                runs[f"size{size}_workers{workers}"] = _pick(s)
+        result["process"] = runs
+        ev = evaluate_folder(seq, tmp / "out64_1")
+        result["evaluation"] = ev
+        o = ev["overall"]
+        best64 = max(runs["size64_workers1"]["frames_per_second"], runs["size64_workers2"]["frames_per_second"])
+        best256 = max(runs["size256_workers1"]["frames_per_second"], runs["size256_workers2"]["frames_per_second"])
+        result["targets"] = {
+            "pgs_median_ms": {"value": runs["size64_workers1"]["ms_project_ground_segment"]["median"], "target": 5.0},
+            "fps_64": {"value": best64, "target": 20.0},
+            "fps_256": {"value": best256, "target": 10.0},
+            "purity": {"value": o["purity"], "target": 0.97},
+            "association_precision": {"value": o["association_precision"], "target": 0.99},
+            "association_recall": {"value": o["association_recall"], "target": 0.90},
+        }
+        for v in result["targets"].values():
+            higher_is_better = v["target"] != 5.0
+            v["met"] = v["value"] is not None and (
+                v["value"] >= v["target"] if higher_is_better else v["value"] <= v["target"]
+            )
+        real: dict = {}
+        k = kitti_seq09(tmp / "kitti09")
+        if k is not None:
+            real["kitti_seq09_poses_file"] = _pick(run_process(k, tmp / "k_file", PipelineConfig()))
+            real["kitti_seq09_poses_icp"] = _pick(run_process(k, tmp / "k_icp", PipelineConfig(), poses="icp"))
+        nu = nuscenes_sweep()
+        if nu is not None:
+            real["nuscenes_hdl32e"] = _pick(run_process(nu, tmp / "nu", PipelineConfig()))
+        result["real"] = real
+    return result
