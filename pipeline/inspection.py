@@ -1,0 +1,58 @@
+"""`inspect_sequence`: what a sequence holds, read frame by frame (what `tracklabel inspect` prints)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.classes import POINT_CLASSES, UNLABELLED, to_ours
+from pipeline.errors import DataError
+from pipeline.io.registry import open_sequence
+from pipeline.scan import SequenceInfo, SequenceSource
+
+
+def pose_status(source: SequenceSource) -> str:
+    """`given` when the source has poses, `estimable` when ICP can estimate them (>= 2 frames)."""
+    if source.poses is not None:
+        return "given"
+    return "estimable" if len(source) >= 2 else "absent"
+
+
+def inspect_sequence(path: str | Path, fmt: str = "auto") -> SequenceInfo:
+    """Open and read every frame of `path`; raises DataError naming the first bad file."""
+    source = open_sequence(path, fmt)
+    n = len(source)
+    if n == 0:
+        raise DataError(path, "sequence has no frames")
+    counts = np.zeros(n, dtype=np.int64)
+    dropped = 0
+    histogram = np.zeros(256, dtype=np.int64)
+    labelled = False
+    for i in range(n):
+        scan = source.frame(i)
+        counts[i] = len(scan)
+        dropped += scan.dropped
+        if scan.semantic is not None:
+            labelled = True
+            histogram += np.bincount(to_ours(scan.semantic), minlength=256)
+    warnings = list(getattr(source, "warnings", []))
+    if dropped:
+        warnings.append(f"{dropped} rows with NaN or inf were dropped")
+    classes = None
+    if labelled:
+        classes = {name: int(histogram[i]) for i, name in enumerate(POINT_CLASSES)}
+        classes["unlabelled"] = int(histogram[UNLABELLED])
+    return SequenceInfo(
+        path=Path(path),
+        format=source.format,
+        sensor=source.sensor.name,
+        frames=n,
+        points_min=int(counts.min()),
+        points_median=float(np.median(counts)),
+        points_max=int(counts.max()),
+        poses=pose_status(source),
+        dropped_rows=dropped,
+        class_histogram=classes,
+        warnings=warnings,
+    )

@@ -1,0 +1,191 @@
+"""KITTI / SemanticKITTI sequences: `velodyne/*.bin`, optional labels, poses, calib and times.
+
+Layout (a folder, or a single `.bin` as a one-frame sequence)::
+
+    SEQ/velodyne/NNNNNN.bin   float32 (N, 4): x, y, z, remission in [0, 1]
+    SEQ/labels/NNNNNN.label   optional, uint32 semantic | instance << 16
+    SEQ/poses.txt             optional, camera-0 poses P_k (12 numbers a line, or time + 12)
+    SEQ/calib.txt             optional `Tr:` velodyne -> camera; absent = identity
+    SEQ/times.txt             optional, one time (s) per frame
+    SEQ/metadata.json         optional, {"sensor": "hdl32e", ...} (written by the simulator)
+
+Poses become lidar poses `T_world_lidar = inv(Tr) @ P_k @ Tr`. Rings are recovered from scan order
+(`pipeline.io.rings`). The sensor is, in order: the `sensor` argument, metadata.json, the preset
+whose beam count matches the rings found in the first frame, HDL-64E.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import DataError
+from pipeline.io.rings import recover_rings, scan_order_rings
+from pipeline.io.semantickitti import (
+    lidar_poses,
+    read_bin,
+    read_calib_tr,
+    read_label,
+    read_matrix_lines,
+)
+from pipeline.scan import Scan, clean_rows
+from pipeline.sensors import PRESETS, SensorModel, get_sensor
+
+DEFAULT_SENSOR = "hdl64e"
+
+
+def _scan_files(path: Path) -> tuple[list[Path], Path]:
+    """The `.bin` files of a sequence and its root folder."""
+    if path.is_file():
+        root = path.parent.parent if path.parent.name == "velodyne" else path.parent
+        return [path], root
+    if not path.is_dir():
+        raise DataError(path, "no such file or folder")
+    folder = path / "velodyne" if (path / "velodyne").is_dir() else path
+    files = sorted(f for f in folder.glob("*.bin") if not f.name.endswith(".pcd.bin"))
+    if not files:
+        raise DataError(folder, "holds no .bin scans")
+    return files, path
+
+
+def _read_poses(path: Path, frames: int, calib: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(T_world_lidar (F, 4, 4), times (F,) or None) from a KITTI poses file (12 or 13 columns)."""
+    first = next((ln for ln in path.read_text().splitlines() if ln.strip()), "")
+    values = len(first.split())
+    if values not in (12, 13):
+        raise DataError(path, f"expected 12 numbers (3x4 pose) or 13 (time + pose) a line, got {values}")
+    cam = read_matrix_lines(path, values=values)
+    if len(cam) != frames:
+        raise DataError(path, f"has {len(cam)} poses but the sequence has {frames} frames")
+    tr = read_calib_tr(calib) if calib is not None else np.eye(4)
+    times = None
+    if values == 13:
+        times = np.array([float(ln.split()[0]) for ln in path.read_text().splitlines() if ln.strip()])
+    return lidar_poses(cam, tr), times
+
+
+def _read_times(path: Path, frames: int) -> np.ndarray:
+    try:
+        times = np.atleast_1d(np.loadtxt(path, dtype=np.float64))
+    except ValueError as exc:
+        raise DataError(path, f"not a column of numbers: {exc}") from None
+    if times.ndim != 1 or len(times) != frames:
+        raise DataError(path, f"has {times.size} times but the sequence has {frames} frames")
+    return times
+
+
+def _metadata_sensor(root: Path) -> SensorModel | None:
+    meta = root / "metadata.json"
+    if not meta.is_file():
+        return None
+    try:
+        value = json.loads(meta.read_text()).get("sensor")
+    except (OSError, json.JSONDecodeError, AttributeError) as exc:
+        raise DataError(meta, f"cannot read: {exc}") from None
+    if value is None:
+        return None
+    if isinstance(value, dict):
+        return SensorModel.from_dict(value)
+    try:
+        return get_sensor(str(value))
+    except KeyError as exc:
+        raise DataError(meta, str(exc.args[0])) from None
+
+
+def sensor_for_rings(found: int) -> SensorModel:
+    """The preset with `found` beams, else the KITTI default (HDL-64E)."""
+    for preset in PRESETS.values():
+        if preset.n_rings == found:
+            return preset
+    return PRESETS[DEFAULT_SENSOR]
+
+
+class KittiSequence:
+    """A KITTI / SemanticKITTI sequence, read lazily frame by frame (`pipeline.scan.SequenceSource`)."""
+
+    format = "kitti"
+
+    def __init__(
+        self,
+        path: str | Path,
+        sensor: str | SensorModel = "auto",
+        poses: str | Path | None = None,
+        calib: str | Path | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self._files, self.root = _scan_files(self.path)
+        labels = self.root / "labels"
+        self._labels = labels if labels.is_dir() else None
+        self.warnings: list[str] = []
+        self.poses, self.times = self._load_poses(poses, calib)
+        times = self.root / "times.txt"
+        if self.path.is_dir() and times.is_file():
+            self.times = _read_times(times, len(self._files))
+        self.sensor = self._pick_sensor(sensor)
+
+    def _load_poses(
+        self, poses: str | Path | None, calib: str | Path | None
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        pose_file = Path(poses) if poses is not None else self.root / "poses.txt"
+        if poses is None and (not self.path.is_dir() or not pose_file.is_file()):
+            return None, None
+        if not pose_file.is_file():
+            raise DataError(pose_file, "no such poses file")
+        calib_file = Path(calib) if calib is not None else self.root / "calib.txt"
+        if calib is not None and not calib_file.is_file():
+            raise DataError(calib_file, "no such calib file")
+        if not calib_file.is_file():
+            calib_file = None
+            self.warnings.append(f"{pose_file}: no calib.txt beside it, poses are taken as T_world_lidar")
+        return _read_poses(pose_file, len(self._files), calib_file)
+
+    def _pick_sensor(self, sensor: str | SensorModel) -> SensorModel:
+        if isinstance(sensor, SensorModel):
+            return sensor
+        if sensor != "auto":
+            return get_sensor(sensor)
+        meta = _metadata_sensor(self.root)
+        if meta is not None:
+            return meta
+        points = self._read_points(0)[0][:, :3]
+        rows, found = scan_order_rings(points, None)
+        return sensor_for_rings(found if rows is not None else 0)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def frame_name(self, index: int) -> str:
+        return self._files[index].stem
+
+    def _read_points(self, index: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """(finite rows (M, 4), finite mask (N,), dropped count) of frame `index`."""
+        raw = read_bin(self._files[index])
+        finite, dropped = clean_rows(raw)
+        return raw[finite], finite, dropped
+
+    def label_path(self, index: int) -> Path | None:
+        if self._labels is None:
+            return None
+        p = self._labels / f"{self._files[index].stem}.label"
+        return p if p.is_file() else None
+
+    def frame(self, index: int) -> Scan:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"frame {index} out of range for {len(self)} frames")
+        rows, finite, dropped = self._read_points(index)
+        points = np.ascontiguousarray(rows[:, :3])
+        semantic = instance = None
+        label = self.label_path(index)
+        if label is not None:
+            semantic, instance = read_label(label, expected=len(finite))
+            semantic, instance = semantic[finite], instance[finite]
+        return Scan(
+            points=points,
+            intensity=np.clip(rows[:, 3], 0.0, 1.0).astype(np.float32),
+            ring=recover_rings(points, self.sensor).ring,
+            semantic=semantic,
+            instance=instance,
+            dropped=dropped,
+        )

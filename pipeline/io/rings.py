@@ -1,0 +1,251 @@
+"""Ring (beam row) recovery for point clouds without a ring field, and a check of any ring layout.
+
+Rows follow docs/conventions.md: row 0 is the top beam. Two ways to recover them:
+
+1. **Scan order** (`scan_order_rings`): a KITTI `.bin` stores one laser's revolution after the
+   other, so a new beam starts where the azimuth wraps around (drops by more than half a turn).
+   The segments are then ordered by elevation to make row 0 the top beam.
+2. **Elevation** (`elevation_rings`): each point takes the sensor beam of nearest elevation. It
+   ignores the laser origin offsets, so it is only a fallback (exact on simulated data).
+
+`check_rings` measures how well rows match lasers without ground truth: it fits each row's laser
+origin height `h` (z = h + rho tan(e), the HDL-64E lasers sit ~0.2 m above the frame origin) and
+counts the points whose corrected elevation lies more than half the local beam spacing from their
+row's median in the same azimuth sector, towards a neighbouring row.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.sensors import SensorModel
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class RingRecovery:
+    """Recovered rows of a scan.
+
+    ring:   (N,) int16 row, 0 = top beam, in [0, n_rings).
+    method: "scan_order" or "elevation" (the fallback).
+    found:  segments found in scan order (0 when the order showed no rings).
+    """
+
+    ring: np.ndarray
+    method: str
+    found: int
+
+
+@dataclass(frozen=True)
+class RingCheck:
+    """How well rows match lasers (see `check_rings`).
+
+    rows:            number of rows that hold points.
+    row_elevation:   (R,) float64 median corrected elevation per row, degrees (NaN = empty row).
+    origin_height:   (R,) float64 fitted laser origin height per row, metres.
+    monotonic:       row medians strictly decrease from row 0 down.
+    wrong:           (N,) bool, point lies nearer a neighbouring row than its own (see module doc).
+    wrong_fraction:  wrong.mean().
+    """
+
+    rows: int
+    row_elevation: np.ndarray
+    origin_height: np.ndarray
+    monotonic: bool
+    wrong: np.ndarray
+    wrong_fraction: float
+
+
+def _azimuth(points: np.ndarray) -> np.ndarray:
+    """(N,) float64 azimuth in [0, 2 pi), counter-clockwise from +x."""
+    p = points.astype(np.float64, copy=False)
+    return np.mod(np.arctan2(p[:, 1], p[:, 0]), TWO_PI)
+
+
+def _elevation(points: np.ndarray) -> np.ndarray:
+    """(N,) float64 elevation in radians."""
+    p = points.astype(np.float64, copy=False)
+    return np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+
+
+def _segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
+    """(n_seg,) median of `values` per segment id `seg` (NaN for empty segments)."""
+    order = np.lexsort((values, seg))
+    sv, ss = values[order], seg[order]
+    counts = np.bincount(ss, minlength=n_seg)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.full(n_seg, np.nan)
+    have = counts > 0
+    lo = starts[have] + (counts[have] - 1) // 2
+    hi = starts[have] + counts[have] // 2
+    out[have] = 0.5 * (sv[lo] + sv[hi])
+    return out
+
+
+def _segments(azimuth: np.ndarray, cut: float) -> np.ndarray:
+    """(N,) segment id: a new segment starts where the azimuth, measured from `cut`, wraps."""
+    b = np.mod(azimuth - cut, TWO_PI)
+    starts = np.zeros(len(b), dtype=np.int64)
+    starts[1:] = np.diff(b) < -np.pi
+    return np.cumsum(starts)
+
+
+def _merge_fragments(seg: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """Merge tiny segments (azimuth jitter across the cut) into the neighbour of closer elevation."""
+    n_seg = int(seg[-1]) + 1 if len(seg) else 0
+    counts = np.bincount(seg, minlength=n_seg)
+    if n_seg < 2:
+        return seg
+    min_len = max(4, int(0.05 * np.median(counts)))
+    tiny = np.flatnonzero(counts < min_len)
+    if len(tiny) == 0:
+        return seg
+    med = _segment_medians(elevation, seg, n_seg)
+    target = np.arange(n_seg)
+    for s in tiny:  # loop over a few segments, not points
+        prev, nxt = s - 1, s + 1
+        d_prev = abs(med[s] - med[prev]) if prev >= 0 and counts[prev] >= min_len else np.inf
+        d_next = abs(med[s] - med[nxt]) if nxt < n_seg and counts[nxt] >= min_len else np.inf
+        if np.isfinite(d_prev) or np.isfinite(d_next):
+            target[s] = prev if d_prev <= d_next else nxt
+    # resolve chains and renumber densely in scan order
+    target = target[target]
+    _, dense = np.unique(target, return_inverse=True)
+    return dense[seg]
+
+
+def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np.ndarray | None, int]:
+    """Rows from scan order: ((N,) int64 row 0 = top, or None when the order shows no rings; found).
+
+    A layout is accepted when the segment count equals `n_rings` (any count when None) and the
+    segments' median elevations fall (or rise, then they are reversed) monotonically. The cut is
+    tried at azimuth 0 (KITTI) and pi; counter-clockwise and clockwise storage are both accepted.
+    """
+    n = len(points)
+    if n < 2:
+        return None, 0
+    az = _azimuth(points)
+    el = _elevation(points)
+    step = np.mod(np.diff(az) + np.pi, TWO_PI) - np.pi
+    if np.median(step) < 0:  # stored clockwise
+        az = np.mod(-az, TWO_PI)
+    first_found = 0
+    for cut in (0.0, np.pi):
+        seg = _merge_fragments(_segments(az, cut), el)
+        found = int(seg[-1]) + 1
+        first_found = first_found or found
+        if found < 2 or (n_rings is not None and found != n_rings):
+            continue
+        med = _segment_medians(el, seg, found)
+        d = np.diff(med)
+        if np.mean(d < 0) >= 0.9:
+            return seg, found
+        if np.mean(d > 0) >= 0.9:
+            return found - 1 - seg, found
+    return None, first_found
+
+
+def elevation_rings(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
+    """(N,) int64 row of the sensor beam with the nearest elevation (0 = top)."""
+    e = sensor.elevations_rad()  # descending
+    bounds = 0.5 * (e[1:] + e[:-1])  # descending
+    return np.searchsorted(-bounds, -_elevation(points), side="left").astype(np.int64)
+
+
+def recover_rings(points: np.ndarray, sensor: SensorModel) -> RingRecovery:
+    """Rows (0 = top) for points (N, 3) in scan order: scan order first, elevation as fallback."""
+    rows, found = scan_order_rings(points, sensor.n_rings)
+    if rows is not None:
+        return RingRecovery(rows.astype(np.int16), "scan_order", found)
+    return RingRecovery(elevation_rings(points, sensor).astype(np.int16), "elevation", found)
+
+
+def rows_from_ring_field(points: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
+    """(N,) int16 rows from a source's ring numbers, flipped when its ring 0 is the bottom beam.
+
+    Vendors differ (Velodyne drivers: ring 0 = lowest beam; Ouster: ring 0 = top), so the
+    direction is taken from the median elevation per ring.
+    """
+    r = np.asarray(ring).astype(np.int64)
+    if len(r) == 0:
+        return r.astype(np.int16)
+    present = np.flatnonzero(np.bincount(r, minlength=n_rings))
+    if len(present) >= 2:
+        med = _segment_medians(_elevation(points), r, int(r.max()) + 1)[present]
+        if np.corrcoef(present, med)[0, 1] > 0:  # elevation rises with the ring number
+            r = n_rings - 1 - r
+    return np.clip(r, 0, n_rings - 1).astype(np.int16)
+
+
+def _origin_heights(rho: np.ndarray, z: np.ndarray, ring: np.ndarray, n_rows: int) -> np.ndarray:
+    """(R,) laser origin height per row: robust fit z = h + rho t; ill-posed rows borrow h."""
+    h = np.zeros(n_rows)
+    good = np.zeros(n_rows, dtype=bool)
+    for r in range(n_rows):  # loop over rows, vectorised within
+        m = ring == r
+        if m.sum() < 50:
+            continue
+        rr, zz = rho[m], z[m]
+        q10, q90 = np.percentile(rr, [10, 90])
+        if q10 <= 0 or q90 / q10 < 2.0:  # too little range spread: h and t are confounded
+            continue
+        a = np.column_stack([np.ones_like(rr), rr])
+        keep = np.ones(len(rr), dtype=bool)
+        for _ in range(4):
+            sol = np.linalg.lstsq(a[keep], zz[keep], rcond=None)[0]
+            res = np.abs(zz - a @ sol)
+            keep = res <= 2.5 * np.median(res[keep]) + 1e-4
+        h[r], good[r] = sol[0], True
+    gi = np.flatnonzero(good)
+    if len(gi) == 0:
+        return h
+    for r in np.flatnonzero(~good):
+        near = gi[np.argsort(np.abs(gi - r), kind="stable")[:4]]
+        h[r] = np.median(h[near])
+    return h
+
+
+def check_rings(points: np.ndarray, ring: np.ndarray, n_rings: int, sectors: int = 72) -> RingCheck:
+    """Measure how well `ring` (N,) rows match lasers; see the module docstring.
+
+    Per row and azimuth sector (360/sectors degrees) the median of the origin-corrected elevation
+    is the row's local elevation; a point is wrong when it lies beyond half the gap to the
+    neighbouring row's local elevation, on that neighbour's side. Local sectors absorb the
+    azimuth-dependent residue of motion compensation; the origin fit removes range parallax.
+    """
+    p = points.astype(np.float64)
+    r = np.asarray(ring).astype(np.int64)
+    assert p.ndim == 2 and p.shape[1] == 3 and r.shape == (len(p),)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    h = _origin_heights(rho, p[:, 2], r, n_rings)
+    el = np.degrees(np.arctan2(p[:, 2] - h[r], rho))
+    sec = np.minimum((_azimuth(p) / TWO_PI * sectors).astype(np.int64), sectors - 1)
+    row_med = _segment_medians(el, r, n_rings)
+    med = _segment_medians(el, r * sectors + sec, n_rings * sectors).reshape(n_rings, sectors)
+    med = np.where(np.isnan(med), row_med[:, None], med)
+    own = med[r, sec]
+    up = np.where(r > 0, med[np.maximum(r - 1, 0), sec] - own, np.nan)  # gap to the row above
+    down = np.where(r < n_rings - 1, own - med[np.minimum(r + 1, n_rings - 1), sec], np.nan)
+    up = np.where(np.isnan(up), down, up)  # edge rows: use the gap on the other side
+    down = np.where(np.isnan(down), up, down)
+    dev = el - own
+    wrong = np.where(dev > 0, dev > 0.5 * up, -dev > 0.5 * down)
+    wrong &= ~np.isnan(own)
+    present = row_med[~np.isnan(row_med)]
+    return RingCheck(
+        rows=len(present),
+        row_elevation=row_med,
+        origin_height=h,
+        monotonic=bool(np.all(np.diff(present) < 0)),
+        wrong=wrong,
+        wrong_fraction=float(wrong.mean()) if len(wrong) else 0.0,
+    )
+
+
+def count_scan_rings(points: np.ndarray) -> int:
+    """Rings found in scan order with monotonic elevation (0 when the order shows none)."""
+    rows, found = scan_order_rings(points, None)
+    return found if rows is not None else 0
