@@ -58,10 +58,9 @@ def vote_matrix(
 ) -> np.ndarray:
     """(S_t, S_{t-1}) int64 votes: points of each t segment that land on each t-1 segment."""
     n_prev = len(prev.n_points)
-    votes = np.zeros((n_curr, n_prev), dtype=np.int64)
     m = seg_point >= 0
     if not m.any() or n_prev == 0:
-        return votes
+        return np.zeros((n_curr, n_prev), dtype=np.int64)
     p = points[m].astype(np.float64) @ T_prev_curr[:3, :3].T + T_prev_curr[:3, 3]
     h, w = prev.seg_pixel.shape
     rows = elevation_rows(p, sensor).astype(np.int64)
@@ -72,8 +71,7 @@ def vote_matrix(
     agree = (target >= 0) & (np.abs(r_proj - r_pix) <= 0.3 + 0.03 * r_proj)
     a = seg_point[m][agree].astype(np.int64)
     b = target[agree].astype(np.int64)
-    np.add.at(votes, (a, b), 1)
-    return votes
+    return np.bincount(a * n_prev + b, minlength=n_curr * n_prev).reshape(n_curr, n_prev)
 
 
 def associate(
@@ -95,51 +93,48 @@ def associate(
     if n_curr == 0 or n_prev == 0 or curr.T_world_lidar is None or prev.T_world_lidar is None:
         return links
     T_prev_curr = np.linalg.inv(prev.T_world_lidar) @ curr.T_world_lidar
-    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)
-    n_a = np.maximum(curr.n_points, 1).astype(np.float64)
-    share = votes / n_a[:, None]  # (S_t, S_{t-1}) share of a's points voting for b
+    # only valid segments take part: work on the (valid t) x (valid t-1) block
+    va, vb = np.flatnonzero(curr.valid), np.flatnonzero(prev.valid)
+    if len(va) == 0 or len(vb) == 0:
+        return links
+    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)[np.ix_(va, vb)]
+    n_a = np.maximum(curr.n_points[va], 1).astype(np.float64)
+    n_b = np.maximum(prev.n_points[vb], 1).astype(np.float64)
+    share = votes / n_a[:, None]  # (A, B) share of a's points voting for b
     # link score: votes over the larger of the two segments, so that the pieces of a split do not
     # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
-    overlap = votes / np.maximum(n_a[:, None], prev.n_points[None, :].astype(np.float64))
+    overlap = votes / np.maximum(n_a[:, None], n_b[None, :])
 
     # 1. ambiguity: a segment whose votes split between two t-1 segments is a likely merge
-    if n_prev >= 2:
+    if len(vb) >= 2:
         top2 = np.sort(share, axis=1)[:, -2:]
-        ambiguous = top2[:, 0] > 0.5 * top2[:, 1]
-        ambiguous &= top2[:, 0] >= 0.1
+        ambiguous = (top2[:, 0] > 0.5 * top2[:, 1]) & (top2[:, 0] >= 0.1)
         overlap[ambiguous] = 0.0
     score = np.where(share >= config.min_overlap, overlap, 0.0)
 
     # 2. moving tracks: predicted-centroid matching where the overlap is weak
     dt = max(curr.time - prev.time, 1e-3)
+    cw_a, cw_b, vel_b = curr.centroid_world[va], prev.centroid_world[vb], prev_velocity[vb]
+    speed = np.linalg.norm(vel_b, axis=1)
     if config.use_motion_prediction:
-        speed = np.linalg.norm(prev_velocity, axis=1)
         moving = speed > 0.5
         if moving.any():
-            pred = prev.centroid_world + prev_velocity * dt  # (S_{t-1}, 3)
-            dist = np.linalg.norm(curr.centroid_world[:, None, :2] - pred[None, moving, :2], axis=2)
+            pred = cw_b[moving] + vel_b[moving] * dt
+            dist = np.linalg.norm(cw_a[:, None, :2] - pred[None, :, :2], axis=2)
             cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
-            weak = score[:, moving] < config.min_score
-            score[:, moving] = np.where(weak, np.maximum(score[:, moving], cscore), score[:, moving])
+            sub = score[:, moving]
+            score[:, moving] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
 
     # 3. gates: point counts must be comparable, centroids must be near after ego-motion
-    ratio = curr.n_points[:, None] / np.maximum(prev.n_points[None, :], 1)
+    ratio = n_a[:, None] / n_b[None, :]
     bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
-    max_jump = config.max_centroid_distance + np.linalg.norm(prev_velocity, axis=1)[None, :] * dt * 2.0
-    jump = np.linalg.norm(curr.centroid_world[:, None, :] - prev.centroid_world[None, :, :], axis=2)
-    score[bad_ratio | (jump > max_jump + 1.0)] = 0.0
-    score[:, ~prev.valid] = 0.0
-    score[~curr.valid, :] = 0.0
+    max_jump = config.max_centroid_distance + 1.0 + speed[None, :] * dt * 2.0
+    jump = np.linalg.norm(cw_a[:, None, :] - cw_b[None, :, :], axis=2)
+    score[bad_ratio | (jump > max_jump)] = 0.0
 
     # 4. one-to-one
-    rows_any = np.flatnonzero(score.max(axis=1) >= config.min_score)
-    if len(rows_any) == 0:
-        return links
-    cols_any = np.flatnonzero(score[rows_any].max(axis=0) >= config.min_score)
-    sub = score[np.ix_(rows_any, cols_any)]
-    r, c = linear_sum_assignment(-sub)
-    ok = sub[r, c] >= config.min_score
-    a, b = rows_any[r[ok]], cols_any[c[ok]]
-    links.prev[a] = b
-    links.score[a] = sub[r[ok], c[ok]]
+    r, c = linear_sum_assignment(-score)
+    ok = score[r, c] >= config.min_score
+    links.prev[va[r[ok]]] = vb[c[ok]]
+    links.score[va[r[ok]]] = score[r[ok], c[ok]]
     return links
