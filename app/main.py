@@ -13,6 +13,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
+from pydantic import ValidationError
 
 from app.api.main import api_router
 from app.artifacts import ArtifactStore
@@ -63,6 +64,11 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
         return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+
+    @app.exception_handler(ValidationError)
+    async def _validation_error(_request: Request, exc: ValidationError) -> JSONResponse:
+        # a model validated inside a route (job params, config) is the caller's error, not ours
+        return JSONResponse({"detail": exc.errors(include_url=False, include_context=False)}, status_code=422)
 
     app.include_router(api_router, prefix=API_PREFIX)
     return app

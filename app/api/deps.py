@@ -15,7 +15,8 @@ from app.core.config import Settings
 from app.core.db import Database
 from app.crud import AuthUser
 
-MAX_ID = 2**62  # ids fit a signed 64-bit column on both databases
+MAX_ID = 2**31 - 1  # INTEGER primary keys (users, datasets, sequences, frames, jobs)
+MAX_BIG_ID = 2**62  # BIGINT primary keys (tracks, segments)
 
 bearer = HTTPBearer(auto_error=False, description="`Authorization: Bearer <token>` from `tracklabel user add`.")
 
@@ -74,3 +75,4 @@ def require_admin(user: CurrentUser) -> AuthUser:
 AdminUser = Annotated[AuthUser, Depends(require_admin)]
 
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
+BigIdPath = Annotated[int, Path(ge=1, le=MAX_BIG_ID)]

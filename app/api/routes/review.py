@@ -5,7 +5,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response, status
 
 from app import crud
-from app.api.deps import CurrentUser, IdPath, SettingsDep, WriteSessionDep
+from app.api.deps import BigIdPath, CurrentUser, SettingsDep, WriteSessionDep
 from app.schemas import TrackPublic
 
 router = APIRouter(prefix="/review", tags=["review"])
@@ -32,6 +32,6 @@ def next_track(
 
 
 @router.post("/{track_id}/release", status_code=status.HTTP_204_NO_CONTENT)
-def release(track_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> None:
+def release(track_id: BigIdPath, user: CurrentUser, session: WriteSessionDep) -> None:
     """Give back the caller's lease on a track."""
     crud.release_lease(session, track_id, user)

@@ -6,7 +6,7 @@ from fastapi import APIRouter, Query, Response
 from sqlalchemy import select
 
 from app import crud
-from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.api.deps import ArtifactsDep, BigIdPath, CurrentUser, SessionDep, WriteSessionDep
 from app.core.errors import NotFound
 from app.models import Frame, Segment
 from app.schemas import (
@@ -59,7 +59,7 @@ def list_tracks(
 
 
 @router.get("/tracks/{track_id}")
-def read_track(track_id: IdPath, _user: CurrentUser, session: SessionDep) -> TrackDetail:
+def read_track(track_id: BigIdPath, _user: CurrentUser, session: SessionDep) -> TrackDetail:
     """A track with its segments per frame; each sample is served as PNG at `sample_url`."""
     track = crud.get_track(session, track_id)
     segs = [
@@ -83,7 +83,7 @@ def read_track(track_id: IdPath, _user: CurrentUser, session: SessionDep) -> Tra
 
 
 @router.get("/tracks/{track_id}/events")
-def track_events(track_id: IdPath, _user: CurrentUser, session: SessionDep) -> list[EventPublic]:
+def track_events(track_id: BigIdPath, _user: CurrentUser, session: SessionDep) -> list[EventPublic]:
     """The track's append-only event log (who, when, action, before, after)."""
     crud.get_track(session, track_id)
     return [EventPublic.model_validate(e) for e in crud.track_events(session, track_id)]
@@ -95,31 +95,31 @@ def _act(session: WriteSessionDep, track_id: int, user: CurrentUser, action: str
 
 
 @router.post("/tracks/{track_id}/accept")
-def accept_track(track_id: IdPath, body: AcceptAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def accept_track(track_id: BigIdPath, body: AcceptAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
     """Accept the track (its constraints become verified). Stale `version` -> 409."""
     return _act(session, track_id, user, "accept", body.version)
 
 
 @router.post("/tracks/{track_id}/discard")
-def discard_track(track_id: IdPath, body: DiscardAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def discard_track(track_id: BigIdPath, body: DiscardAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
     """Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409."""
     return _act(session, track_id, user, "discard", body.version)
 
 
 @router.post("/tracks/{track_id}/truncate")
-def truncate_track(track_id: IdPath, body: TruncateAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def truncate_track(track_id: BigIdPath, body: TruncateAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
     """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 422."""
     return _act(session, track_id, user, "truncate", body.version, start=body.start, end=body.end)
 
 
 @router.post("/tracks/{track_id}/label")
-def label_track(track_id: IdPath, body: LabelAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def label_track(track_id: BigIdPath, body: LabelAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
     """Give the whole track one class (and accept it); an unknown class -> 422."""
     return _act(session, track_id, user, "label", body.version, label=body.label)
 
 
 @router.post("/tracks/{track_id}/undo")
-def undo_track(track_id: IdPath, body: UndoAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def undo_track(track_id: BigIdPath, body: UndoAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
     """Revert the caller's last not-yet-undone action on this track (409 when there is none)."""
     return _act(session, track_id, user, "undo", body.version)
 
@@ -130,7 +130,7 @@ def undo_track(track_id: IdPath, body: UndoAction, user: CurrentUser, session: W
     responses={200: {"content": {"image/png": {}}, "description": "the sample"}},
 )
 def segment_sample(
-    segment_id: IdPath,
+    segment_id: BigIdPath,
     _user: CurrentUser,
     session: SessionDep,
     artifacts: ArtifactsDep,
