@@ -149,6 +149,142 @@ def evaluate(
     typer.echo(f"metrics written to {target}")
 
 
+# ----------------------------------------------------------------------------- service (app/)
+db_app = typer.Typer(no_args_is_help=True, help="Database migrations.")
+user_app = typer.Typer(no_args_is_help=True, help="Operators, admins and their tokens.")
+app.add_typer(db_app, name="db")
+app.add_typer(user_app, name="user")
+
+
+def _service_call(fn: Callable[[], object]) -> object:
+    """Run a service operation; its ServiceErrors become a one-line message and exit code 2."""
+    from app.core.errors import ServiceError
+
+    try:
+        return fn()
+    except ServiceError as exc:
+        fail(exc.detail)
+    return None
+
+
+@db_app.command("upgrade")
+@friendly_errors
+def db_upgrade(
+    revision: Annotated[str, typer.Option(help="Target revision.")] = "head",
+    wait: Annotated[float, typer.Option(help="Seconds to wait for the database to come up.")] = 0.0,
+) -> None:
+    """Wait for the database (TRACKLABEL_DATABASE_URL), then upgrade it to `revision`."""
+    from app.core.config import get_settings
+    from app.core.db import make_engine, wait_for_db
+    from app.core.migrate import upgrade
+
+    settings = get_settings()
+    if wait > 0:
+        engine = make_engine(settings.db_url)
+        wait_for_db(engine, timeout_s=wait)
+        engine.dispose()
+    upgrade(settings.db_url, revision)
+    typer.echo(f"database at {revision}")
+
+
+@db_app.command("downgrade")
+@friendly_errors
+def db_downgrade(revision: Annotated[str, typer.Argument(help="Target revision, e.g. base or -1.")]) -> None:
+    """Downgrade the database to `revision`."""
+    from app.core.config import get_settings
+    from app.core.migrate import downgrade
+
+    downgrade(get_settings().db_url, revision)
+    typer.echo(f"database at {revision}")
+
+
+@user_app.command("add")
+@friendly_errors
+def user_add(
+    name: Annotated[str, typer.Argument(help="User name.")],
+    role: Annotated[str, typer.Option(help="operator or admin.")] = "operator",
+) -> None:
+    """Create a user and print their bearer token (shown once; only its hash is stored)."""
+    from app import crud
+    from app.core.config import get_settings
+    from app.core.db import Database
+    from app.core.migrate import upgrade
+
+    settings = get_settings()
+    upgrade(settings.db_url)
+    db = Database.from_settings(settings)
+    with db.write() as s:
+        result = _service_call(lambda: crud.create_user(s, name, role))
+    db.dispose()
+    assert isinstance(result, tuple)
+    typer.echo(result[1])
+
+
+@app.command()
+@friendly_errors
+def serve(
+    host: Annotated[str | None, typer.Option(help="Bind address (TRACKLABEL_HOST).")] = None,
+    port: Annotated[int | None, typer.Option(help="Port (TRACKLABEL_PORT).")] = None,
+    worker: Annotated[bool, typer.Option(help="Run one in-process job worker.")] = True,
+    wait: Annotated[float, typer.Option(help="Seconds to wait for the database.")] = 30.0,
+) -> None:
+    """Serve the REST API: wait for the database, upgrade it, then run uvicorn (+ a worker thread)."""
+    import uvicorn
+
+    from app.core.config import Settings
+    from app.core.db import make_engine, wait_for_db
+    from app.core.migrate import upgrade
+    from app.main import create_app
+
+    overrides: dict[str, object] = {"embedded_worker": worker}
+    if host is not None:
+        overrides["host"] = host
+    if port is not None:
+        overrides["port"] = port
+    settings = Settings(**overrides)  # type: ignore[arg-type]
+    engine = make_engine(settings.db_url)
+    wait_for_db(engine, timeout_s=wait)
+    engine.dispose()
+    upgrade(settings.db_url)
+    typer.echo(f"serving http://{settings.host}:{settings.port}/api/v1/docs ({settings.db_url.split('://')[0]})")
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+
+
+@app.command()
+@friendly_errors
+def worker(once: Annotated[bool, typer.Option(help="Run at most one job, then exit.")] = False) -> None:
+    """Run a job worker against TRACKLABEL_DATABASE_URL (scale by starting more)."""
+    from app.worker import main as worker_main
+
+    worker_main(once=once)
+
+
+@app.command()
+@friendly_errors
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Folder for the scene, database and artifacts.")] = Path("data/demo"),
+    frames: Annotated[int, typer.Option(min=2, help="Frames to simulate.")] = 100,
+    seed: Annotated[int, typer.Option(help="Scene seed.")] = 0,
+    port: Annotated[int, typer.Option(help="Port to serve on.")] = 8000,
+    serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
+) -> None:
+    """Simulate the campus scene, register and ingest it, then serve it and print an operator token."""
+    from app.demo import prepare_demo
+
+    info = prepare_demo(out, frames=frames, seed=seed, port=port, log=typer.echo)
+    typer.echo(f"\nAPI:            {info.url}")
+    typer.echo(f"operator token: {info.operator_token}")
+    typer.echo(f"admin token:    {info.admin_token}")
+    typer.echo(f'try:  curl -H "Authorization: Bearer {info.operator_token}" '
+               f"http://{info.settings.host}:{port}/api/v1/exports/stats")
+    if serve_api:
+        import uvicorn
+
+        from app.main import create_app
+
+        uvicorn.run(create_app(info.settings), host=info.settings.host, port=port, log_level="warning")
+
+
 def main() -> None:
     """Entry point of the `tracklabel` script."""
     try:
