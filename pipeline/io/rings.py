@@ -71,7 +71,7 @@ def _elevation(points: np.ndarray) -> np.ndarray:
     return np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
 
 
-def _segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
+def segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
     """(n_seg,) median of `values` per segment id `seg` (NaN for empty segments)."""
     order = np.lexsort((values, seg))
     sv, ss = values[order], seg[order]
@@ -103,7 +103,7 @@ def _merge_fragments(seg: np.ndarray, elevation: np.ndarray) -> np.ndarray:
     tiny = np.flatnonzero(counts < min_len)
     if len(tiny) == 0:
         return seg
-    med = _segment_medians(elevation, seg, n_seg)
+    med = segment_medians(elevation, seg, n_seg)
     target = np.arange(n_seg)
     for s in tiny:  # loop over a few segments, not points
         prev, nxt = s - 1, s + 1
@@ -139,7 +139,7 @@ def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np
         first_found = first_found or found
         if found < 2 or (n_rings is not None and found != n_rings):
             continue
-        med = _segment_medians(el, seg, found)
+        med = segment_medians(el, seg, found)
         d = np.diff(med)
         if np.mean(d < 0) >= 0.9:
             return seg, found
@@ -174,7 +174,7 @@ def rows_from_ring_field(points: np.ndarray, ring: np.ndarray, n_rings: int) -> 
         return r.astype(np.int16)
     present = np.flatnonzero(np.bincount(r, minlength=n_rings))
     if len(present) >= 2:
-        med = _segment_medians(_elevation(points), r, int(r.max()) + 1)[present]
+        med = segment_medians(_elevation(points), r, int(r.max()) + 1)[present]
         if np.corrcoef(present, med)[0, 1] > 0:  # elevation rises with the ring number
             r = n_rings - 1 - r
     return np.clip(r, 0, n_rings - 1).astype(np.int16)
@@ -223,8 +223,8 @@ def check_rings(points: np.ndarray, ring: np.ndarray, n_rings: int, sectors: int
     h = _origin_heights(rho, p[:, 2], r, n_rings)
     el = np.degrees(np.arctan2(p[:, 2] - h[r], rho))
     sec = np.minimum((_azimuth(p) / TWO_PI * sectors).astype(np.int64), sectors - 1)
-    row_med = _segment_medians(el, r, n_rings)
-    med = _segment_medians(el, r * sectors + sec, n_rings * sectors).reshape(n_rings, sectors)
+    row_med = segment_medians(el, r, n_rings)
+    med = segment_medians(el, r * sectors + sec, n_rings * sectors).reshape(n_rings, sectors)
     med = np.where(np.isnan(med), row_med[:, None], med)
     own = med[r, sec]
     up = np.where(r > 0, med[np.maximum(r - 1, 0), sec] - own, np.nan)  # gap to the row above

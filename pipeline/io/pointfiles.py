@@ -1,0 +1,227 @@
+"""PCD (via pypcd4) and PLY (via plyfile) point clouds: one file, or a folder of files = a sequence.
+
+Fields are matched by name (case-insensitive):
+
+- `x`, `y`, `z` (required), in the lidar frame;
+- intensity: `intensity`, `remission`, `reflectivity`, `i`, `scalar_intensity`. Integers are
+  divided by their type's maximum; floats are kept when the first frame's maximum is <= 1, divided
+  by 255 when it is <= 255, else by 65535 (then clipped to [0, 1]). Absent = 0;
+- ring: `ring`, `laser_id`, `channel`, `ring_id`, `scalar_ring`. Its direction is taken from the
+  elevation (Velodyne drivers number from the bottom, Ouster from the top). Without one, an
+  organised cloud (PCD `HEIGHT` > 1) gives one ring per row; otherwise rings are recovered
+  (`pipeline.io.rings.recover_rings`: scan order, then nearest elevation);
+- time: `t`, `time`, `timestamp`, `ts`, made relative to the scan's first point; integers, and
+  floats spanning more than a second, are taken as nanoseconds;
+- labels: `label` (uint32, SemanticKITTI layout).
+
+The sensor ("auto") is the preset with the first frame's ring count, or a model built from that
+frame's per-ring median elevations when no preset has that count; HDL-64E when no rings show.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import DataError
+from pipeline.io.rings import recover_rings, rows_from_ring_field, scan_order_rings, segment_medians
+from pipeline.scan import Scan, clean_rows
+from pipeline.sensors import PRESETS, SensorModel, get_sensor
+
+INTENSITY_FIELDS = ("intensity", "remission", "reflectivity", "i", "scalar_intensity")
+RING_FIELDS = ("ring", "laser_id", "channel", "ring_id", "scalar_ring")
+TIME_FIELDS = ("t", "time", "timestamp", "ts")
+DEFAULT_SENSOR = "hdl64e"
+
+
+def _field(table: np.ndarray, names: tuple[str, ...]) -> np.ndarray | None:
+    lower = {n.lower(): n for n in table.dtype.names or ()}
+    for name in names:
+        if name in lower:
+            return table[lower[name]]
+    return None
+
+
+def _intensity_scale(values: np.ndarray) -> float:
+    if np.issubdtype(values.dtype, np.integer):
+        return float(np.iinfo(values.dtype).max)
+    finite = values[np.isfinite(values)]
+    top = float(finite.max()) if len(finite) else 0.0
+    return 1.0 if top <= 1.0 else 255.0 if top <= 255.0 else 65535.0
+
+
+def _relative_time(values: np.ndarray) -> np.ndarray:
+    t = values.astype(np.float64)
+    t = t - t.min() if len(t) else t
+    if np.issubdtype(values.dtype, np.integer) or (len(t) and t.max() > 1.0):
+        t = t * 1e-9
+    return t.astype(np.float32)
+
+
+def estimated_sensor(name: str, points: np.ndarray, rows: np.ndarray, n_rings: int) -> SensorModel:
+    """A sensor model from per-row median elevations and points per row (rows (N,), 0 = top)."""
+    p = points.astype(np.float64)
+    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    med = segment_medians(el, rows.astype(np.int64), n_rings)
+    idx = np.arange(n_rings)
+    have = ~np.isnan(med)
+    if have.sum() < 2:
+        raise DataError(None, f"{name}: cannot estimate beam elevations from {int(have.sum())} rings")
+    med = np.interp(idx, idx[have], med[have])
+    med = np.minimum.accumulate(med) - idx * 1e-6  # strictly descending
+    counts = np.bincount(rows.astype(np.int64), minlength=n_rings)
+    width = max(8, int(np.percentile(counts, 95)))
+    return SensorModel(name, tuple(float(x) for x in med), width=width)
+
+
+class _PointFileSequence:
+    """Files of one suffix read lazily as a `pipeline.scan.SequenceSource` without poses."""
+
+    format = ""
+    suffix = ""
+
+    def __init__(self, path: str | Path, sensor: str | SensorModel = "auto") -> None:
+        self.path = Path(path)
+        self._files = self._list_files()
+        self.poses: np.ndarray | None = None
+        self.times: np.ndarray | None = None
+        self.warnings: list[str] = []
+        first = self._table(0)
+        intensity = _field(first[0], INTENSITY_FIELDS)
+        self._intensity_scale = 1.0 if intensity is None else _intensity_scale(intensity)
+        if intensity is None:
+            self.warnings.append(f"{self._files[0]}: no intensity field, intensity set to 0")
+        self.sensor = self._pick_sensor(sensor, first)
+
+    def _list_files(self) -> list[Path]:
+        if self.path.is_file():
+            return [self.path]
+        if not self.path.is_dir():
+            raise DataError(self.path, "no such file or folder")
+        files = sorted(self.path.glob(f"*{self.suffix}"))
+        if not files:
+            raise DataError(self.path, f"holds no {self.suffix} files")
+        return files
+
+    def _read_table(self, path: Path) -> tuple[np.ndarray, int]:
+        """(structured array (N,), rows of an organised cloud or 1)."""
+        raise NotImplementedError
+
+    def _table(self, index: int) -> tuple[np.ndarray, int]:
+        path = self._files[index]
+        try:
+            table, height = self._read_table(path)
+        except DataError:
+            raise
+        except Exception as exc:  # parsers raise many types on corrupt files
+            raise DataError(path, f"cannot read {self.format.upper()}: {exc}") from None
+        if table.dtype.names is None or not {"x", "y", "z"} <= {n.lower() for n in table.dtype.names}:
+            raise DataError(path, "needs x, y and z fields")
+        return table, height
+
+    def _xyz(self, table: np.ndarray) -> np.ndarray:
+        return np.column_stack([_field(table, (c,)).astype(np.float32) for c in "xyz"])
+
+    def _ring_source(self, table: np.ndarray, height: int) -> np.ndarray | None:
+        ring = _field(table, RING_FIELDS)
+        if ring is not None:
+            return ring.astype(np.int64)
+        if height > 1:
+            return np.arange(len(table)) // (len(table) // height)
+        return None
+
+    def _pick_sensor(self, sensor: str | SensorModel, first: tuple[np.ndarray, int]) -> SensorModel:
+        if isinstance(sensor, SensorModel):
+            return sensor
+        if sensor != "auto":
+            return get_sensor(sensor)
+        table, height = first
+        xyz = self._xyz(table)
+        finite, _ = clean_rows(xyz)
+        xyz = xyz[finite]
+        ring = self._ring_source(table, height)
+        if ring is not None:
+            n = int(ring.max()) + 1 if len(ring) else 0
+            rows = rows_from_ring_field(xyz, ring[finite], n) if n else None
+        else:
+            rows, n = scan_order_rings(xyz, None)
+        for preset in PRESETS.values():
+            if preset.n_rings == n:
+                return preset
+        if rows is None or n < 2:
+            self.warnings.append(
+                f"{self._files[0]}: no ring field and no scan order; rows use {DEFAULT_SENSOR} elevations"
+            )
+            return PRESETS[DEFAULT_SENSOR]
+        return estimated_sensor(f"{self.format}-{n}beam", xyz, rows, n)
+
+    def __len__(self) -> int:
+        return len(self._files)
+
+    def frame_name(self, index: int) -> str:
+        return self._files[index].name[: -len(self.suffix)]
+
+    def frame(self, index: int) -> Scan:
+        table, height = self._table(index)
+        xyz = self._xyz(table)
+        intensity = _field(table, INTENSITY_FIELDS)
+        time = _field(table, TIME_FIELDS)
+        columns = [xyz]
+        if intensity is not None:
+            columns.append(intensity.astype(np.float64)[:, None])
+        if time is not None and np.issubdtype(time.dtype, np.floating):
+            columns.append(time[:, None])
+        finite, dropped = clean_rows(np.column_stack(columns))
+        points = np.ascontiguousarray(xyz[finite])
+        ring = self._ring_source(table, height)
+        if ring is not None:
+            rows = rows_from_ring_field(points, ring[finite], self.sensor.n_rings)
+        else:
+            rows = recover_rings(points, self.sensor).ring
+        if intensity is None:
+            inten = np.zeros(len(points), np.float32)
+        else:
+            inten = np.clip(intensity[finite] / self._intensity_scale, 0.0, 1.0).astype(np.float32)
+        label = _field(table, ("label",))
+        semantic = instance = None
+        if label is not None:
+            raw = label[finite].astype(np.uint32)
+            semantic, instance = (raw & 0xFFFF).astype(np.uint16), (raw >> 16).astype(np.uint16)
+        return Scan(
+            points=points,
+            intensity=inten,
+            ring=rows,
+            time=None if time is None else _relative_time(time[finite]),
+            semantic=semantic,
+            instance=instance,
+            dropped=dropped,
+        )
+
+
+class PcdSequence(_PointFileSequence):
+    """`.pcd` files read with pypcd4."""
+
+    format = "pcd"
+    suffix = ".pcd"
+
+    def _read_table(self, path: Path) -> tuple[np.ndarray, int]:
+        from pypcd4 import PointCloud
+
+        pc = PointCloud.from_path(path)
+        return pc.pc_data, int(pc.metadata.height)
+
+
+class PlySequence(_PointFileSequence):
+    """`.ply` files read with plyfile (the `vertex` element)."""
+
+    format = "ply"
+    suffix = ".ply"
+
+    def _read_table(self, path: Path) -> tuple[np.ndarray, int]:
+        from plyfile import PlyData
+
+        ply = PlyData.read(str(path))
+        if "vertex" not in [e.name for e in ply.elements]:
+            raise DataError(path, "has no vertex element")
+        return np.asarray(ply["vertex"].data), 1

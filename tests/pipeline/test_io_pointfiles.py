@@ -1,0 +1,140 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from plyfile import PlyData, PlyElement
+from pypcd4 import Encoding, PointCloud
+
+from pipeline.errors import DataError
+from pipeline.io import open_sequence
+from pipeline.io.pointfiles import PcdSequence, PlySequence
+from pipeline.io.semantickitti import pack_label
+from tests.pipeline.test_rings import beam_scan
+
+
+def write_pcd(path: Path, columns: dict[str, np.ndarray], height: int = 1) -> Path:
+    names = tuple(columns)
+    pc = PointCloud.from_points(list(columns.values()), names, tuple(v.dtype.type for v in columns.values()))
+    if height > 1:
+        pc.metadata.height = height
+        pc.metadata.width = len(next(iter(columns.values()))) // height
+    pc.save(path, encoding=Encoding.BINARY_COMPRESSED)
+    return path
+
+
+def write_ply(path: Path, columns: dict[str, np.ndarray]) -> Path:
+    n = len(next(iter(columns.values())))
+    table = np.empty(n, dtype=[(k, v.dtype) for k, v in columns.items()])
+    for k, v in columns.items():
+        table[k] = v
+    PlyData([PlyElement.describe(table, "vertex")]).write(str(path))
+    return path
+
+
+def xyz_columns(points: np.ndarray) -> dict[str, np.ndarray]:
+    return {c: np.ascontiguousarray(points[:, i]) for i, c in enumerate("xyz")}
+
+
+def test_pcd_ring_field_bottom_first_and_uint8_intensity(tmp_path: Path) -> None:
+    pts, rows = beam_scan("hdl32e", cols=90)
+    cols = xyz_columns(pts)
+    cols["intensity"] = np.full(len(pts), 51, np.uint8)
+    cols["ring"] = (31 - rows).astype(np.uint16)  # Velodyne driver numbering: 0 = lowest beam
+    seq = open_sequence(write_pcd(tmp_path / "a.pcd", cols))
+    assert seq.format == "pcd" and seq.sensor.name == "hdl32e"
+    scan = seq.frame(0)
+    np.testing.assert_array_equal(scan.ring, rows)
+    np.testing.assert_allclose(scan.intensity, 0.2)
+
+
+def test_pcd_without_ring_recovers_scan_order(tmp_path: Path) -> None:
+    pts, rows = beam_scan("vlp16", cols=200)
+    cols = xyz_columns(pts)
+    cols["intensity"] = np.linspace(0, 200, len(pts)).astype(np.float32)
+    seq = PcdSequence(write_pcd(tmp_path / "a.pcd", cols))
+    assert seq.sensor.name == "vlp16"
+    scan = seq.frame(0)
+    np.testing.assert_array_equal(scan.ring, rows)
+    assert scan.intensity.max() == pytest.approx(200 / 255)
+
+
+def test_pcd_organised_cloud_rows_are_rings(tmp_path: Path) -> None:
+    pts, rows = beam_scan("hdl32e", cols=64)
+    perm = np.random.default_rng(0).permutation(64)  # columns out of azimuth order
+    grid = pts.reshape(32, 64, 3)[:, perm].reshape(-1, 3)
+    grid[5] = np.nan  # a missing return
+    scan = PcdSequence(write_pcd(tmp_path / "o.pcd", xyz_columns(grid), height=32)).frame(0)
+    assert scan.dropped == 1
+    np.testing.assert_array_equal(scan.ring, np.delete(rows, 5))
+
+
+def test_pcd_unknown_beam_count_builds_sensor(tmp_path: Path) -> None:
+    pts, rows = beam_scan("hdl32e", cols=90)
+    keep = rows < 24  # a 24-beam sensor: no preset
+    cols = xyz_columns(pts[keep])
+    cols["ring"] = rows[keep].astype(np.uint16)
+    seq = PcdSequence(write_pcd(tmp_path / "a.pcd", cols))
+    assert seq.sensor.n_rings == 24 and seq.sensor.name == "pcd-24beam"
+    assert seq.sensor.elevations_deg[0] == pytest.approx(10.67, abs=0.01)
+
+
+def test_pcd_time_and_label_fields(tmp_path: Path) -> None:
+    pts, rows = beam_scan("hdl32e", cols=90)
+    cols = xyz_columns(pts)
+    cols["t"] = (np.arange(len(pts), dtype=np.uint32) * 1000 + 5_000).astype(np.uint32)  # ns
+    cols["label"] = pack_label(np.full(len(pts), 10), np.full(len(pts), 3))
+    scan = PcdSequence(write_pcd(tmp_path / "a.pcd", cols)).frame(0)
+    assert scan.time[0] == 0.0 and scan.time[-1] == pytest.approx((len(pts) - 1) * 1e-6)
+    assert set(scan.semantic) == {10} and set(scan.instance) == {3}
+
+
+def test_pcd_folder_is_sequence(tmp_path: Path) -> None:
+    for i in range(3):
+        pts, _ = beam_scan("hdl32e", cols=90, seed=i)
+        write_pcd(tmp_path / f"{i:04d}.pcd", xyz_columns(pts))
+    seq = open_sequence(tmp_path)
+    assert seq.format == "pcd" and len(seq) == 3 and seq.frame_name(2) == "0002"
+    assert seq.poses is None and any("no intensity" in w for w in seq.warnings)
+
+
+def test_pcd_corrupt_file_names_it(tmp_path: Path) -> None:
+    f = tmp_path / "bad.pcd"
+    f.write_text("VERSION 0.7\nFIELDS x y\nnonsense\n")
+    with pytest.raises(DataError, match="bad.pcd: cannot read PCD"):
+        PcdSequence(f)
+
+
+def test_pcd_without_xyz_names_it(tmp_path: Path) -> None:
+    f = write_pcd(tmp_path / "a.pcd", {"a": np.zeros(3, np.float32), "b": np.zeros(3, np.float32)})
+    with pytest.raises(DataError, match="a.pcd: needs x, y and z"):
+        PcdSequence(f)
+
+
+def test_ply_round_trip_with_float_intensity(tmp_path: Path) -> None:
+    pts, rows = beam_scan("hdl32e", cols=90)
+    cols = xyz_columns(pts)
+    cols["scalar_intensity"] = np.full(len(pts), 0.25, np.float32)
+    seq = open_sequence(write_ply(tmp_path / "a.ply", cols))
+    assert seq.format == "ply" and seq.sensor.name == "hdl32e"
+    scan = seq.frame(0)
+    np.testing.assert_array_equal(scan.points, pts)
+    np.testing.assert_array_equal(scan.ring, rows)
+    np.testing.assert_allclose(scan.intensity, 0.25)
+
+
+def test_ply_nan_rows_dropped(tmp_path: Path) -> None:
+    pts, _ = beam_scan("hdl32e", cols=90)
+    pts[[0, 7]] = np.nan
+    scan = PlySequence(write_ply(tmp_path / "a.ply", xyz_columns(pts))).frame(0)
+    assert scan.dropped == 2 and len(scan) == len(pts) - 2
+
+
+def test_ply_corrupt_file_names_it(tmp_path: Path) -> None:
+    f = tmp_path / "bad.ply"
+    f.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n\x00"
+    )
+    with pytest.raises(DataError, match="bad.ply"):
+        PlySequence(f)
