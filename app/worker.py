@@ -174,6 +174,7 @@ class Worker:
         lease = timedelta(seconds=self.settings.job_lease_seconds)
         while not stop.wait(self.settings.job_heartbeat_seconds):
             try:
+                self.touch_alive()
                 with self.db.write() as s:
                     now = utcnow()
                     res = s.execute(
@@ -191,10 +192,17 @@ class Worker:
             except Exception:  # noqa: BLE001 - a missed beat is retried; the lease covers several
                 log.exception("job %s: heartbeat failed", ctx.job_id)
 
+    def touch_alive(self) -> None:
+        """Mark this worker alive (`worker_alive_file`, for container healthchecks)."""
+        path = self.settings.worker_alive_file
+        if path is not None:
+            path.touch()
+
     def run_forever(self) -> None:
         """Poll for jobs until `stop_event` is set."""
         log.info("worker %s: job types %s", self.worker_id, ", ".join(self.types))
         while not self.stop_event.is_set():
+            self.touch_alive()
             try:
                 ran = self.run_once()
             except Exception:  # noqa: BLE001 - e.g. the database restarting; poll again

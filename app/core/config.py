@@ -38,6 +38,8 @@ class Settings(BaseSettings):
     # Extra modules imported at start-up that register job types (plugins, tests).
     job_modules: Annotated[list[str], NoDecode] = Field(default_factory=list)
     ingest_batch_frames: int = Field(default=10, ge=1)
+    # Touched on every worker poll and heartbeat (container healthchecks read its age).
+    worker_alive_file: Path | None = None
 
     # Review queue: how long `next` reserves a track for its operator.
     review_lease_seconds: float = Field(default=300.0, gt=0)
