@@ -43,6 +43,13 @@ def dataset_factory(name: str, path: str | Path, **opts: object) -> SequenceSour
     return _load(name)(Path(path), **opts)
 
 
+def _pcap_format(pcap: Path) -> str:
+    """Ouster when a metadata json goes with the pcap, else Velodyne."""
+    from pipeline.io.ouster import find_ouster_metadata  # imports no SDK
+
+    return "ouster" if find_ouster_metadata(pcap) is not None else "velodyne_pcap"
+
+
 def detect_format(path: str | Path) -> str:
     """Guess the format of a file or folder; raises DataError naming the path when unknown."""
     p = Path(path)
@@ -57,8 +64,11 @@ def detect_format(path: str | Path) -> str:
             return "pcd"
         if any(p.glob("*.ply")):
             return "ply"
-        if any(p.glob("*.pcap")) or any(p.glob("*.osf")):
+        if any(p.glob("*.osf")):
             return "ouster"
+        pcaps = sorted(p.glob("*.pcap"))
+        if pcaps:
+            return _pcap_format(pcaps[0])
         if not any(p.iterdir()):
             raise DataError(p, "folder is empty")
         raise DataError(p, "unknown folder layout: expected velodyne/*.bin, *.pcd.bin, *.pcd, *.ply or *.pcap")
@@ -74,7 +84,7 @@ def detect_format(path: str | Path) -> str:
     if name.endswith(".osf"):
         return "ouster"
     if name.endswith(".pcap"):
-        return "ouster" if p.with_suffix(".json").exists() else "velodyne_pcap"
+        return _pcap_format(p)
     raise DataError(p, "unknown file type")
 
 
