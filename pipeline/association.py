@@ -137,4 +137,27 @@ def associate(
     ok = score[r, c] >= config.min_score
     links.prev[va[r[ok]]] = vb[c[ok]]
     links.score[va[r[ok]]] = score[r[ok], c[ok]]
+
+    # 5. objects that start moving (no velocity yet) or move across their own extent: match the
+    # leftovers by world centroid, only where the match is mutual and unambiguous
+    if config.use_motion_prediction:
+        free_a = np.setdiff1d(np.arange(len(va)), r[ok])
+        free_b = np.setdiff1d(np.arange(len(vb)), c[ok])
+        if len(free_a) and len(free_b):
+            d = np.linalg.norm(cw_a[free_a, None, :2] - cw_b[None, free_b, :2], axis=2)
+            dz = np.abs(cw_a[free_a, None, 2] - cw_b[None, free_b, 2])
+            rat = ratio[np.ix_(free_a, free_b)]
+            d = np.where((dz < 0.3) & (rat < 1.5) & (rat > 1 / 1.5), d, np.inf)
+            near_b = np.argmin(d, axis=1)
+            near_a = np.argmin(d, axis=0)
+            for i, j in enumerate(near_b):
+                dij = d[i, j]
+                if not np.isfinite(dij) or dij > config.max_centroid_distance or near_a[j] != i:
+                    continue
+                second = min(np.partition(d[i], 1)[1] if d.shape[1] > 1 else np.inf,
+                             np.partition(d[:, j], 1)[1] if d.shape[0] > 1 else np.inf)
+                if second < 2.0 * dij + 0.5:
+                    continue  # another candidate is nearly as close: ambiguous
+                links.prev[va[free_a[i]]] = vb[free_b[j]]
+                links.score[va[free_a[i]]] = float(1.0 - dij / config.max_centroid_distance) * 0.5
     return links

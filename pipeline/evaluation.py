@@ -9,7 +9,8 @@ dominant object is the key holding most of its points.
 - over_segmentation: segments per (frame, object) among objects that dominate a segment;
 - association precision: links whose two segments share a dominant object;
 - association recall: consecutive-frame presences of an instance (>= 30 points in both frames)
-  that a link joins (both segments dominated by that instance).
+  that a link joins: the two linked segments each hold >= 5 of the instance's points and are each
+  dominated by the instance's key (the instance itself for things, its class for stuff).
 
 Segments here are the sampled segments (track id > 0 in `tracks/*.label`).
 Everything is also reported per class (of the dominant object) and per range bin.
@@ -27,6 +28,7 @@ THINGS = (CLASS_INDEX["person"], CLASS_INDEX["car"], CLASS_INDEX["cyclist"])
 RANGE_BINS = (0.0, 15.0, 30.0, 50.0, np.inf)
 RANGE_NAMES = ("0-15", "15-30", "30-50", "50+")
 MIN_PRESENCE_POINTS = 30
+MIN_MEMBER_POINTS = 5
 
 
 def object_keys(semantic: np.ndarray, instance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,11 +92,30 @@ def _segments(ft: FrameTruth) -> dict[str, np.ndarray]:
     ifirst = np.ones(len(iseg), bool)
     ifirst[1:] = iseg[1:] != iseg[:-1]
     dom_inst = ucomb[ifirst] & 0xFFFFFF  # same segment order as `ids` (both sorted by id)
+    members = ucomb[icnt[order] >= MIN_MEMBER_POINTS] if len(ucomb) else ucomb  # tid << 24 | inst key
     pos = np.searchsorted(ids, tid)
     rng = np.zeros(len(ids))
     np.add.at(rng, pos, np.linalg.norm(ft.points[m], axis=1))
     rng /= np.maximum(total, 1)
-    return {"ids": ids, "dom": dom, "dom_cnt": dom_cnt, "total": total, "dom_inst": dom_inst, "range": rng}
+    return {"ids": ids, "dom": dom, "dom_cnt": dom_cnt, "total": total, "dom_inst": dom_inst, "range": rng,
+            "members": members}
+
+
+def _linked_objects(a: dict, b: dict, tids: np.ndarray) -> np.ndarray:
+    """Instance keys joined by the links `tids` between segment tables a (frame t) and b (t + 1)."""
+    found = []
+    for tid in tids:
+        ia = a["members"][(a["members"] >> 24) == tid] & 0xFFFFFF
+        ib = b["members"][(b["members"] >> 24) == tid] & 0xFFFFFF
+        both = np.intersect1d(ia, ib)
+        if len(both) == 0:
+            continue
+        dom_a = a["dom"][np.searchsorted(a["ids"], tid)]
+        dom_b = b["dom"][np.searchsorted(b["ids"], tid)]
+        cls = both >> 16
+        key = np.where(np.isin(cls, THINGS), both, cls << 16)
+        found.append(both[(key == dom_a) & (key == dom_b)])
+    return np.concatenate(found) if found else np.zeros(0, np.int64)
 
 
 def _range_bin(r: np.ndarray) -> np.ndarray:
@@ -135,8 +156,7 @@ def evaluate_frames(frames: list[FrameTruth], links: list[tuple[int, int, int]])
         objs = ka[(ca >= MIN_PRESENCE_POINTS) & (cls_a != CLASS_INDEX["ground"]) & (cls_a != UNLABELLED)]
         objs = objs[(objs & 0xFFFF) > 0]
         objs = np.intersect1d(objs, kb[cb >= MIN_PRESENCE_POINTS])
-        linked_objs = np.unique(a["dom_inst"][pa][a["dom_inst"][pa] == b["dom_inst"][pb]])
-        acc.rec_hit.append(np.isin(objs, linked_objs))
+        acc.rec_hit.append(np.isin(objs, _linked_objects(a, b, tids)))
         acc.rec_class.append(objs >> 16)
         # presence range: mean range of the object's points in frame i
         m = np.isin(fa.inst_key, objs)

@@ -32,7 +32,7 @@ class GroundResult:
 
 
 @njit(cache=True)
-def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height):  # pragma: no cover - numba
+def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height, max_run):  # pragma: no cover - numba
     h, w = index.shape
     out = np.zeros(xy.shape[0], dtype=np.bool_)
     for c in range(w):
@@ -46,7 +46,10 @@ def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height):  # pra
             dxy = xy[i] - last_xy
             dz = abs(z[i] - last_z)
             lim = tan_start if first else tan_slope
-            if dxy > 0.0 and dz <= lim * dxy + tol:
+            # a slope may not accumulate over a long gap without returns (a far car behind an
+            # empty stretch would otherwise look like rising ground)
+            run = dxy if first else min(dxy, max_run)
+            if dxy > 0.0 and dz <= lim * run + tol:
                 out[i] = True
                 last_xy = xy[i]
                 last_z = z[i]
@@ -82,6 +85,7 @@ def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None =
         np.tan(np.deg2rad(config.start_angle_deg)),
         0.05,
         sensor_h,
+        config.max_run,
     )
     surface_z = _surface_height(pts, ground, sensor_h, config.grid_cell)
     height = pts[:, 2] - surface_z
