@@ -1,0 +1,722 @@
+"""Static layout of the campus along the loop: what stands where, with instance ids.
+
+Each side of every straight is cut into stretches of 25-65 m, each with a character:
+
+    avenue    a row of street trees in the verge, bushes, a hedge behind
+    frontage  buildings close to the sidewalk (people walk along their walls), bike racks
+    hedges    hedges lining the sidewalk (people walk along them), trees behind
+    bays      parallel parking bays full of parked cars, trees behind the sidewalk
+    lot       a parking lot with rows of perpendicular cars, lamps and cones
+    open      grass with scattered trees, bushes, benches, bins, fences
+
+Behind them stand more buildings (varied footprints: L-shaped wings, recessed entrances
+under an overhang on pillars, towers), and trees and bushes are scattered over the grass.
+Lamps line the sidewalks; signs and bollards mark the zebra crossings. Placement keeps
+objects off the road and sidewalks and apart from each other with a 0.5 m occupancy grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.classes import POINT_CLASSES, to_ours
+from pipeline.simulation import models as m
+from pipeline.simulation.actors import ground_frame
+from pipeline.simulation.ground import GRID_CELL, GroundModel
+from pipeline.simulation.route import SAMPLE_STEP, Route
+from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_z
+
+STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
+STRETCH_P = (0.2, 0.17, 0.15, 0.25, 0.1, 0.13)
+BAY_WIDTH = 2.3
+
+
+@dataclass(frozen=True)
+class InstanceInfo:
+    """Ground truth of one instance: what it is and whether it moves.
+
+    semantic: SemanticKITTI ids its points carry; position: scene xyz of its base (static ones).
+    """
+
+    id: int
+    kind: str
+    semantic: tuple[int, ...]
+    moving: bool
+    position: tuple[float, float, float] | None = None
+    dark: bool = False
+
+    @property
+    def cls(self) -> str:
+        """Our class name (pipeline.classes) of the instance."""
+        return POINT_CLASSES[int(to_ours(np.asarray(self.semantic[:1]))[0])]
+
+
+@dataclass
+class Stretch:
+    side: int  # +1 left of the direction of travel, -1 right
+    s0: float
+    s1: float
+    kind: str
+
+
+@dataclass
+class RoadSpec:
+    """Cross-section of the street (metres)."""
+
+    road_half: float
+    sidewalk_left: float
+    sidewalk_right: float
+    curb: float
+
+    @property
+    def lane(self) -> float:
+        return self.road_half / 2
+
+    def sidewalk(self, side: int) -> float:
+        return self.sidewalk_left if side > 0 else self.sidewalk_right
+
+
+@dataclass
+class Facade:
+    """A building front a pedestrian can walk along: end points (2, 2) and outward normal (2,)."""
+
+    ends: np.ndarray
+    normal: np.ndarray
+
+
+@dataclass
+class Registry:
+    """Instance ids, handed out in creation order from 1."""
+
+    infos: dict[int, InstanceInfo] = field(default_factory=dict)
+
+    def new(
+        self, kind: str, semantic: tuple[int, ...], moving: bool = False, position=None, dark=False
+    ) -> int:
+        iid = len(self.infos) + 1
+        if iid > 0xFFFF:
+            raise ValueError("more than 65535 instances in one scene")
+        pos = None if position is None else tuple(round(float(v), 3) for v in position)
+        self.infos[iid] = InstanceInfo(iid, kind, tuple(int(s) for s in semantic), moving, pos, bool(dark))
+        return iid
+
+
+def plan_stretches(rng: np.random.Generator, route: Route, start_s: float) -> list[Stretch]:
+    """Stretches of 25-65 m on both sides of every straight.
+
+    Where the ego vehicle starts (`start_s`), the right side is an avenue (trees, bushes) and
+    the left side has parking bays, so that even a short run sees every static class.
+    """
+    out = []
+    for a, b in route.straight_runs(margin=3.0):
+        for side in (1, -1):
+            s = a
+            while b - s > 15.0:
+                length = min(rng.uniform(25.0, 65.0), b - s)
+                kind = str(rng.choice(STRETCH_TYPES, p=STRETCH_P))
+                if kind == "lot" and length < 35.0:
+                    kind = "bays"
+                near = (
+                    np.mod(start_s - s + 35.0, route.length) < length + 45.0
+                )  # overlaps [start - 10, start + 35]
+                if near:
+                    kind = "avenue" if side < 0 else "bays"
+                out.append(Stretch(side, s, s + length, kind))
+                s += length
+    return out
+
+
+def low_widths(route: Route, road: RoadSpec, stretches: list[Stretch], rng: np.random.Generator):
+    """(left, right) (M,) float32 half widths of the low surface: road plus bays and lots."""
+    n = len(route.xy)
+    left = np.full(n, road.road_half, np.float32)
+    right = np.full(n, road.road_half, np.float32)
+    for st in stretches:
+        if st.kind not in ("bays", "lot"):
+            continue
+        extra = BAY_WIDTH if st.kind == "bays" else rng.uniform(18.0, 21.0)
+        idx = route.index(np.arange(st.s0 + 4.0, st.s1 - 4.0, SAMPLE_STEP))
+        (left if st.side > 0 else right)[idx] = road.road_half + extra
+    return left, right
+
+
+class Layout:
+    """Places static objects; collects their primitives and instance records."""
+
+    def __init__(
+        self, rng: np.random.Generator, route: Route, ground: GroundModel, road: RoadSpec, reg: Registry
+    ):
+        self.rng = rng
+        self.route = route
+        self.ground = ground
+        self.road = road
+        self.reg = reg
+        self.occupied = np.zeros(ground.lat.shape, bool)
+        self.sets: list[PrimitiveSet] = []
+        self.facades: list[Facade] = []
+        self.hedges: list[Facade] = []
+        self.bushes: list[tuple[np.ndarray, float]] = []
+        self.entrances: list[tuple[np.ndarray, float]] = []
+
+    # ------------------------------------------------------------------ geometry helpers
+
+    def edge(self, s: float, side: int) -> float:
+        """|lat| of the outer sidewalk edge at arc length s on `side`."""
+        i = int(self.route.index(s))
+        low = self.ground.low_left[i] if side > 0 else self.ground.low_right[i]
+        return float(low) + self.road.sidewalk(side)
+
+    def at(self, s: float, lat: float) -> np.ndarray:
+        return self.route.offset(s, lat)
+
+    def clearance(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) distance beyond the outer sidewalk edge (negative on the street)."""
+        lat, si = self.ground.lateral(xy)
+        si = np.maximum(si, 0)
+        left = lat >= 0
+        low = np.where(left, self.ground.low_left[si], self.ground.low_right[si])
+        sw = np.where(left, self.road.sidewalk_left, self.road.sidewalk_right)
+        return np.abs(lat) - low - sw
+
+    def _cells(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        f = np.round((xy - self.ground.origin[None]) / GRID_CELL).astype(np.int64)
+        nx, ny = self.occupied.shape
+        ok = (f[:, 0] >= 0) & (f[:, 1] >= 0) & (f[:, 0] < nx) & (f[:, 1] < ny)
+        return np.clip(f[:, 0], 0, nx - 1), np.clip(f[:, 1], 0, ny - 1), ok
+
+    def free(self, xy: np.ndarray, min_clear: float | None = 0.5) -> bool:
+        ix, iy, ok = self._cells(xy)
+        if not ok.all() or self.occupied[ix, iy].any():
+            return False
+        return min_clear is None or bool((self.clearance(xy) >= min_clear).all())
+
+    def mark(self, xy: np.ndarray) -> None:
+        ix, iy, ok = self._cells(xy)
+        self.occupied[ix[ok], iy[ok]] = True
+
+    @staticmethod
+    def rect(center: np.ndarray, yaw: float, half_x: float, half_y: float, step: float = 0.4) -> np.ndarray:
+        """(K, 2) points covering a rectangle (for occupancy tests)."""
+        xs = np.linspace(-half_x, half_x, max(2, int(np.ceil(2 * half_x / step)) + 1))
+        ys = np.linspace(-half_y, half_y, max(2, int(np.ceil(2 * half_y / step)) + 1))
+        g = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+        c, s = np.cos(yaw), np.sin(yaw)
+        return g @ np.array([[c, s], [-s, c]]) + np.asarray(center)[None]
+
+    @staticmethod
+    def disc(center: np.ndarray, radius: float) -> np.ndarray:
+        return Layout.rect(center, 0.0, radius, radius, step=max(0.25, radius / 3))
+
+    def z(self, xy: np.ndarray) -> float:
+        return float(self.ground.height(np.asarray(xy, float)[None])[0])
+
+    def put(
+        self, b: PrimitiveBuilder, xy: np.ndarray, yaw: float, rot: np.ndarray | None = None, dz: float = 0.0
+    ):
+        pos = np.array([xy[0], xy[1], self.z(xy) + dz])
+        self.sets.append(b.build(rot_z(yaw) if rot is None else rot, pos))
+        return pos
+
+    def yaw_at(self, s: float) -> float:
+        return float(self.route.yaw(s))
+
+    # ------------------------------------------------------------------------- objects
+
+    def tree(self, xy: np.ndarray, style: str | None = None) -> bool:
+        rng = self.rng
+        style = style or str(rng.choice(["young", "mature", "mature", "conifer", "wide"]))
+        if style == "young":
+            radius, height, base, rt = (
+                rng.uniform(0.9, 1.6),
+                rng.uniform(1.6, 2.8),
+                rng.uniform(1.6, 2.4),
+                rng.uniform(0.06, 0.11),
+            )
+        elif style == "conifer":
+            radius, height, base, rt = (
+                rng.uniform(1.2, 2.2),
+                rng.uniform(4.0, 8.0),
+                rng.uniform(0.6, 1.6),
+                rng.uniform(0.12, 0.25),
+            )
+        elif style == "wide":
+            radius, height, base, rt = (
+                rng.uniform(3.2, 5.0),
+                rng.uniform(3.5, 6.0),
+                rng.uniform(2.4, 3.6),
+                rng.uniform(0.25, 0.42),
+            )
+        else:
+            radius, height, base, rt = (
+                rng.uniform(2.0, 3.4),
+                rng.uniform(3.0, 5.5),
+                rng.uniform(2.0, 3.4),
+                rng.uniform(0.14, 0.3),
+            )
+        if not self.free(self.disc(xy, max(0.6, 0.45 * radius)), min_clear=0.3):
+            return False
+        self.mark(self.disc(xy, rt + 0.5))
+        pos = np.array([xy[0], xy[1], self.z(xy)])
+        trunk_id = self.reg.new("tree_trunk", (m.TRUNK,), position=pos)
+        crown_id = self.reg.new("tree_crown", (m.VEGETATION,), position=pos + (0, 0, base))
+        b = PrimitiveBuilder()
+        bark = Material(refl=rng.uniform(0.2, 0.4), drop=0.02, noise=0.005)
+        if style == "conifer":
+            leaves = m.foliage(rng, dense=True)
+            layers = int(rng.integers(3, 5))
+            for k in range(layers):
+                f = 1.0 - k / layers
+                zc = base + height * (k + 0.5) / layers
+                b.ellipsoid(
+                    (0, 0, zc),
+                    (radius * f, radius * f, height / layers * 0.8),
+                    m.VEGETATION,
+                    crown_id,
+                    leaves,
+                )
+            top = base + 0.7 * height
+        else:
+            cz = m.add_canopy(b, rng, base, radius, height, crown_id, m.foliage(rng))
+            top = cz
+        m.add_trunk(b, rt, top, trunk_id, bark)
+        self.put(b, xy, rng.uniform(0, 2 * np.pi))
+        return True
+
+    def bush(self, xy: np.ndarray, size: float | None = None) -> bool:
+        size = size or self.rng.uniform(0.8, 2.6)
+        if not self.free(self.disc(xy, 0.5 * size), min_clear=0.2):
+            return False
+        self.mark(self.disc(xy, 0.55 * size))
+        iid = self.reg.new("bush", (m.VEGETATION,), position=(xy[0], xy[1], self.z(xy)))
+        b = PrimitiveBuilder()
+        m.add_bush(b, self.rng, size, iid)
+        self.put(b, xy, self.rng.uniform(0, 2 * np.pi))
+        self.bushes.append((np.asarray(xy, float), 0.5 * size))
+        return True
+
+    def hedge(self, s0: float, s1: float, side: int, offset: float) -> None:
+        """A hedge from s0 to s1, its street-side face `offset` m beyond the sidewalk edge."""
+        rng = self.rng
+        length = s1 - s0
+        sm = 0.5 * (s0 + s1)
+        width, height = rng.uniform(0.5, 1.2), rng.uniform(0.7, 1.8)
+        lat = side * (self.edge(sm, side) + offset + width / 2)
+        xy = self.at(sm, lat)
+        yaw = self.yaw_at(sm)
+        pts = self.rect(xy, yaw, length / 2, width / 2)
+        if length < 1.0 or not self.free(pts, min_clear=0.0):
+            return
+        self.mark(pts)
+        b = PrimitiveBuilder()
+        m.add_hedge(
+            b, rng, length, width, height, self.reg.new("hedge", (m.VEGETATION,), position=(*xy, self.z(xy)))
+        )
+        self.put(b, xy, yaw)
+        face = lat - side * width / 2
+        towards_street = -side * (self.route.offset(sm, 1.0) - self.route.point(sm))
+        self.hedges.append(Facade(np.stack([self.at(s0, face), self.at(s1, face)]), towards_street))
+
+    def building(
+        self, xy: np.ndarray, yaw: float, length: float, depth: float, height: float, walkable: bool
+    ) -> bool:
+        """A building whose front (local +y) faces the street at `xy`; False when it does not fit."""
+        rng = self.rng
+        wing = rng.random() < 0.35
+        wing_w = rng.uniform(6.0, min(14.0, 0.6 * length)) if wing else 0.0
+        wing_d = rng.uniform(6.0, 16.0) if wing else 0.0
+        wing_side = rng.choice([-1, 1])
+        centre_local = np.array([0.0, -depth / 2])
+        c, s = np.cos(yaw), np.sin(yaw)
+        rot2 = np.array([[c, -s], [s, c]])
+        main_pts = self.rect(xy + rot2 @ centre_local, yaw, length / 2, depth / 2)
+        pts = [main_pts]
+        if wing:
+            wc = np.array([wing_side * (length / 2 - wing_w / 2), -depth - wing_d / 2 + 0.1])
+            pts.append(self.rect(xy + rot2 @ wc, yaw, wing_w / 2, wing_d / 2))
+        allpts = np.concatenate(pts)
+        if not self.free(allpts, min_clear=0.6):
+            return False
+        self.mark(allpts)
+        ground_z = self.ground.height(allpts)
+        z0 = self.z(xy)
+        bottom = float(ground_z.min()) - z0 - 0.6
+        iid = self.reg.new("building", (m.BUILDING,), position=(xy[0], xy[1], z0))
+        glass = rng.random() < 0.25
+        if glass:
+            wall = Material(refl=rng.uniform(0.06, 0.14), drop=0.25, spec=0.45)
+        else:
+            wall = Material(refl=rng.uniform(0.18, 0.6), drop=0.01, spec=0.05)
+        b = PrimitiveBuilder()
+
+        def block(x0, x1, y0, y1, top, mat=wall):
+            b.box(
+                ((x0 + x1) / 2, (y0 + y1) / 2, (bottom + top) / 2),
+                ((x1 - x0) / 2, (y1 - y0) / 2, (top - bottom) / 2),
+                m.BUILDING,
+                iid,
+                mat,
+            )
+
+        recess = length > 14.0 and rng.random() < 0.5
+        if recess:
+            rw = rng.uniform(4.0, min(12.0, length - 6.0))
+            xa = rng.uniform(-length / 2 + 2.5, length / 2 - 2.5 - rw)
+            xb = xa + rw
+            rd = rng.uniform(1.5, 4.0)
+            block(-length / 2, xa, -depth, 0.0, height)
+            block(xb, length / 2, -depth, 0.0, height)
+            block(xa, xb, -depth, -rd, height)
+            if height > 5.0 and rng.random() < 0.6:
+                # An upper floor over the recess, carried by pillars: a covered entrance.
+                b.box(
+                    ((xa + xb) / 2, -rd / 2, (3.4 + height) / 2),
+                    (rw / 2, rd / 2, (height - 3.4) / 2),
+                    m.BUILDING,
+                    iid,
+                    wall,
+                )
+                for x in np.arange(xa + 0.5, xb - 0.2, 3.0):
+                    b.cylinder(
+                        (x, -0.4, (bottom + 3.4) / 2),
+                        rng.uniform(0.18, 0.3),
+                        (3.4 - bottom) / 2,
+                        m.BUILDING,
+                        iid,
+                        wall,
+                    )
+            self.entrances.append((xy + rot2 @ np.array([(xa + xb) / 2, 0.5]), yaw))
+        else:
+            block(-length / 2, length / 2, -depth, 0.0, height)
+            self.entrances.append((xy + rot2 @ np.array([rng.uniform(-length / 3, length / 3), 0.8]), yaw))
+        if wing:
+            x0 = wing_side * length / 2 - (wing_w if wing_side > 0 else 0.0)
+            block(x0, x0 + wing_w, -depth - wing_d, -depth + 0.1, height * rng.uniform(0.6, 1.3))
+        if rng.random() < 0.25 and length > 12.0:
+            tw = rng.uniform(5.0, 10.0)
+            tx = rng.uniform(-length / 2 + tw / 2, length / 2 - tw / 2)
+            block(tx - tw / 2, tx + tw / 2, -depth + 1.0, -1.0, height + rng.uniform(3.0, 9.0))
+        self.put(b, xy, yaw, dz=0.0)
+        if walkable:
+            ends = np.stack(
+                [
+                    xy + rot2 @ np.array([-length / 2 + 0.5, 0.0]),
+                    xy + rot2 @ np.array([length / 2 - 0.5, 0.0]),
+                ]
+            )
+            self.facades.append(Facade(ends, rot2 @ np.array([0.0, 1.0])))
+        return True
+
+    def parked_car(self, xy: np.ndarray, yaw: float, kind: str | None = None) -> bool:
+        car = m.draw_car(self.rng, kind=kind)
+        pts = self.rect(xy, yaw, car.length / 2 + 0.2, car.width / 2 + 0.15)
+        if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
+            return False
+        self.mark(pts)
+        iid = self.reg.new("car", (m.CAR,), position=(xy[0], xy[1], self.z(xy)), dark=car.dark)
+        b = PrimitiveBuilder()
+        m.add_car(b, car, m.CAR, iid)
+        self.put(b, xy, yaw, rot=ground_frame(self.ground, xy, yaw))
+        return True
+
+    def small(
+        self, xy: np.ndarray, what: str, yaw: float | None = None, min_clear: float | None = None
+    ) -> bool:
+        """Street furniture: lamp, sign, cone, bin, bench, bollard, bicycle, person."""
+        radius = {
+            "lamp": 0.3,
+            "sign": 0.3,
+            "cone": 0.25,
+            "bin": 0.4,
+            "bench": 1.1,
+            "bollard": 0.2,
+            "bicycle": 0.6,
+            "person": 0.35,
+        }[what]
+        if not self.free(self.disc(xy, radius), min_clear=min_clear):
+            return False
+        self.mark(self.disc(xy, radius))
+        rng = self.rng
+        yaw = rng.uniform(0, 2 * np.pi) if yaw is None else yaw
+        b = PrimitiveBuilder()
+        pos = (xy[0], xy[1], self.z(xy))
+        if what == "lamp":
+            m.add_lamp(b, rng, self.reg.new("lamp", (m.POLE,), position=pos))
+        elif what == "sign":
+            m.add_sign(b, rng, self.reg.new("sign", (m.POLE, m.TRAFFIC_SIGN), position=pos))
+        elif what == "cone":
+            m.add_cone(b, self.reg.new("cone", (m.OTHER_OBJECT,), position=pos))
+        elif what == "bin":
+            m.add_bin(b, rng, self.reg.new("bin", (m.OTHER_OBJECT,), position=pos))
+        elif what == "bench":
+            m.add_bench(b, rng, self.reg.new("bench", (m.OTHER_OBJECT,), position=pos))
+        elif what == "bollard":
+            m.add_bollard(b, self.reg.new("bollard", (m.OTHER_OBJECT,), position=pos))
+        elif what == "bicycle":
+            m.add_bicycle(
+                b,
+                m.BICYCLE,
+                self.reg.new("bicycle", (m.BICYCLE,), position=pos),
+                Material(refl=rng.uniform(0.2, 0.6)),
+            )
+        else:
+            iid = self.reg.new("person", (m.PERSON,), position=pos)
+            m.add_person(
+                b, m.draw_person(rng), m.PERSON, iid, rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.12)
+            )
+        self.put(b, xy, yaw)
+        return True
+
+    def fence(self, s0: float, s1: float, side: int, offset: float) -> None:
+        length = s1 - s0
+        sm = 0.5 * (s0 + s1)
+        xy = self.at(sm, side * (self.edge(sm, side) + offset))
+        yaw = self.yaw_at(sm)
+        pts = self.rect(xy, yaw, length / 2, 0.1)
+        if not self.free(pts, min_clear=0.3):
+            return
+        self.mark(pts)
+        b = PrimitiveBuilder()
+        m.add_fence(
+            b, self.rng, length, self.reg.new("fence", (m.FENCE,), position=(xy[0], xy[1], self.z(xy)))
+        )
+        self.put(b, xy, yaw)
+
+
+# --------------------------------------------------------------------------- the plan
+
+
+def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> None:
+    """Fill every stretch, then the background, street furniture and standing people."""
+    rng = lay.rng
+    for st in stretches:
+        _FILL[st.kind](lay, st)
+    _background_buildings(lay)
+    _scattered_vegetation(lay)
+    _lamps(lay)
+    for sc in crossings:
+        for side in (1, -1):
+            curb_lat = side * (lay.edge(sc, side) - lay.road.sidewalk(side) + 0.35)
+            lay.small(lay.at(sc - 6.0, curb_lat), "sign", yaw=lay.yaw_at(sc) + np.pi / 2, min_clear=None)
+            for k in range(int(rng.integers(0, 5))):
+                lay.small(
+                    lay.at(sc - 3.0 - 1.5 * k, side * (lay.edge(sc, side) + 0.3)), "bollard", min_clear=0.0
+                )
+    _standing_people(lay)
+
+
+def _trees_in_row(
+    lay: Layout, st: Stretch, offset: tuple[float, float], spacing: tuple[float, float], p: float = 1.0
+) -> None:
+    rng = lay.rng
+    s = st.s0 + rng.uniform(2.0, 6.0)
+    style = str(rng.choice(["young", "mature", "wide"]))
+    while s < st.s1 - 2.0:
+        if rng.random() < p:
+            lat = st.side * (lay.edge(s, st.side) + rng.uniform(*offset))
+            lay.tree(lay.at(s, lat), style if rng.random() < 0.8 else None)
+        s += rng.uniform(*spacing)
+
+
+def _avenue(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    _trees_in_row(lay, st, (1.3, 2.0), (7.0, 12.0))
+    for _ in range(int(rng.integers(1, 5))):
+        s = rng.uniform(st.s0, st.s1)
+        lay.bush(lay.at(s, st.side * (lay.edge(s, st.side) + rng.uniform(0.8, 4.0))))
+    if rng.random() < 0.4:
+        a = rng.uniform(st.s0, st.s0 + 10)
+        lay.hedge(a, min(st.s1, a + rng.uniform(8, 30)), st.side, rng.uniform(4.0, 7.0))
+    if rng.random() < 0.4:
+        s = rng.uniform(st.s0, st.s1)
+        lay.small(
+            lay.at(s, st.side * (lay.edge(s, st.side) + 0.9)),
+            "bench",
+            yaw=lay.yaw_at(s) + (np.pi if st.side > 0 else 0.0),
+            min_clear=0.3,
+        )
+
+
+def _frontage(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    s = st.s0 + rng.uniform(0.0, 4.0)
+    while st.s1 - s > 12.0:
+        length = min(rng.uniform(14.0, 45.0), st.s1 - s)
+        sm = s + length / 2
+        setback = rng.uniform(0.8, 3.0)
+        hedge = setback > 2.2 and rng.random() < 0.4
+        lat = st.side * (lay.edge(sm, st.side) + setback)
+        yaw = lay.yaw_at(sm) + (np.pi if st.side > 0 else 0.0)  # local +y towards the street
+        ok = lay.building(
+            lay.at(sm, lat), yaw, length, rng.uniform(10.0, 24.0), rng.uniform(4.0, 18.0), walkable=not hedge
+        )
+        if ok and hedge:
+            lay.hedge(s + 1.0, s + length - 1.0, st.side, 0.3)
+        if ok and rng.random() < 0.35:
+            sb = s + rng.uniform(2.0, length - 2.0)
+            for k in range(int(rng.integers(2, 7))):
+                p = lay.at(sb + 0.8 * k, st.side * (lay.edge(sb, st.side) + 0.5))
+                lay.small(p, "bicycle", yaw=lay.yaw_at(sb) + np.pi / 2, min_clear=0.0)
+        s += length + rng.uniform(3.0, 15.0)
+
+
+def _hedges(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    s = st.s0 + rng.uniform(0.0, 3.0)
+    while st.s1 - s > 4.0:
+        length = min(rng.uniform(4.0, 18.0), st.s1 - s)
+        lay.hedge(s, s + length, st.side, 0.3)
+        s += length + rng.uniform(1.0, 4.0)
+    _trees_in_row(lay, st, (3.0, 6.0), (8.0, 15.0), p=0.6)
+
+
+def _bays(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    lat = st.side * (lay.road.road_half + BAY_WIDTH / 2)
+    s = st.s0 + 5.0
+    while s < st.s1 - 9.0:
+        car_len = 5.0
+        if rng.random() < 0.82:
+            yaw = lay.yaw_at(s + 3) + (np.pi if st.side > 0 else 0.0)
+            if rng.random() < 0.12:
+                yaw += np.pi
+            lay.parked_car(lay.at(s + 3.0, lat + rng.uniform(-0.1, 0.1)), yaw)
+        s += car_len + rng.uniform(0.8, 2.2)
+    _trees_in_row(lay, st, (1.3, 2.5), (9.0, 15.0), p=0.6)
+
+
+def _lot(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    i = int(lay.route.index(0.5 * (st.s0 + st.s1)))
+    low = float(lay.ground.low_left[i] if st.side > 0 else lay.ground.low_right[i])
+    rows = [lay.road.road_half + 3.0 + 2.5, low - 0.3 - 2.5]
+    occupancy = rng.uniform(0.6, 0.9)
+    for r, lat_abs in enumerate(rows):
+        s = st.s0 + 6.0
+        while s < st.s1 - 6.0:
+            if rng.random() < occupancy:
+                nose = 1 if (r == 0) == (rng.random() < 0.7) else -1
+                yaw = lay.yaw_at(s) + st.side * nose * np.pi / 2
+                lay.parked_car(
+                    lay.at(s, st.side * (lat_abs + rng.uniform(-0.2, 0.2))), yaw + rng.uniform(-0.06, 0.06)
+                )
+            s += rng.uniform(2.5, 2.8)
+    if rng.random() < 0.6:
+        s = rng.uniform(st.s0 + 6, st.s1 - 6)
+        for k in range(int(rng.integers(2, 6))):
+            lay.small(lay.at(s + 1.6 * k, st.side * (0.5 * (rows[0] + rows[1]))), "cone", min_clear=None)
+    for s in np.arange(st.s0 + 8.0, st.s1 - 4.0, rng.uniform(12.0, 20.0)):
+        lay.small(
+            lay.at(s, st.side * (low + 0.6)),
+            "lamp",
+            yaw=lay.yaw_at(s) + (np.pi if st.side > 0 else 0.0),
+            min_clear=None,
+        )
+
+
+def _open(lay: Layout, st: Stretch) -> None:
+    rng = lay.rng
+    for _ in range(int(rng.integers(1, 5))):
+        s = rng.uniform(st.s0, st.s1)
+        lay.tree(lay.at(s, st.side * (lay.edge(s, st.side) + rng.uniform(1.5, 15.0))))
+    for _ in range(int(rng.integers(2, 7))):
+        s = rng.uniform(st.s0, st.s1)
+        lay.bush(lay.at(s, st.side * (lay.edge(s, st.side) + rng.uniform(0.8, 10.0))))
+    for what in ("bin", "bench", "sign"):
+        if rng.random() < 0.4:
+            s = rng.uniform(st.s0, st.s1)
+            lay.small(
+                lay.at(s, st.side * (lay.edge(s, st.side) + rng.uniform(0.5, 2.0))), what, min_clear=0.2
+            )
+    if rng.random() < 0.4:
+        a = rng.uniform(st.s0, st.s1 - 8.0)
+        lay.fence(a, min(st.s1, a + rng.uniform(8.0, 30.0)), st.side, rng.uniform(2.0, 10.0))
+    if rng.random() < 0.25:
+        # Cones around a work spot on the grass by the sidewalk.
+        s = rng.uniform(st.s0 + 3, st.s1 - 6)
+        for k in range(int(rng.integers(3, 7))):
+            lay.small(lay.at(s + 1.5 * k, st.side * (lay.edge(s, st.side) + 0.6)), "cone", min_clear=0.0)
+
+
+_FILL = {
+    "avenue": _avenue,
+    "frontage": _frontage,
+    "hedges": _hedges,
+    "bays": _bays,
+    "lot": _lot,
+    "open": _open,
+}
+
+
+def _background_buildings(lay: Layout) -> None:
+    rng = lay.rng
+    for a, b in lay.route.straight_runs(margin=0.0):
+        for side in (1, -1):
+            s = a + rng.uniform(0.0, 10.0)
+            while s < b:
+                length = rng.uniform(15.0, 50.0)
+                sm = s + length / 2
+                lat = side * (lay.edge(sm, side) + rng.uniform(10.0, 40.0))
+                yaw = lay.yaw_at(sm) + (np.pi if side > 0 else 0.0) + rng.uniform(-0.15, 0.15)
+                lay.building(
+                    lay.at(sm, lat),
+                    yaw,
+                    length,
+                    rng.uniform(10.0, 28.0),
+                    rng.uniform(4.0, 22.0),
+                    walkable=False,
+                )
+                s += length + rng.uniform(5.0, 25.0)
+
+
+def _scattered_vegetation(lay: Layout) -> None:
+    rng = lay.rng
+    n = int(lay.route.length / 5)
+    for _ in range(n):
+        s = rng.uniform(0, lay.route.length)
+        side = 1 if rng.random() < 0.5 else -1
+        xy = lay.at(s, side * (lay.edge(s, side) + rng.uniform(2.0, 45.0)))
+        if rng.random() < 0.55:
+            lay.tree(xy)
+        else:
+            lay.bush(xy)
+
+
+def _lamps(lay: Layout) -> None:
+    rng = lay.rng
+    for side in (1, -1):
+        if rng.random() < 0.3:
+            continue
+        s = rng.uniform(0, 10)
+        step = rng.uniform(25.0, 40.0)
+        while s < lay.route.length:
+            i = int(lay.route.index(s))
+            low = float(lay.ground.low_left[i] if side > 0 else lay.ground.low_right[i])
+            lay.small(
+                lay.at(s, side * (low + 0.35)),
+                "lamp",
+                yaw=lay.yaw_at(s) + (np.pi if side > 0 else 0.0),
+                min_clear=None,
+            )
+            s += step
+
+
+def _standing_people(lay: Layout) -> None:
+    """People standing still: by bushes (the classifier's hard case), at entrances, chatting."""
+    rng = lay.rng
+    for xy, r in lay.bushes:
+        if rng.random() < 0.15:
+            ang = rng.uniform(0, 2 * np.pi)
+            p = xy + (r + rng.uniform(0.25, 0.5)) * np.array([np.cos(ang), np.sin(ang)])
+            lay.small(p, "person", yaw=ang + np.pi + rng.uniform(-1, 1), min_clear=None)
+    for xy, _yaw in lay.entrances:
+        if rng.random() < 0.3:
+            for k in range(int(rng.integers(1, 4))):
+                ang = 2 * np.pi * k / 3 + rng.uniform(-0.4, 0.4)
+                p = xy + 0.7 * np.array([np.cos(ang), np.sin(ang)])
+                lay.small(p, "person", yaw=ang + np.pi, min_clear=None)
+
+
+def static_primitives(lay: Layout) -> PrimitiveSet:
+    return concat(lay.sets)

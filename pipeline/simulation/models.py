@@ -1,0 +1,392 @@
+"""Object models built from a few analytic primitives, in the object's own frame.
+
+Object frame: x forward, y left, z up, origin on the ground under the object's centre.
+Every function adds primitives to a `PrimitiveBuilder` with the given semantic and instance
+ids; size, shape and material parameters come from the caller's random draws, so that no
+two instances look the same.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y
+
+# SemanticKITTI ids used by the simulator.
+CAR, BICYCLE, PERSON, BICYCLIST = 10, 11, 30, 31
+MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON = 252, 253, 254
+BUILDING, FENCE, VEGETATION, TRUNK = 50, 51, 70, 71
+POLE, TRAFFIC_SIGN, OTHER_OBJECT = 80, 81, 99
+
+GLASS = Material(refl=0.08, drop=0.2, spec=0.6, porosity=0.35)
+RUBBER = Material(refl=0.05, drop=0.15, spec=0.3)
+PLASTIC = Material(refl=0.15, drop=0.02)
+RETRO = Material(refl=0.9)
+METAL = Material(refl=0.4, drop=0.02, spec=0.2)
+SKIN = Material(refl=0.35)
+WHEEL_SPOKED = Material(refl=0.1, drop=0.1, porosity=0.55)
+
+_WHEEL_ROT = rot_x(np.pi / 2)  # cylinder axis (local z) along the object's y axis
+
+
+# ------------------------------------------------------------------------------- cars
+
+
+@dataclass(frozen=True)
+class CarShape:
+    """Dimensions (m) and finish of one car."""
+
+    length: float
+    width: float
+    height: float
+    body_height: float  # top of the lower body above its underside
+    cabin_length: float
+    cabin_offset: float  # cabin centre along x, relative to the body centre
+    clearance: float
+    wheel_radius: float
+    paint: Material
+    dark: bool
+    kind: str
+
+
+CAR_KINDS = {
+    # kind: (length, width, height, body_height, cabin share, cabin offset share)
+    "small": ((3.5, 3.9), (1.6, 1.72), (1.40, 1.55), (0.50, 0.60), (0.55, 0.65), (-0.05, 0.0)),
+    "sedan": ((4.4, 4.9), (1.75, 1.88), (1.40, 1.52), (0.52, 0.62), (0.45, 0.55), (-0.08, -0.02)),
+    "suv": ((4.4, 4.9), (1.82, 1.98), (1.62, 1.80), (0.68, 0.80), (0.55, 0.65), (-0.06, 0.0)),
+    "van": ((4.8, 5.4), (1.90, 2.05), (1.90, 2.30), (0.80, 1.00), (0.78, 0.84), (-0.06, -0.04)),
+}
+
+
+def draw_car(rng: np.random.Generator, dark_share: float = 0.3, kind: str | None = None) -> CarShape:
+    """A random car: small, sedan, SUV or van; `dark_share` of them have dark paint."""
+    if kind is None:
+        kind = str(rng.choice(list(CAR_KINDS), p=[0.25, 0.4, 0.2, 0.15]))
+    lo_hi = CAR_KINDS[kind]
+    length, width, height, body_h, cab_share, cab_off = (rng.uniform(*r) for r in lo_hi)
+    dark = bool(rng.random() < dark_share)
+    if dark:
+        paint = Material(refl=rng.uniform(0.02, 0.06), drop=0.05, spec=rng.uniform(0.88, 0.96))
+    else:
+        paint = Material(refl=rng.uniform(0.25, 0.75), drop=0.01, spec=rng.uniform(0.1, 0.35))
+    return CarShape(
+        length=length,
+        width=width,
+        height=height,
+        body_height=body_h,
+        cabin_length=cab_share * length,
+        cabin_offset=cab_off * length,
+        clearance=rng.uniform(0.16, 0.24),
+        wheel_radius=rng.uniform(0.29, 0.36),
+        paint=paint,
+        dark=dark,
+        kind=kind,
+    )
+
+
+def add_car(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) -> None:
+    """Body, glass cabin, roof, four wheels, bumpers, plates and mirrors (13 primitives)."""
+    half_l, half_w = car.length / 2, car.width / 2
+    z0 = car.clearance
+    b.box(
+        (0, 0, z0 + car.body_height / 2), (half_l, half_w, car.body_height / 2), semantic, instance, car.paint
+    )
+    cab_h = car.height - z0 - car.body_height
+    cab_top = car.height
+    b.box(
+        (car.cabin_offset, 0, z0 + car.body_height + cab_h / 2 - 0.04),
+        (car.cabin_length / 2, half_w - 0.08, cab_h / 2 - 0.04),
+        semantic,
+        instance,
+        GLASS,
+    )
+    b.box(
+        (car.cabin_offset, 0, cab_top - 0.04),
+        (car.cabin_length / 2 * 0.9, half_w - 0.1, 0.04),
+        semantic,
+        instance,
+        car.paint,
+    )
+    rw = car.wheel_radius
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            b.cylinder(
+                (sx * (half_l - 0.75), sy * (half_w - 0.09), rw),
+                rw,
+                0.11,
+                semantic,
+                instance,
+                RUBBER,
+                _WHEEL_ROT,
+            )
+    for sx in (-1, 1):
+        b.box((sx * (half_l + 0.04), 0, z0 + 0.22), (0.06, half_w - 0.05, 0.12), semantic, instance, PLASTIC)
+        b.box((sx * (half_l + 0.105), 0, z0 + 0.28), (0.01, 0.26, 0.06), semantic, instance, RETRO)
+    x_mirror = car.cabin_offset + car.cabin_length / 2 - 0.15
+    for sy in (-1, 1):
+        b.box(
+            (x_mirror, sy * (half_w + 0.1), z0 + car.body_height + 0.12),
+            (0.06, 0.1, 0.06),
+            semantic,
+            instance,
+            car.paint,
+        )
+
+
+# ------------------------------------------------------------------------------ people
+
+
+@dataclass(frozen=True)
+class PersonShape:
+    height: float
+    build: float  # width factor
+    top: Material
+    bottom: Material
+    backpack: bool
+
+
+def draw_person(rng: np.random.Generator) -> PersonShape:
+    """Adults and teenagers of 1.45-1.98 m, clothes from dark to bright."""
+    height = float(np.clip(rng.normal(1.72, 0.1), 1.45, 1.98))
+
+    def cloth() -> Material:
+        refl = rng.uniform(0.06, 0.6)
+        return Material(refl=refl, drop=0.03, spec=0.5 if refl < 0.1 else 0.1)
+
+    return PersonShape(height, rng.uniform(0.85, 1.2), cloth(), cloth(), bool(rng.random() < 0.3))
+
+
+def add_person(
+    b: PrimitiveBuilder, p: PersonShape, semantic: int, instance: int, gait: float, swing: float
+) -> None:
+    """Legs, torso, arms and head; `gait` is the stride phase (rad), `swing` its amplitude (rad)."""
+    h = p.height
+    wf = p.build
+    r_leg = 0.07 * wf
+    hip = 0.52 * h
+    leg = hip - r_leg
+    for side, ph in ((1, 0.0), (-1, np.pi)):
+        a = swing * np.sin(gait + ph)
+        y = side * 0.09 * wf
+        b.capsule(
+            (0, y, hip), (leg * np.sin(a), y, hip - leg * np.cos(a)), r_leg, semantic, instance, p.bottom
+        )
+    b.ellipsoid((0, 0, hip + 0.165 * h), (0.12 * wf, 0.19 * wf, 0.175 * h), semantic, instance, p.top)
+    shoulder = 0.8 * h
+    arm = 0.33 * h
+    for side, ph in ((1, np.pi), (-1, 0.0)):
+        a = 0.8 * swing * np.sin(gait + ph)
+        y = side * 0.21 * wf
+        hand = (arm * np.sin(a), y + side * 0.04, shoulder - arm * np.cos(a))
+        b.capsule((0, y, shoulder), hand, 0.045 * wf, semantic, instance, p.top)
+    s = h / 1.75
+    b.ellipsoid((0.01, 0, 0.935 * h), (0.095 * s, 0.08 * s, 0.115 * s), semantic, instance, SKIN)
+    if p.backpack:
+        b.box((-0.2 * wf, 0, 0.66 * h), (0.09, 0.15 * wf, 0.2), semantic, instance, PLASTIC)
+
+
+# ---------------------------------------------------------------------------- bicycles
+
+
+def add_bicycle(b: PrimitiveBuilder, semantic: int, instance: int, frame_mat: Material) -> None:
+    """Two spoked wheels, frame tubes and handlebar (8 primitives); wheelbase ~1.05 m."""
+    rw = 0.34
+    for x in (-0.52, 0.52):
+        b.cylinder((x, 0, rw), rw, 0.025, semantic, instance, WHEEL_SPOKED, _WHEEL_ROT)
+    rear, bb, seat = (-0.52, 0, rw), (-0.05, 0, 0.3), (-0.2, 0, 0.85)
+    head_top, head_low, front = (0.4, 0, 0.84), (0.43, 0, 0.68), (0.52, 0, rw)
+    for p0, p1 in ((rear, bb), (bb, seat), (seat, head_top), (bb, head_low), (head_low, front)):
+        b.capsule(p0, p1, 0.022, semantic, instance, frame_mat)
+    b.capsule((0.38, -0.27, 0.98), (0.38, 0.27, 0.98), 0.02, semantic, instance, frame_mat)
+
+
+def add_rider(
+    b: PrimitiveBuilder, p: PersonShape, semantic: int, instance: int, crank: float, lean: float
+) -> None:
+    """A rider on `add_bicycle`'s bike: pedalling legs (`crank` rad), torso leaning `lean` rad."""
+    s = p.height / 1.75
+    hip = np.array([-0.2, 0.0, 0.93])
+    torso_len = 0.52 * s
+    axis = np.array([np.sin(lean), 0.0, np.cos(lean)])
+    b.ellipsoid(
+        hip + 0.5 * torso_len * axis,
+        (0.11 * p.build, 0.18 * p.build, 0.3 * s),
+        semantic,
+        instance,
+        p.top,
+        rot_y(lean),
+    )
+    shoulder = hip + 0.92 * torso_len * axis
+    b.ellipsoid(shoulder + (0.08, 0, 0.17 * s), (0.095 * s, 0.08 * s, 0.115 * s), semantic, instance, SKIN)
+    for side in (1, -1):
+        b.capsule(shoulder + (0, side * 0.19, 0), (0.38, side * 0.24, 0.98), 0.04, semantic, instance, p.top)
+    thigh, shin = 0.245 * p.height, 0.25 * p.height
+    bb = np.array([-0.05, 0.0, 0.3])
+    for side, ph in ((1, 0.0), (-1, np.pi)):
+        y = side * 0.12
+        foot = bb + 0.17 * np.array([np.cos(crank + ph), 0.0, np.sin(crank + ph)])
+        h0 = hip + (0, y, 0)
+        f0 = foot + (0, y, 0)
+        d = f0 - h0
+        dist = min(np.linalg.norm(d), thigh + shin - 1e-3)
+        # Knee from the two-link chain, bent forward.
+        a = (thigh**2 - shin**2 + dist**2) / (2 * dist)
+        hgt = np.sqrt(max(thigh**2 - a**2, 0.0))
+        u = d / np.linalg.norm(d)
+        perp = np.array([-u[2], 0.0, u[0]])
+        if perp[0] < 0:
+            perp = -perp
+        knee = h0 + a * u + hgt * perp
+        b.capsule(h0, knee, 0.065 * p.build, semantic, instance, p.bottom)
+        b.capsule(knee, f0, 0.05 * p.build, semantic, instance, p.bottom)
+
+
+# --------------------------------------------------------------------------- vegetation
+
+
+def add_trunk(b: PrimitiveBuilder, radius: float, top: float, instance: int, bark: Material) -> None:
+    b.cylinder((0, 0, 0.5 * (top - 0.3)), radius, 0.5 * (top + 0.3), TRUNK, instance, bark)
+
+
+def foliage(rng: np.random.Generator, dense: bool = False) -> Material:
+    return Material(
+        refl=rng.uniform(0.28, 0.45),
+        drop=0.05,
+        porosity=rng.uniform(0.04, 0.1) if dense else rng.uniform(0.15, 0.3),
+        depth=rng.uniform(0.06, 0.12) if dense else rng.uniform(0.15, 0.35),
+        noise=0.02,
+    )
+
+
+def add_canopy(
+    b: PrimitiveBuilder,
+    rng: np.random.Generator,
+    base: float,
+    radius: float,
+    height: float,
+    instance: int,
+    leaves: Material,
+) -> float:
+    """A crown of 1-4 ellipsoid lobes above `base`; returns the crown centre height."""
+    cz = base + height / 2
+    b.ellipsoid(
+        (0, 0, cz), (radius, radius * rng.uniform(0.85, 1.15), height / 2), VEGETATION, instance, leaves
+    )
+    for _ in range(int(rng.integers(0, 4))):
+        ang = rng.uniform(0, 2 * np.pi)
+        off = rng.uniform(0.3, 0.6) * radius
+        r = radius * rng.uniform(0.45, 0.7)
+        c = (off * np.cos(ang), off * np.sin(ang), cz + rng.uniform(-0.25, 0.3) * height / 2)
+        b.ellipsoid(c, (r, r, r * rng.uniform(0.7, 1.1)), VEGETATION, instance, leaves)
+    return cz
+
+
+def add_bush(b: PrimitiveBuilder, rng: np.random.Generator, size: float, instance: int) -> None:
+    """1-3 overlapping ellipsoids, `size` metres across, sunk a little into the ground."""
+    leaves = foliage(rng, dense=True)
+    for k in range(int(rng.integers(1, 4))):
+        r = size / 2 * rng.uniform(0.6, 1.0)
+        rz = r * rng.uniform(0.6, 1.0)
+        off = 0.0 if k == 0 else size * rng.uniform(0.2, 0.45)
+        ang = rng.uniform(0, 2 * np.pi)
+        b.ellipsoid(
+            (off * np.cos(ang), off * np.sin(ang), 0.75 * rz),
+            (r, r * rng.uniform(0.8, 1.2), rz),
+            VEGETATION,
+            instance,
+            leaves,
+        )
+
+
+def add_hedge(
+    b: PrimitiveBuilder, rng: np.random.Generator, length: float, width: float, height: float, instance: int
+) -> None:
+    """A trimmed hedge along x, sunk 0.1 m into the ground."""
+    b.box(
+        (0, 0, height / 2 - 0.1),
+        (length / 2, width / 2, height / 2 + 0.1),
+        VEGETATION,
+        instance,
+        foliage(rng, dense=True),
+    )
+
+
+# --------------------------------------------------------------------- street furniture
+
+
+def add_lamp(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A lamp post leaning its head over +y (towards the road)."""
+    h = rng.uniform(4.5, 8.0)
+    r = rng.uniform(0.06, 0.12)
+    b.cylinder((0, 0, h / 2 - 0.2), r, h / 2 + 0.2, POLE, instance, METAL)
+    arm = rng.uniform(0.8, 1.6)
+    b.capsule((0, 0, h - 0.1), (0, arm, h + 0.15), 0.04, POLE, instance, METAL)
+    b.box((0, arm, h + 0.08), (0.18, 0.3, 0.06), POLE, instance, Material(refl=0.3))
+
+
+def add_sign(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A sign post with a plate facing +y (towards the road); the plate is traffic-sign."""
+    h = rng.uniform(2.1, 2.8)
+    b.cylinder((0, 0, h / 2 - 0.15), 0.035, h / 2 + 0.15, POLE, instance, METAL)
+    if rng.random() < 0.5:
+        b.cylinder(
+            (0, 0.05, h + 0.15), rng.uniform(0.3, 0.4), 0.01, TRAFFIC_SIGN, instance, RETRO, rot_x(np.pi / 2)
+        )
+    else:
+        s = rng.uniform(0.3, 0.45)
+        b.box((0, 0.05, h + s * 0.8), (s, 0.01, s * 0.8), TRAFFIC_SIGN, instance, RETRO)
+
+
+def add_cone(b: PrimitiveBuilder, instance: int) -> None:
+    """A traffic cone: base plate and three stacked, narrowing drums with a reflective band."""
+    orange = Material(refl=0.5)
+    b.box((0, 0, 0.015), (0.19, 0.19, 0.015), OTHER_OBJECT, instance, orange)
+    b.cylinder((0, 0, 0.16), 0.15, 0.13, OTHER_OBJECT, instance, orange)
+    b.cylinder((0, 0, 0.39), 0.105, 0.1, OTHER_OBJECT, instance, RETRO)
+    b.cylinder((0, 0, 0.59), 0.065, 0.1, OTHER_OBJECT, instance, orange)
+
+
+def add_bin(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    h = rng.uniform(0.8, 1.1)
+    b.cylinder(
+        (0, 0, h / 2),
+        rng.uniform(0.22, 0.35),
+        h / 2,
+        OTHER_OBJECT,
+        instance,
+        Material(refl=rng.uniform(0.1, 0.45)),
+    )
+
+
+def add_bench(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A bench along x, its back on the -y side."""
+    half = rng.uniform(0.8, 1.1)
+    wood = Material(refl=rng.uniform(0.2, 0.4))
+    b.box((0, 0, 0.45), (half, 0.22, 0.03), OTHER_OBJECT, instance, wood)
+    b.box((0, -0.22, 0.75), (half, 0.03, 0.18), OTHER_OBJECT, instance, wood)
+    for sx in (-1, 1):
+        b.box((sx * (half - 0.1), 0, 0.21), (0.03, 0.2, 0.21), OTHER_OBJECT, instance, METAL)
+
+
+def add_bollard(b: PrimitiveBuilder, instance: int) -> None:
+    b.cylinder((0, 0, 0.45), 0.1, 0.45, OTHER_OBJECT, instance, Material(refl=0.35))
+
+
+def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, instance: int) -> None:
+    """A fence along x: a solid wall or a see-through mesh on posts."""
+    h = rng.uniform(1.0, 1.9)
+    if rng.random() < 0.5:
+        b.box(
+            (0, 0, h / 2 - 0.1),
+            (length / 2, 0.04, h / 2 + 0.1),
+            FENCE,
+            instance,
+            Material(refl=rng.uniform(0.2, 0.5)),
+        )
+    else:
+        b.box((0, 0, h / 2), (length / 2, 0.02, h / 2), FENCE, instance, Material(refl=0.3, porosity=0.6))
+        n = max(2, int(length / 2.5) + 1)
+        for x in np.linspace(-length / 2, length / 2, n):
+            b.cylinder((x, 0, h / 2), 0.03, h / 2, FENCE, instance, METAL)
