@@ -3,6 +3,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
@@ -114,3 +116,47 @@ def test_processing_samples_have_documented_layout():
     # foreground = the object 12 m away
     r = s[1][fg].astype(float) - 1
     assert np.allclose(r / 254 * CFG.samples.max_range, 12.0, atol=0.4)
+
+
+def _yaw_pose(k_cols: int) -> np.ndarray:
+    """T_world_lidar of a sensor yawed left by k columns (the scene moves k columns right)."""
+    a = 2.0 * np.pi * k_cols / W
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    return T
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    data=st.data(),
+    n_objects=st.integers(1, 6),
+    steps=st.lists(st.integers(-20, 20), min_size=2, max_size=4),
+)
+def test_association_static_scene_with_exact_poses_links_every_object(data, n_objects, steps):
+    # objects in separate column sectors, at ranges far enough apart not to merge
+    sectors = np.linspace(0, W, n_objects + 1).astype(int)
+    objects = []
+    for k in range(n_objects):
+        width = data.draw(st.integers(5, max(5, min(14, sectors[k + 1] - sectors[k] - 4))))
+        c0 = data.draw(st.integers(sectors[k] + 1, max(sectors[k] + 1, sectors[k + 1] - width - 2)))
+        objects.append((c0, c0 + width, data.draw(st.floats(6.0, 25.0))))
+    base, gt = _frame(objects)
+    rimg_cols = np.cumsum([0, *steps])
+    scans, gts, poses = [], [], []
+    for k in rimg_cols:
+        # yawing the sensor left by angle a shows a fixed object at azimuth phi - a: k columns right
+        rolled = [((c0 + k) % W, (c0 + k) % W + (c1 - c0), r) for c0, c1, r in objects]
+        rolled = [(c0, c1, r) for c0, c1, r in rolled if c1 <= W]
+        if len(rolled) != len(objects):
+            return  # an object straddles the seam after rolling: nothing to check in this example
+        s, g = _frame(rolled)
+        scans.append(s)
+        gts.append(g)
+        poses.append(_yaw_pose(int(k)))
+    src = MemorySource(scans, SENSOR, np.stack(poses))
+    results = list(SequenceProcessor(CFG, SENSOR).iter_frames(src))
+    for a, b, ga, gb in zip(results[:-1], results[1:], gts[:-1], gts[1:], strict=True):
+        da, db = _dominant(a, ga), _dominant(b, gb)
+        big = {o for o in range(1, n_objects + 1) if (ga == o).sum() >= 30 and (gb == o).sum() >= 30}
+        linked = {db[t] for t in db if t in da and da[t] == db[t]}
+        assert big <= linked, (big, linked)
