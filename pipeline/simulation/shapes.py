@@ -237,13 +237,13 @@ class PrimitiveBuilder:
         )
 
 
-def signed_distance(points: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
-    """(N,) signed distance of (N, 3) scene points to the union of `prims` (< 0 inside).
+def primitive_distances(points: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
+    """(P, N) signed distance of (N, 3) scene points to each primitive (< 0 inside).
 
     Exact for boxes, cylinders and capsules; the usual first-order estimate for ellipsoids,
     which is exact on the surface and accurate near it.
     """
-    best = np.full(len(points), np.inf)
+    out = np.empty((len(prims), len(points)))
     for i in range(len(prims)):
         local = (points - prims.center[i]) @ prims.rot[i]  # (N, 3) in the local frame
         s = prims.size[i]
@@ -261,5 +261,19 @@ def signed_distance(points: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
             k0 = np.linalg.norm(local / s, axis=1)
             k1 = np.linalg.norm(local / (s * s), axis=1)
             d = k0 * (k0 - 1.0) / np.maximum(k1, 1e-12)
-        best = np.minimum(best, d)
-    return best
+        out[i] = d
+    return out
+
+
+def signed_distance(points: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
+    """(N,) signed distance of (N, 3) scene points to the union of `prims` (< 0 inside)."""
+    if len(prims) == 0:
+        return np.full(len(points), np.inf)
+    return primitive_distances(points, prims).min(axis=0)
+
+
+def surface_distance(points: np.ndarray, prims: PrimitiveSet) -> np.ndarray:
+    """(N,) distance of (N, 3) scene points to the nearest primitive surface (inner faces count)."""
+    if len(prims) == 0:
+        return np.full(len(points), np.inf)
+    return np.abs(primitive_distances(points, prims)).min(axis=0)

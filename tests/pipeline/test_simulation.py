@@ -1,0 +1,289 @@
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.classes import POINT_CLASSES, to_ours
+from pipeline.errors import DataError
+from pipeline.io.semantickitti import read_bin, read_calib_tr, read_label, read_matrix_lines
+from pipeline.sensors import PRESETS
+from pipeline.simulation import simulate_frame, simulate_sequence
+from pipeline.simulation.ground import GroundModel
+from pipeline.simulation.raycast import cast, ray_directions, ray_windows
+from pipeline.simulation.returns import make_returns
+from pipeline.simulation.scene import build_scene
+from pipeline.simulation.shapes import Material, PrimitiveBuilder, signed_distance, surface_distance
+
+SEED = 3
+FRAMES = 20
+SENSOR = PRESETS["hdl32e"]
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "seq"
+    simulate_sequence(out, frames=FRAMES, seed=SEED)
+    return out
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return build_scene(SEED)
+
+
+def _meta(seq: Path) -> dict:
+    return json.loads((seq / "metadata.json").read_text())
+
+
+def _frame(seq: Path, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points (N, 4), semantic (N,), instance (N,)) of frame k."""
+    b = read_bin(seq / "velodyne" / f"{k:06d}.bin")
+    sem, inst = read_label(seq / "labels" / f"{k:06d}.label", expected=len(b))
+    return b, sem, inst
+
+
+def _columns(points: np.ndarray) -> np.ndarray:
+    az = np.arctan2(points[:, 1], points[:, 0])
+    return np.floor((0.5 - az / (2 * np.pi)) * SENSOR.width).astype(np.int64) % SENSOR.width
+
+
+def _world_points(seq: Path, k: int) -> np.ndarray:
+    pose = read_matrix_lines(seq / "poses.txt")[k]
+    b, _, _ = _frame(seq, k)
+    return b[:, :3].astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+
+
+def test_simulate_writes_semantickitti_layout(seq: Path):
+    assert len(list((seq / "velodyne").glob("*.bin"))) == FRAMES
+    assert len(list((seq / "labels").glob("*.label"))) == FRAMES
+    poses = read_matrix_lines(seq / "poses.txt")
+    assert poses.shape == (FRAMES, 4, 4)
+    np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-9)
+    np.testing.assert_array_equal(read_calib_tr(seq / "calib.txt"), np.eye(4))
+    np.testing.assert_allclose(np.loadtxt(seq / "times.txt"), np.arange(FRAMES) / 10.0)
+    meta = _meta(seq)
+    assert (meta["sensor"], meta["seed"], meta["start"], meta["frames"]) == ("hdl32e", SEED, 0, FRAMES)
+    assert meta["route_length_m"] >= 300.0
+    assert {"class", "moving", "semantic"} <= set(meta["instances"]["1"])
+
+
+def test_simulate_all_classes_present(seq: Path):
+    seen = set()
+    for k in range(FRAMES):
+        seen |= set(to_ours(_frame(seq, k)[1]).tolist())
+    assert {POINT_CLASSES.index(c) for c in POINT_CLASSES} <= seen
+
+
+def test_simulate_labels_match_instance_table(seq: Path):
+    meta = _meta(seq)
+    for k in (0, FRAMES - 1):
+        _, sem, inst = _frame(seq, k)
+        ground = to_ours(sem) == POINT_CLASSES.index("ground")
+        assert np.all(inst[ground] == 0) and np.all(inst[~ground] >= 1)
+        for iid in np.unique(inst[inst > 0]):
+            allowed = meta["instances"][str(iid)]["semantic"]
+            assert set(np.unique(sem[inst == iid]).tolist()) <= set(allowed), iid
+
+
+def test_simulate_route_is_a_long_loop_with_turns(seq: Path, scene):
+    assert _meta(seq)["route_length_m"] >= 300.0
+    step = np.linalg.norm(np.diff(read_matrix_lines(seq / "poses.txt")[:, :3, 3], axis=0), axis=1)
+    assert 0.3 < step.mean() < 0.7  # about 5 m/s at 10 Hz
+    poses = np.stack([scene.sensor_pose(t) for t in np.arange(0.0, 20.0, 0.5)])
+    yaw = np.unwrap(np.arctan2(poses[:, 1, 0], poses[:, 0, 0]))
+    assert np.ptp(yaw) > np.deg2rad(12)  # the start lies shortly before a turn
+    assert 0.3 < scene.route.straight.mean() < 0.95  # straights and turns
+
+
+def test_simulate_moving_instances_move_in_world(seq: Path):
+    meta = _meta(seq)
+    centroids: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for k in range(FRAMES):
+        w = _world_points(seq, k)
+        _, _, inst = _frame(seq, k)
+        for iid in np.unique(inst[inst > 0]):
+            m = inst == iid
+            if meta["instances"][str(iid)]["moving"] and m.sum() >= 15:
+                centroids.setdefault(int(iid), []).append((k, w[m].mean(axis=0)))
+    speeds = []
+    for track in centroids.values():
+        (k0, a), (k1, b) = track[0], track[-1]
+        if k1 - k0 >= 10:
+            speeds.append(np.linalg.norm(b[:2] - a[:2]) / ((k1 - k0) / 10.0))
+    assert len(speeds) >= 3
+    assert min(speeds) > 0.5  # people walk >= 0.9 m/s, cars drive >= 5.5 m/s
+
+
+def test_simulate_points_lie_on_their_instance_surface(seq: Path, scene):
+    """Static points stay on their object in world coordinates; moving ones on the actor at time t.
+
+    World points of frames 0 and 19 are mapped to the scene frame with one transform
+    (metadata T_world_scene) and compared to the instance's true primitives: rigid surfaces
+    within 5 cm (range noise sigma is 2 cm), foliage inside its crown or within 5 cm of it.
+    """
+    meta = _meta(seq)
+    T_scene_world = np.linalg.inv(np.asarray(meta["T_world_scene"]))
+    checked = {"static": 0, "moving": 0}
+    for k in (0, FRAMES - 1):
+        w = _world_points(seq, k)
+        s = w @ T_scene_world[:3, :3].T + T_scene_world[:3, 3]
+        _, _, inst = _frame(seq, k)
+        for iid in np.unique(inst[inst > 0]):
+            info = meta["instances"][str(iid)]
+            q = s[inst == iid]
+            prims = scene.instance_primitives(int(iid), k / 10.0)
+            if info["class"] == "bush":
+                d = signed_distance(q, prims)
+                assert np.percentile(d, 95) < 0.05 and d.max() < 0.15, (iid, info["kind"])
+            else:
+                d = surface_distance(q, prims)
+                assert np.percentile(d, 95) < 0.05 and d.max() < 0.12, (iid, info["kind"])
+            checked["moving" if info["moving"] else "static"] += 1
+    assert checked["static"] > 50 and checked["moving"] > 5
+
+
+def test_simulate_scan_order_is_beam_by_beam(seq: Path, scene):
+    _, ret = simulate_frame(scene, 0)
+    key = ret.ring.astype(np.int64) * SENSOR.width + ret.column
+    assert np.all(np.diff(key) > 0)  # top beam first, each beam in column order
+    b, _, _ = _frame(seq, 0)
+    cols = _columns(b[:, :3])
+    recovered = np.concatenate([[0], np.cumsum(np.diff(cols) < 0)])
+    np.testing.assert_array_equal(recovered, ret.ring)
+    el = np.arctan2(b[:, 2], np.hypot(b[:, 0], b[:, 1]))
+    ring_el = np.array([np.median(el[recovered == r]) for r in np.unique(recovered)])
+    assert np.all(np.diff(ring_el) < 0)
+
+
+def test_simulate_points_in_range_and_remission_in_unit_interval(seq: Path):
+    b, _, _ = _frame(seq, FRAMES // 2)
+    r = np.linalg.norm(b[:, :3], axis=1)
+    assert r.min() >= SENSOR.min_range - 0.1 and r.max() <= SENSOR.max_range + 0.1
+    assert b[:, 3].min() >= 0.0 and b[:, 3].max() <= 1.0
+    assert 40_000 < len(b) <= SENSOR.n_rings * SENSOR.width
+
+
+def test_simulate_same_seed_identical_bytes(tmp_path: Path, seq: Path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    simulate_sequence(a, frames=2, seed=SEED)
+    simulate_sequence(b, frames=2, seed=SEED)
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for f in files:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+    for f in ("velodyne/000001.bin", "labels/000001.label"):  # and the longer run's frame 1
+        assert (a / f).read_bytes() == (seq / f).read_bytes(), f
+
+
+def test_simulate_start_continues_the_same_route(tmp_path: Path, seq: Path):
+    simulate_sequence(tmp_path / "late", frames=2, seed=SEED, start=12)
+    assert (tmp_path / "late/velodyne/000000.bin").read_bytes() == (seq / "velodyne/000012.bin").read_bytes()
+    assert _meta(tmp_path / "late")["start"] == 12
+    np.testing.assert_allclose(np.loadtxt(tmp_path / "late/times.txt"), [1.2, 1.3])
+    late = read_matrix_lines(tmp_path / "late/poses.txt")
+    full = read_matrix_lines(seq / "poses.txt")
+    rel_full = np.linalg.inv(full[12]) @ full[13]
+    np.testing.assert_allclose(np.linalg.inv(late[0]) @ late[1], rel_full, atol=1e-6)
+
+
+def test_simulate_different_seeds_give_different_layouts(scene):
+    other = build_scene(SEED + 1)
+    assert other.route.length != scene.route.length
+    assert len(other.static) != len(scene.static) or not np.allclose(other.static.center, scene.static.center)
+
+
+def test_simulate_refuses_a_foreign_sequence_folder(tmp_path: Path):
+    (tmp_path / "velodyne").mkdir()
+    (tmp_path / "velodyne/000000.bin").write_bytes(b"\0" * 16)
+    with pytest.raises(DataError, match="did not write"):
+        simulate_sequence(tmp_path, frames=1, seed=0)
+
+
+def _flat_ground() -> GroundModel:
+    """Grass everywhere at z = 0.1 (no road within the tiny grid)."""
+    return GroundModel(
+        waves=np.zeros((3, 4)),
+        origin=np.array([-500.0, -500.0]),
+        lat=np.full((2, 2), 1e3, np.float32),
+        sidx=np.zeros((2, 2), np.int32),
+        low_left=np.array([3.5], np.float32),
+        low_right=np.array([3.5], np.float32),
+        crossings=np.zeros(0),
+        road_half=3.5,
+        sidewalk_left=2.0,
+        sidewalk_right=2.0,
+        curb=0.1,
+        route_length=100.0,
+    )
+
+
+def _cast_one(b: PrimitiveBuilder, origin=(0.0, 0.0, 1.8)):
+    prims = b.build()
+    origin = np.asarray(origin)
+    dirs = ray_directions(SENSOR)
+    windows = ray_windows(prims, np.eye(3), origin, SENSOR)
+    return prims, dirs, cast(dirs, np.eye(3), origin, prims, windows, _flat_ground(), SENSOR.max_range, 7)
+
+
+def test_raycast_box_range_is_exact():
+    b = PrimitiveBuilder()
+    b.box((10.0, 0.0, 1.8), (1.0, 2.0, 2.0), 50, 1, Material(refl=0.5))
+    _, _, hits = _cast_one(b)
+    row = int(np.argmin(np.abs(SENSOR.elevations_deg)))
+    col = SENSOR.width // 2  # looks along +x
+    assert hits.hit[row, col] == 0
+    assert hits.t[row, col] == pytest.approx(9.0, abs=1e-3)
+    ground = hits.hit[-1, 0]  # bottom beam, behind: the grass
+    assert ground < -1 and hits.t[-1, 0] == pytest.approx(1.7 / np.sin(np.deg2rad(30.67)), rel=1e-3)
+
+
+def test_raycast_windows_miss_nothing():
+    """Casting with full windows gives the same hits as the culled windows."""
+    b = PrimitiveBuilder()
+    b.ellipsoid((6.0, -4.0, 1.0), (1.0, 2.0, 1.5), 70, 1, Material(refl=0.3))
+    b.capsule((-3.0, 5.0, 0.2), (-3.5, 5.5, 1.7), 0.3, 30, 2, Material(refl=0.3))
+    b.cylinder((0.5, -7.0, 2.0), 0.2, 2.0, 71, 3, Material(refl=0.3))
+    prims, dirs, hits = _cast_one(b)
+    full = ray_windows(prims, np.eye(3), np.array([0.0, 0.0, 1.8]), SENSOR)
+    full = type(full)(
+        np.zeros(3, np.int32),
+        np.full(3, 31, np.int32),
+        np.zeros(3, np.int32),
+        np.full(3, SENSOR.width, np.int32),
+    )
+    ref = cast(dirs, np.eye(3), np.array([0.0, 0.0, 1.8]), prims, full, _flat_ground(), SENSOR.max_range, 7)
+    np.testing.assert_array_equal(hits.hit, ref.hit)
+    assert set(np.unique(hits.hit[hits.hit >= 0]).tolist()) == {0, 1, 2}
+
+
+def test_returns_dark_paint_loses_oblique_returns():
+    counts = {}
+    for name, paint in {"dark": Material(refl=0.04, spec=0.92), "bright": Material(refl=0.5)}.items():
+        b = PrimitiveBuilder()
+        # A wall seen at ~60 degrees incidence: cos ~ 0.5.
+        b.box(
+            (8.0, 0.0, 1.0),
+            (0.05, 1.0, 1.0),
+            10,
+            1,
+            paint,
+            rot=np.array([[0.5, -0.866, 0], [0.866, 0.5, 0], [0, 0, 1]]),
+        )
+        prims, dirs, hits = _cast_one(b)
+        ret = make_returns(hits, prims, dirs, SENSOR, np.random.default_rng(0))
+        counts[name] = int((ret.instance == 1).sum())
+    assert counts["bright"] > 100 and counts["dark"] < 0.3 * counts["bright"]
+
+
+def test_cli_simulate_end_to_end(tmp_path: Path):
+    from typer.testing import CliRunner
+
+    from app.cli import app
+
+    result = CliRunner().invoke(app, ["simulate", str(tmp_path / "cli"), "--frames", "2", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    assert "points/frame" in result.output
+    assert len(list((tmp_path / "cli/velodyne").glob("*.bin"))) == 2
