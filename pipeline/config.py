@@ -46,6 +46,7 @@ class SegmentationConfig(_Section):
     use_angle_criterion: bool = False
     angle_threshold_deg: float = 10.0  # depth_clustering's beta criterion when enabled
     min_points: int = 3  # segments smaller than this are dropped (label 0)
+    bridge_empty: bool = True  # step over one pixel without any return (see segmentation.py)
 
 
 class SampleConfig(_Section):

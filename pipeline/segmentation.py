@@ -2,7 +2,9 @@
 
 Two neighbours join when their range difference is under a threshold that grows with range
 (separate vertical and horizontal thresholds); optionally they must also pass depth_clustering's
-angle criterion. Columns wrap around at W-1 -> 0. The flood fill runs in numba.
+angle criterion. Columns wrap around at W-1 -> 0. With `bridge_empty`, a neighbour that holds no
+return at all (a dropout on glass or dark paint) is stepped over to the next pixel in the same
+direction; ground and other objects are never stepped over. The flood fill runs in numba.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ class Segmentation:
 
 
 @njit(cache=True)
-def _grow(rng, ok, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha):  # pragma: no cover - numba
+def _grow(rng, ok, empty, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover
     h, w = rng.shape
     labels = np.full((h, w), -1, dtype=np.int32)
     stack_r = np.empty(h * w, dtype=np.int32)
@@ -50,19 +52,23 @@ def _grow(rng, ok, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha):  # pr
                 d1 = rng[r, c]
                 for k in range(4):
                     if k == 0:
-                        nr, nc, vert = r - 1, c, True
+                        dr, dc, vert = -1, 0, True
                     elif k == 1:
-                        nr, nc, vert = r + 1, c, True
+                        dr, dc, vert = 1, 0, True
                     elif k == 2:
-                        nr, nc, vert = r, c - 1, False
+                        dr, dc, vert = 0, -1, False
                     else:
-                        nr, nc, vert = r, c + 1, False
+                        dr, dc, vert = 0, 1, False
+                    nr = r + dr
+                    nc = (c + dc) % w
                     if nr < 0 or nr >= h:
                         continue
-                    if nc < 0:
-                        nc += w
-                    elif nc >= w:
-                        nc -= w
+                    if bridge and empty[nr, nc]:
+                        # no return at all here (glass, dark paint): look one pixel further
+                        nr = nr + dr
+                        nc = (nc + dc) % w
+                        if nr < 0 or nr >= h:
+                            continue
                     if not ok[nr, nc] or labels[nr, nc] >= 0:
                         continue
                     d2 = rng[nr, nc]
@@ -75,7 +81,7 @@ def _grow(rng, ok, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha):  # pr
                     if dmax - dmin > thr:
                         continue
                     if use_angle:
-                        a = v_alpha[min(r, nr)] if vert else h_alpha
+                        a = v_alpha[min(min(r, nr), h - 2)] if vert else h_alpha
                         # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
                         num = dmin * np.sin(a)
                         den = dmax - dmin * np.cos(a)
@@ -107,6 +113,7 @@ def segment(
     labels, count = _grow(
         image.range,
         ok,
+        ~occupied,
         config.vertical_base,
         config.vertical_slope,
         config.horizontal_base,
@@ -115,6 +122,7 @@ def segment(
         np.tan(np.deg2rad(config.angle_threshold_deg)),
         v_alpha.astype(np.float32),
         np.float32(2.0 * np.pi / w),
+        config.bridge_empty,
     )
     # drop tiny segments and renumber densely
     sizes = np.bincount(labels[labels >= 0], minlength=count)

@@ -95,3 +95,23 @@ def test_segmentation_too_few_points_gives_no_segments():
     scan = Scan(pts, np.ones(2, np.float32), np.array([10, 10], np.int16))
     _, _, seg = _segment(scan)
     assert seg.count == 0 and (seg.point == -1).all()
+
+
+def test_segmentation_bridges_one_empty_column_but_not_a_return():
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(8, 14), slice(100, 106), 12.0)
+    add_box(rimg, slice(8, 14), slice(107, 113), 12.0)
+    rimg[:14, 106] = 0.0  # a column without any return (dropout) above the ground rows
+    scan = scan_from_range_image(rimg, SENSOR)
+    above = scan.points[:, 2] > -1.8 + 0.25
+    obj = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & above
+    _, _, bridged = _segment(scan)
+    _, _, strict = _segment(scan, SegmentationConfig(bridge_empty=False))
+    assert len(np.unique(bridged.point[obj])) == 1
+    assert len(np.unique(strict.point[obj])) == 2
+    # the same gap holding a far return (background) is not stepped over
+    rimg[8:14, 106] = 40.0
+    scan = scan_from_range_image(rimg, SENSOR)
+    obj = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & (scan.points[:, 2] > -1.55)
+    _, _, seg = _segment(scan)
+    assert len(np.unique(seg.point[obj])) == 2
