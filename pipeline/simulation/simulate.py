@@ -64,7 +64,7 @@ class SimulationSummary:
     scene_seconds: float
     seconds: float
     dark_cars: int = 0
-    extra: dict[str, float] = field(default_factory=dict)
+    extra: dict[str, float] = field(default_factory=dict)  # ms per frame per stage
 
     @property
     def fps(self) -> float:
@@ -89,18 +89,37 @@ class SimulationSummary:
         return "\n".join(lines)
 
 
-def simulate_frame(scene: Scene, index: int, dirs: np.ndarray | None = None) -> tuple[np.ndarray, Returns]:
-    """(T_scene_lidar (4, 4), returns) of frame `index` (time index / 10 s) of `scene`."""
+def simulate_frame(
+    scene: Scene, index: int, dirs: np.ndarray | None = None, timings: dict[str, float] | None = None
+) -> tuple[np.ndarray, Returns]:
+    """(T_scene_lidar (4, 4), returns) of frame `index` (time index / 10 s) of `scene`.
+
+    timings, when given, accumulates seconds per stage: scene (pose and primitives in range),
+    windows, cast, returns.
+    """
     sensor = PRESETS[SENSOR]
     dirs = ray_directions(sensor) if dirs is None else dirs
+    clock = [time.perf_counter()]
+
+    def lap(stage: str) -> None:
+        if timings is not None:
+            now = time.perf_counter()
+            timings[stage] = timings.get(stage, 0.0) + now - clock[0]
+            clock[0] = now
+
     t = index / sensor.frequency_hz
     pose = scene.sensor_pose(t)
     rot, origin = pose[:3, :3], pose[:3, 3]
     prims = scene.primitives_near(t, origin, sensor.max_range)
+    lap("scene")
     windows = ray_windows(prims, rot, origin, sensor)
+    lap("windows")
     rng = np.random.default_rng([scene.seed, index])
     hits = cast(dirs, rot, origin, prims, windows, scene.ground, sensor.max_range, int(rng.integers(2**63)))
-    return pose, make_returns(hits, prims, dirs, sensor, rng)
+    lap("cast")
+    returns = make_returns(hits, prims, dirs, sensor, rng)
+    lap("returns")
+    return pose, returns
 
 
 def _prepare(out: Path) -> None:
@@ -151,13 +170,16 @@ def simulate_sequence(
     n_points = np.zeros(frames, np.int64)
     class_points = np.zeros(256, np.int64)
     seen: dict[int, int] = {}
+    stages: dict[str, float] = {}
     for i in _frames(frames, progress):
         k = start + i
-        pose, ret = simulate_frame(scene, k, dirs)
+        pose, ret = simulate_frame(scene, k, dirs, stages)
         poses[i] = pose
         name = frame_name(i)
+        tw = time.perf_counter()
         write_bin(out / "velodyne" / f"{name}.bin", ret.points, ret.remission)
         write_label(out / "labels" / f"{name}.label", ret.semantic, ret.instance)
+        stages["write"] = stages.get("write", 0.0) + time.perf_counter() - tw
         n_points[i] = len(ret.points)
         class_points += np.bincount(to_ours(ret.semantic), minlength=256)
         for iid in np.unique(ret.instance[ret.instance > 0]).tolist():
@@ -196,6 +218,7 @@ def simulate_sequence(
         scene_seconds=t1 - t0,
         seconds=t2 - t1,
         dark_cars=sum(1 for iid in seen if scene.instances[iid].dark),
+        extra={f"ms_{k}": 1000.0 * v / frames for k, v in stages.items()},
     )
 
 
