@@ -36,13 +36,23 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         t0 = time.perf_counter()
         simulate_sequence(seq, frames=frames, seed=0)
         result["simulate_seconds"] = round(time.perf_counter() - t0, 2)
+        # warm-up: numba kernels load from their cache (or compile) outside the timed runs
+        run_process(seq, tmp / "warmup", PipelineConfig(), workers=1)
         runs = {}
         for size in (64, 256):
             cfg = PipelineConfig().override({"samples": {"size": size}})
             for workers in (1, 2):
                 s = run_process(seq, tmp / f"out{size}_{workers}", cfg, workers=workers)
                 runs[f"size{size}_workers{workers}"] = _pick(s)
+        s = run_process(seq, tmp / "out64_written", PipelineConfig(), workers=2, samples=True)
+        runs["size64_workers2_samples_written"] = _pick(s)
         result["process"] = runs
+        try:
+            import os
+
+            result["load_average_1min"] = os.getloadavg()[0]
+        except OSError:
+            pass
         ev = evaluate_folder(seq, tmp / "out64_1")
         result["evaluation"] = ev
         o = ev["overall"]

@@ -84,7 +84,10 @@ def run_process(
     log: Callable[[str], None] | None = None,
     fmt: str = "auto",
 ) -> dict:
-    """Process a sequence into track labels, tracks.json and summary.json; returns the summary."""
+    """Process a sequence into track labels, tracks.json and summary.json; returns the summary.
+
+    Samples are always rendered (they are part of the run); `samples=True` also writes them.
+    """
     config = config or PipelineConfig()
     log = log or (lambda _m: None)
     out = Path(out)
@@ -112,7 +115,7 @@ def run_process(
     names: list[str] = []
     n_segments = n_valid = n_samples = 0
     t0 = time.perf_counter()
-    for fr in proc.iter_frames(source, progress=progress, workers=workers, samples=samples,
+    for fr in proc.iter_frames(source, progress=progress, workers=workers, samples=True,
                                poses=pose_arr, on_skip=on_skip):
         fr.track_labels().tofile(out / "tracks" / f"{fr.name}.label")
         if samples:
@@ -156,7 +159,8 @@ def run_process(
         "seconds": round(elapsed, 3),
         "frames_per_second": round(len(names) / elapsed, 2) if elapsed > 0 else None,
         "workers": workers,
-        "sample_size": config.samples.size if samples else None,
+        "sample_size": config.samples.size,
+        "samples_written": samples,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
