@@ -126,9 +126,14 @@ class Actor:
         """The actor's primitives in the scene frame at time t."""
         xy, yaw = self.path.pose(t)
         z = float(ground.height(xy[None])[0])
+        n = ground.normal(xy[None])[0]
+        return self.posed(t, xy, yaw, z, n)
+
+    def posed(self, t: float, xy: np.ndarray, yaw: float, z: float, normal: np.ndarray) -> PrimitiveSet:
+        """The primitives at time t for a pose already computed: ground point (xy, z), heading, slope normal."""
         pos = np.array([xy[0], xy[1], z])
         if self.kind == "car":
-            rot = ground_frame(ground, xy, yaw)
+            rot = frame_on_slope(normal, yaw)
             if self.model is not None:
                 return self.model.transformed(rot, pos)
             b = PrimitiveBuilder()
@@ -139,24 +144,64 @@ class Actor:
             add_bicycle(b, self.semantic, self.instance, Material(refl=self.frame_refl, drop=0.02))
             crank = self.phase + 2 * np.pi * self.speed * t / 5.3  # 5.3 m per crank turn
             add_rider(b, self.shape, self.semantic, self.instance, crank, 0.65)  # type: ignore[arg-type]
-            rot = rot_z(yaw)
         else:
             stride = 0.8 * self.shape.height  # type: ignore[union-attr]  # one full gait cycle
             gait = self.phase + 2 * np.pi * self.speed * t / stride
             swing = 0.42 if self.speed > 0 else 0.0
             add_person(b, self.shape, self.semantic, self.instance, gait, swing)  # type: ignore[arg-type]
-            rot = rot_z(yaw)
-        return b.build(rot, pos)
+        return b.build(rot_z(yaw), pos)
+
+
+def actor_poses(actors: tuple[Actor, ...] | list[Actor], t: float) -> tuple[np.ndarray, np.ndarray]:
+    """((A, 2) xy, (A,) yaw) of all actors at time t; lane paths are evaluated together."""
+    xy = np.zeros((len(actors), 2))
+    yaw = np.zeros(len(actors))
+    lanes = [i for i, a in enumerate(actors) if isinstance(a.path, LanePath)]
+    for i, a in enumerate(actors):
+        if not isinstance(a.path, LanePath):
+            xy[i], yaw[i] = a.path.pose(t)
+    if not lanes:
+        return xy, yaw
+    paths: list[LanePath] = [actors[i].path for i in lanes]  # type: ignore[misc]
+    route = paths[0].route
+    v = np.array([p.v for p in paths])
+    s = np.array([p.s0 for p in paths]) + v * t
+    ss = np.stack([s, s + np.where(v >= 0, 0.5, -0.5)], axis=1)  # (L, 2)
+    lat0 = np.array([p.lat for p in paths])
+    lat = np.repeat(lat0[:, None], 2, axis=1)
+    follows: dict[int, np.ndarray] = {id(p.follow): p.follow for p in paths if p.follow is not None}
+    for key, arr in follows.items():
+        m = np.array([p.follow is not None and id(p.follow) == key for p in paths])
+        lat[m] += np.sign(lat0[m])[:, None] * arr[route.index(ss[m])]
+    over = np.array([p.overtake_lat is not None and p.ego is not None for p in paths])
+    if over.any():
+        ego = next(p.ego for p in paths if p.ego is not None)
+        gap = np.mod(ss[over] - ego.s_at(t) + route.length / 2, route.length) - route.length / 2
+        gaps = np.array([p.overtake_gap for p, o in zip(paths, over, strict=True) if o])[:, None]
+        w = np.clip((gaps + 8.0 - np.abs(gap)) / 8.0, 0.0, 1.0)
+        w = 0.5 - 0.5 * np.cos(np.pi * w)
+        target = np.array([p.overtake_lat for p, o in zip(paths, over, strict=True) if o])[:, None]
+        lat[over] = lat[over] * (1 - w) + target * w
+    pts = route.offset(ss, lat)  # (L, 2, 2)
+    d = pts[:, 1] - pts[:, 0]
+    xy[lanes] = pts[:, 0]
+    yaw[lanes] = np.arctan2(d[:, 1], d[:, 0])
+    return xy, yaw
+
+
+def frame_on_slope(normal: np.ndarray, yaw: float) -> np.ndarray:
+    """(3, 3) rotation of a vehicle heading `yaw` standing on ground of unit `normal` (3,)."""
+    n = normal
+    fwd = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    x = fwd - (fwd @ n) * n
+    x /= np.linalg.norm(x)
+    y = np.array([n[1] * x[2] - n[2] * x[1], n[2] * x[0] - n[0] * x[2], n[0] * x[1] - n[1] * x[0]])
+    return np.stack([x, y, n], axis=1)
 
 
 def ground_frame(ground: GroundModel, xy: np.ndarray, yaw: float) -> np.ndarray:
     """(3, 3) rotation of a vehicle at `xy` heading `yaw`, standing on the ground's slope."""
-    n = ground.normal(np.asarray(xy, float)[None])[0]
-    fwd = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    x = fwd - (fwd @ n) * n
-    x /= np.linalg.norm(x)
-    y = np.cross(n, x)
-    return np.stack([x, y, n], axis=1)
+    return frame_on_slope(ground.normal(np.asarray(xy, float)[None])[0], yaw)
 
 
 def lane_offsets_smoothed(values: np.ndarray, window_m: float = 8.0) -> np.ndarray:

@@ -9,6 +9,7 @@ A hit becomes a point with probability
 so dark cars keep only the panels that face the sensor (plus bumpers, wheels and plates) and
 fall apart into several segments. Range noise is Gaussian (sigma 2 cm, more on foliage and
 grass); remission is reflectivity * (0.35 + 0.65 cos) with 8 % multiplicative noise.
+Random draws: one uniform per hit (keep or drop), then two normals per kept return.
 Points stay in ray order: beam by beam from the top beam, each beam in column order.
 """
 
@@ -62,25 +63,27 @@ def make_returns(
     hit = cast.hit.ravel()
     t = cast.t.ravel()
     idx = np.flatnonzero((hit != -1) & (t >= sensor.min_range) & (t <= sensor.max_range))
-    hit = hit[idx].astype(np.int64)
-    t = t[idx].astype(np.float64)
-    cosi = cast.cosi.ravel()[idx].astype(np.float64)
+    hit = hit[idx]
+    t = t[idx]
+    cosi = cast.cosi.ravel()[idx]
     n_regions = len(REGION_SEMANTIC)
     row = np.where(hit >= 0, n_regions + hit, -hit - 2)
-    material = np.concatenate([REGION_MATERIAL, prims.material])[row].astype(np.float64)
-    refl, drop, spec, noise = material[:, 0], material[:, 1], material[:, 2], material[:, 5]
+    table = np.concatenate([REGION_MATERIAL, prims.material])  # (G + P, 6) float32
+    refl = table[:, 0][row]
+    drop = table[:, 1][row]
+    spec = table[:, 2][row]
     p = (1.0 - drop) * (1.0 - spec * (1.0 - _smoothstep(0.5, 0.92, cosi)))
     signal = refl * (0.3 + 0.7 * cosi) * (50.0 / np.maximum(t, 10.0)) ** 2
     p *= (1.0 - np.exp(-signal / 0.012)) * (1.0 - RANDOM_DROPOUT)
-    u = rng.random(len(idx))
-    gauss = rng.standard_normal((len(idx), 3))
-    keep = u < p
-    rng_noisy = t + gauss[:, 0] * np.sqrt(RANGE_SIGMA**2 + noise**2)
-    remission = refl * (0.35 + 0.65 * cosi) * (1.0 + 0.08 * gauss[:, 1]) + 0.01 * gauss[:, 2]
-    idx, rng_noisy, remission, row = idx[keep], rng_noisy[keep], remission[keep], row[keep]
+    keep = rng.random(len(idx), dtype=np.float32) < p
+    idx, t, cosi, row, refl = idx[keep], t[keep], cosi[keep], row[keep], refl[keep]
+    gauss = rng.standard_normal((2, len(idx)), dtype=np.float32)
+    sigma = np.sqrt(RANGE_SIGMA**2 + table[:, 5][row] ** 2)
+    t_noisy = t + gauss[0] * sigma
+    remission = refl * (0.35 + 0.65 * cosi) * (1.0 + 0.08 * gauss[1])
     semantic = np.concatenate([REGION_SEMANTIC, prims.semantic])[row]
     instance = np.concatenate([np.zeros(n_regions, np.uint16), prims.instance])[row]
-    points = dirs_lidar.reshape(-1, 3)[idx] * rng_noisy[:, None]
+    points = dirs_lidar.reshape(-1, 3)[idx] * t_noisy[:, None]
     return Returns(
         points=points.astype(np.float32),
         remission=np.clip(remission, 0.0, 1.0).astype(np.float32),

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.simulation.actors import Actor, ground_frame
+from pipeline.simulation.actors import Actor, actor_poses, ground_frame
 from pipeline.simulation.ground import GroundModel, lateral_grid, make_waves
 from pipeline.simulation.layout import (
     InstanceInfo,
@@ -74,9 +74,13 @@ class Scene:
         d = np.linalg.norm(self.static.center[idx, :2] - origin[None, :2], axis=1)
         idx = idx[d - self.static_radius[idx] <= max_range]
         sets = [self.static.take(idx)]
-        for a in self.actors:
-            if np.linalg.norm(a.position(t) - origin[:2]) <= max_range + 4.0:
-                sets.append(a.primitives(t, self.ground))
+        xy, yaw = actor_poses(self.actors, t)
+        near = np.flatnonzero(np.linalg.norm(xy - origin[None, :2], axis=1) <= max_range + 4.0)
+        if len(near):
+            z = self.ground.height(xy[near])
+            normal = self.ground.normal(xy[near])
+            for j, i in enumerate(near.tolist()):
+                sets.append(self.actors[i].posed(t, xy[i], float(yaw[i]), float(z[j]), normal[j]))
         return concat(sets)
 
     def instance_primitives(self, instance: int, t: float) -> PrimitiveSet:

@@ -178,24 +178,24 @@ class PrimitiveBuilder:
 
     def __init__(self) -> None:
         self._kind: list[int] = []
-        self._center: list[np.ndarray] = []
-        self._rot: list[np.ndarray] = []
+        self._center: list[tuple[float, float, float]] = []
+        self._rot: list[np.ndarray | None] = []
         self._size: list[tuple[float, float, float]] = []
         self._sem: list[int] = []
         self._inst: list[int] = []
-        self._mat: list[tuple[float, ...]] = []
+        self._mat: list[Material] = []
 
     def __len__(self) -> int:
         return len(self._kind)
 
     def _add(self, kind: int, center, rot, size, semantic: int, instance: int, mat: Material) -> None:
         self._kind.append(kind)
-        self._center.append(np.asarray(center, float))
-        self._rot.append(np.eye(3) if rot is None else np.asarray(rot, float))
-        self._size.append(tuple(float(v) for v in size))
-        self._sem.append(int(semantic))
-        self._inst.append(int(instance))
-        self._mat.append((mat.refl, mat.drop, mat.spec, mat.porosity, mat.depth, mat.noise))
+        self._center.append((float(center[0]), float(center[1]), float(center[2])))
+        self._rot.append(rot)
+        self._size.append((float(size[0]), float(size[1]), float(size[2])))
+        self._sem.append(semantic)
+        self._inst.append(instance)
+        self._mat.append(mat)
 
     def box(self, center, half, semantic: int, instance: int, mat: Material, rot=None) -> None:
         self._add(BOX, center, rot, half, semantic, instance, mat)
@@ -210,30 +210,36 @@ class PrimitiveBuilder:
 
     def capsule(self, p0, p1, radius: float, semantic: int, instance: int, mat: Material) -> None:
         """A capsule around the segment p0-p1 (builder frame)."""
-        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-        axis = p1 - p0
-        length = math.sqrt(float(axis @ axis))
-        rot = frame_from_axis(axis) if length > 1e-9 else np.eye(3)
-        self._add(CAPSULE, 0.5 * (p0 + p1), rot, (radius, radius, 0.5 * length), semantic, instance, mat)
+        x0, y0, z0 = (float(v) for v in p0)
+        x1, y1, z1 = (float(v) for v in p1)
+        axis = (x1 - x0, y1 - y0, z1 - z0)
+        length = math.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)
+        rot = frame_from_axis(axis) if length > 1e-9 else None
+        centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1))
+        self._add(CAPSULE, centre, rot, (radius, radius, 0.5 * length), semantic, instance, mat)
 
     def build(self, pose_rot: np.ndarray | None = None, pose_t: np.ndarray | None = None) -> PrimitiveSet:
         if not self._kind:
             return empty_set()
-        rot = np.stack(self._rot)
-        center = np.stack(self._center)
+        rot = np.tile(np.eye(3), (len(self._rot), 1, 1))
+        for i, r in enumerate(self._rot):
+            if r is not None:
+                rot[i] = r
+        center = np.array(self._center)
         if pose_rot is not None:
             rot = np.einsum("ij,pjk->pik", pose_rot, rot)
             center = center @ pose_rot.T
         if pose_t is not None:
             center = center + np.asarray(pose_t, float)[None]
+        mats = [(m.refl, m.drop, m.spec, m.porosity, m.depth, m.noise) for m in self._mat]
         return PrimitiveSet(
-            np.asarray(self._kind, np.int8),
+            np.array(self._kind, np.int8),
             center,
             rot,
-            np.asarray(self._size, float),
-            np.asarray(self._sem, np.uint16),
-            np.asarray(self._inst, np.uint16),
-            np.asarray(self._mat, np.float32),
+            np.array(self._size),
+            np.array(self._sem, np.uint16),
+            np.array(self._inst, np.uint16),
+            np.array(mats, np.float32),
         )
 
 
