@@ -32,9 +32,9 @@ class GroundResult:
 
 
 @njit(cache=True)
-def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height, max_run):  # pragma: no cover - numba
+def _column_walk(index, points, tan_slope, tan_start, tol, sensor_height, max_run):  # pragma: no cover - numba
     h, w = index.shape
-    out = np.zeros(xy.shape[0], dtype=np.bool_)
+    out = np.zeros(points.shape[0], dtype=np.bool_)
     for c in range(w):
         last_xy = 0.0
         last_z = -sensor_height
@@ -43,16 +43,18 @@ def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height, max_run
             i = index[r, c]
             if i < 0:
                 continue
-            dxy = xy[i] - last_xy
-            dz = abs(z[i] - last_z)
+            xy_i = np.sqrt(points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1])
+            z_i = points[i, 2]
+            dxy = xy_i - last_xy
+            dz = abs(z_i - last_z)
             lim = tan_start if first else tan_slope
             # a slope may not accumulate over a long gap without returns (a far car behind an
             # empty stretch would otherwise look like rising ground)
             run = dxy if first else min(dxy, max_run)
             if dxy > 0.0 and dz <= lim * run + tol:
                 out[i] = True
-                last_xy = xy[i]
-                last_z = z[i]
+                last_xy = xy_i
+                last_z = z_i
                 first = False
     return out
 
@@ -60,12 +62,14 @@ def _column_walk(index, xy, z, tan_slope, tan_start, tol, sensor_height, max_run
 def estimate_sensor_height(scan: Scan, image: RangeImage) -> float:
     """Sensor height (m) from the lowest beams' points 2–15 m away (robust median)."""
     h = image.shape[0]
-    pts = scan.points
+    idx = image.index[h - max(2, h // 8) :].ravel()
+    idx = idx[idx >= 0]
+    pts = scan.points[idx]
     xy = np.hypot(pts[:, 0], pts[:, 1])
-    low = (image.row >= h - max(2, h // 8)) & (xy > 2.0) & (xy < 15.0) & image.kept
-    if low.sum() < 20:
+    z = pts[(xy > 2.0) & (xy < 15.0), 2]
+    if len(z) < 20:
         return 1.8
-    return float(-np.percentile(pts[low, 2], 30))
+    return float(-np.percentile(z, 30))
 
 
 def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None = None) -> GroundResult:
@@ -75,12 +79,10 @@ def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None =
     if n == 0:
         return GroundResult(np.zeros(0, bool), np.zeros(0, np.float32), config.sensor_height or 1.8)
     pts = scan.points
-    xy = np.hypot(pts[:, 0], pts[:, 1])
     sensor_h = config.sensor_height if config.sensor_height is not None else estimate_sensor_height(scan, image)
     ground = _column_walk(
         image.index,
-        xy,
-        pts[:, 2],
+        pts,
         np.tan(np.deg2rad(config.max_slope_deg)),
         np.tan(np.deg2rad(config.start_angle_deg)),
         0.05,

@@ -95,6 +95,41 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha,
     return labels, nxt
 
 
+@njit(cache=True)
+def _finish(labels, count, min_points, row, col, point_range, pix_range, kept, ground, hb, hs):  # pragma: no cover
+    """Drop segments under `min_points` pixels, renumber densely, and label every point whose
+    range agrees with its pixel's nearest point (within the horizontal threshold)."""
+    h, w = labels.shape
+    sizes = np.zeros(count, dtype=np.int64)
+    for r in range(h):
+        for c in range(w):
+            if labels[r, c] >= 0:
+                sizes[labels[r, c]] += 1
+    remap = np.full(count, -1, dtype=np.int32)
+    nxt = 0
+    for k in range(count):
+        if sizes[k] >= min_points:
+            remap[k] = nxt
+            nxt += 1
+    pixel = np.full((h, w), -1, dtype=np.int32)
+    for r in range(h):
+        for c in range(w):
+            if labels[r, c] >= 0:
+                pixel[r, c] = remap[labels[r, c]]
+    n = row.shape[0]
+    point = np.full(n, -1, dtype=np.int32)
+    for i in range(n):
+        if not kept[i] or ground[i]:
+            continue
+        seg = pixel[row[i], col[i]]
+        if seg < 0:
+            continue
+        pr = pix_range[row[i], col[i]]
+        if abs(point_range[i] - pr) <= hb + hs * pr:
+            point[i] = seg
+    return pixel, point, nxt
+
+
 def segment(
     image: RangeImage,
     ground: np.ndarray,
@@ -124,22 +159,8 @@ def segment(
         np.float32(2.0 * np.pi / w),
         config.bridge_empty,
     )
-    # drop tiny segments and renumber densely
-    sizes = np.bincount(labels[labels >= 0], minlength=count)
-    keep = sizes >= max(1, config.min_points)
-    remap = np.full(count + 1, -1, dtype=np.int32)
-    remap[:count][keep] = np.arange(int(keep.sum()), dtype=np.int32)
-    pixel = remap[labels]  # labels -1 -> remap[-1] = -1
-    # every point takes its pixel's segment when its range agrees with the pixel's nearest point
-    n = len(image.row)
-    point = np.full(n, -1, dtype=np.int32)
-    cand = np.flatnonzero(image.kept & ~ground)
-    if len(cand):
-        r = image.row[cand].astype(np.int64)
-        c = image.col[cand].astype(np.int64)
-        seg = pixel[r, c]
-        pr = image.range[r, c]
-        tol = config.horizontal_base + config.horizontal_slope * pr
-        agree = (seg >= 0) & (np.abs(image.point_range[cand] - pr) <= tol)
-        point[cand[agree]] = seg[agree]
-    return Segmentation(pixel=pixel, point=point, count=int(keep.sum()))
+    pixel, point, kept_count = _finish(
+        labels, count, max(1, config.min_points), image.row, image.col, image.point_range, image.range,
+        image.kept, ground, config.horizontal_base, config.horizontal_slope,
+    )
+    return Segmentation(pixel=pixel, point=point, count=int(kept_count))
