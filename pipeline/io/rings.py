@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from pipeline.sensors import SensorModel
 
@@ -59,6 +60,21 @@ class RingCheck:
     wrong_fraction: float
 
 
+@njit(cache=True)
+def _angles(points):  # pragma: no cover - numba
+    """Azimuth in [0, 2 pi) and elevation, float32: plenty to find wrap-arounds and order rings."""
+    n = points.shape[0]
+    az = np.empty(n, dtype=np.float32)
+    el = np.empty(n, dtype=np.float32)
+    two_pi = np.float32(TWO_PI)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        a = np.arctan2(y, x)
+        az[i] = a + two_pi if a < 0 else a
+        el[i] = np.arctan2(z, np.sqrt(x * x + y * y))
+    return az, el
+
+
 def _azimuth(points: np.ndarray) -> np.ndarray:
     """(N,) float64 azimuth in [0, 2 pi), counter-clockwise from +x."""
     p = points.astype(np.float64, copy=False)
@@ -69,6 +85,14 @@ def _elevation(points: np.ndarray) -> np.ndarray:
     """(N,) float64 elevation in radians."""
     p = points.astype(np.float64, copy=False)
     return np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+
+
+def segment_means(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
+    """(n_seg,) mean of `values` per segment id `seg` (NaN for empty segments); O(N), for ordering."""
+    counts = np.bincount(seg, minlength=n_seg)
+    sums = np.bincount(seg, weights=values, minlength=n_seg)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, sums / counts, np.nan)
 
 
 def segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
@@ -103,7 +127,7 @@ def _merge_fragments(seg: np.ndarray, elevation: np.ndarray) -> np.ndarray:
     tiny = np.flatnonzero(counts < min_len)
     if len(tiny) == 0:
         return seg
-    med = segment_medians(elevation, seg, n_seg)
+    med = segment_means(elevation, seg, n_seg)
     target = np.arange(n_seg)
     for s in tiny:  # loop over a few segments, not points
         prev, nxt = s - 1, s + 1
@@ -127,8 +151,7 @@ def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np
     n = len(points)
     if n < 2:
         return None, 0
-    az = _azimuth(points)
-    el = _elevation(points)
+    az, el = _angles(np.ascontiguousarray(points, dtype=np.float32))
     step = np.mod(np.diff(az) + np.pi, TWO_PI) - np.pi
     if np.median(step) < 0:  # stored clockwise
         az = np.mod(-az, TWO_PI)
@@ -139,7 +162,7 @@ def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np
         first_found = first_found or found
         if found < 2 or (n_rings is not None and found != n_rings):
             continue
-        med = segment_medians(el, seg, found)
+        med = segment_means(el, seg, found)
         d = np.diff(med)
         if np.mean(d < 0) >= 0.9:
             return seg, found
