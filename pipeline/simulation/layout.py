@@ -29,7 +29,7 @@ from pipeline.simulation.route import SAMPLE_STEP, Route
 from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_z
 
 STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
-STRETCH_P = (0.2, 0.17, 0.15, 0.25, 0.1, 0.13)
+STRETCH_P = (0.2, 0.17, 0.15, 0.26, 0.12, 0.10)
 BAY_WIDTH = 2.3
 
 
@@ -109,22 +109,26 @@ def plan_stretches(rng: np.random.Generator, route: Route, start_s: float) -> li
     Where the ego vehicle starts (`start_s`), the right side is an avenue (trees, bushes) and
     the left side has parking bays, so that even a short run sees every static class.
     """
-    out = []
+    spans = []
     for a, b in route.straight_runs(margin=3.0):
         for side in (1, -1):
             s = a
             while b - s > 15.0:
                 length = min(rng.uniform(25.0, 65.0), b - s)
-                kind = str(rng.choice(STRETCH_TYPES, p=STRETCH_P))
-                if kind == "lot" and length < 35.0:
-                    kind = "bays"
-                near = (
-                    np.mod(start_s - s + 35.0, route.length) < length + 45.0
-                )  # overlaps [start - 10, start + 35]
-                if near:
-                    kind = "avenue" if side < 0 else "bays"
-                out.append(Stretch(side, s, s + length, kind))
+                spans.append((side, s, s + length))
                 s += length
+    # Kinds from a shuffled deck in the STRETCH_P proportions: every loop gets the same mix.
+    counts = np.floor(np.asarray(STRETCH_P) * len(spans)).astype(int)
+    deck = [k for k, c in zip(STRETCH_TYPES, counts, strict=True) for _ in range(c)]
+    deck += [str(k) for k in rng.choice(STRETCH_TYPES, size=len(spans) - len(deck), p=STRETCH_P)]
+    deck = [deck[i] for i in rng.permutation(len(deck))]
+    out = []
+    for (side, s0, s1), kind in zip(spans, deck, strict=True):
+        if kind == "lot" and s1 - s0 < 35.0:
+            kind = "bays"
+        if np.mod(start_s - s0 + 35.0, route.length) < s1 - s0 + 45.0:  # overlaps [start - 10, start + 35]
+            kind = "avenue" if side < 0 else "bays"
+        out.append(Stretch(side, s0, s1, kind))
     return out
 
 
@@ -424,21 +428,19 @@ class Layout:
         self, xy: np.ndarray, what: str, yaw: float | None = None, min_clear: float | None = None
     ) -> bool:
         """Street furniture: lamp, sign, cone, bin, bench, bollard, bicycle, person."""
-        radius = {
-            "lamp": 0.3,
-            "sign": 0.3,
-            "cone": 0.25,
-            "bin": 0.4,
-            "bench": 1.1,
-            "bollard": 0.2,
-            "bicycle": 0.6,
-            "person": 0.35,
-        }[what]
-        if not self.free(self.disc(xy, radius), min_clear=min_clear):
-            return False
-        self.mark(self.disc(xy, radius))
         rng = self.rng
         yaw = rng.uniform(0, 2 * np.pi) if yaw is None else yaw
+        if what in ("bench", "bicycle"):  # long and narrow: a rectangle along the object's x axis
+            half = (1.05, 0.3) if what == "bench" else (0.6, 0.15)
+            pts = self.rect(xy, yaw, *half, step=0.3)
+        else:
+            radius = {"lamp": 0.3, "sign": 0.3, "cone": 0.25, "bin": 0.4, "bollard": 0.2, "person": 0.35}[
+                what
+            ]
+            pts = self.disc(xy, radius)
+        if not self.free(pts, min_clear=min_clear):
+            return False
+        self.mark(pts)
         b = PrimitiveBuilder()
         pos = (xy[0], xy[1], self.z(xy))
         if what == "lamp":
@@ -495,6 +497,7 @@ def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> No
     _background_buildings(lay)
     _scattered_vegetation(lay)
     _lamps(lay)
+    _furniture(lay, stretches)
     for sc in crossings:
         for side in (1, -1):
             curb_lat = side * (lay.edge(sc, side) - lay.road.sidewalk(side) + 0.35)
@@ -504,6 +507,37 @@ def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> No
                     lay.at(sc - 3.0 - 1.5 * k, side * (lay.edge(sc, side) + 0.3)), "bollard", min_clear=0.0
                 )
     _standing_people(lay)
+
+
+def _furniture(lay: Layout, stretches: list[Stretch]) -> None:
+    """Bins, benches, bike racks, signs and fences along the sidewalks (the 'unknown' class)."""
+    rng = lay.rng
+    for st in stretches:
+        side = st.side
+        facing = lay.yaw_at(st.s0) + (np.pi if side > 0 else 0.0)
+        if rng.random() < 0.35:
+            s = rng.uniform(st.s0, st.s1)
+            lay.small(lay.at(s, side * (lay.edge(s, side) + 0.5)), "bin", min_clear=0.0)
+        if rng.random() < 0.25:
+            s = rng.uniform(st.s0, st.s1)
+            lay.small(lay.at(s, side * (lay.edge(s, side) + 0.7)), "bench", yaw=facing, min_clear=0.2)
+        if rng.random() < 0.2:
+            s = rng.uniform(st.s0, st.s1)
+            i = int(lay.route.index(s))
+            low = float(lay.ground.low_left[i] if side > 0 else lay.ground.low_right[i])
+            lay.small(lay.at(s, side * (low + 0.4)), "sign", yaw=lay.yaw_at(s) + np.pi / 2, min_clear=None)
+        if rng.random() < 0.15:
+            s = rng.uniform(st.s0, st.s1 - 4.0)
+            for k in range(int(rng.integers(2, 6))):
+                lay.small(
+                    lay.at(s + 0.8 * k, side * (lay.edge(s, side) + 0.8)),
+                    "bicycle",
+                    yaw=facing + np.pi / 2,
+                    min_clear=0.0,
+                )
+        if rng.random() < 0.15:
+            a = rng.uniform(st.s0, max(st.s0, st.s1 - 10.0))
+            lay.fence(a, min(st.s1, a + rng.uniform(8.0, 30.0)), side, rng.uniform(2.5, 8.0))
 
 
 def _trees_in_row(
@@ -556,18 +590,13 @@ def _frontage(lay: Layout, st: Stretch) -> None:
         if ok and rng.random() < 0.35:
             sb = s + rng.uniform(2.0, length - 2.0)
             for k in range(int(rng.integers(2, 7))):
-                p = lay.at(sb + 0.8 * k, st.side * (lay.edge(sb, st.side) + 0.5))
+                p = lay.at(sb + 0.8 * k, st.side * (lay.edge(sb, st.side) + 0.75))
                 lay.small(p, "bicycle", yaw=lay.yaw_at(sb) + np.pi / 2, min_clear=0.0)
         s += length + rng.uniform(3.0, 15.0)
 
 
 def _hedges(lay: Layout, st: Stretch) -> None:
-    rng = lay.rng
-    s = st.s0 + rng.uniform(0.0, 3.0)
-    while st.s1 - s > 4.0:
-        length = min(rng.uniform(4.0, 18.0), st.s1 - s)
-        lay.hedge(s, s + length, st.side, 0.3)
-        s += length + rng.uniform(1.0, 4.0)
+    _hedge_row(lay, st, 0.3)
     _trees_in_row(lay, st, (3.0, 6.0), (8.0, 15.0), p=0.6)
 
 
@@ -583,7 +612,21 @@ def _bays(lay: Layout, st: Stretch) -> None:
                 yaw += np.pi
             lay.parked_car(lay.at(s + 3.0, lat + rng.uniform(-0.1, 0.1)), yaw)
         s += car_len + rng.uniform(0.8, 2.2)
-    _trees_in_row(lay, st, (1.3, 2.5), (9.0, 15.0), p=0.6)
+    if rng.random() < 0.5:
+        _hedge_row(lay, st, 0.3)
+        _trees_in_row(lay, st, (3.0, 5.0), (9.0, 15.0), p=0.6)
+    else:
+        _trees_in_row(lay, st, (1.3, 2.5), (9.0, 15.0), p=0.6)
+
+
+def _hedge_row(lay: Layout, st: Stretch, offset: float) -> None:
+    """Hedge segments of 4-18 m with gaps of 1-4 m along the stretch."""
+    rng = lay.rng
+    s = st.s0 + rng.uniform(0.0, 3.0)
+    while st.s1 - s > 4.0:
+        length = min(rng.uniform(4.0, 18.0), st.s1 - s)
+        lay.hedge(s, s + length, st.side, offset)
+        s += length + rng.uniform(1.0, 4.0)
 
 
 def _lot(lay: Layout, st: Stretch) -> None:
@@ -606,6 +649,8 @@ def _lot(lay: Layout, st: Stretch) -> None:
         s = rng.uniform(st.s0 + 6, st.s1 - 6)
         for k in range(int(rng.integers(2, 6))):
             lay.small(lay.at(s + 1.6 * k, st.side * (0.5 * (rows[0] + rows[1]))), "cone", min_clear=None)
+    if rng.random() < 0.6:
+        _hedge_row(lay, st, 0.3)
     for s in np.arange(st.s0 + 8.0, st.s1 - 4.0, rng.uniform(12.0, 20.0)):
         lay.small(
             lay.at(s, st.side * (low + 0.6)),
@@ -617,7 +662,7 @@ def _lot(lay: Layout, st: Stretch) -> None:
 
 def _open(lay: Layout, st: Stretch) -> None:
     rng = lay.rng
-    for _ in range(int(rng.integers(1, 5))):
+    for _ in range(int(rng.integers(2, 7))):
         s = rng.uniform(st.s0, st.s1)
         lay.tree(lay.at(s, st.side * (lay.edge(s, st.side) + rng.uniform(1.5, 15.0))))
     for _ in range(int(rng.integers(2, 7))):
@@ -650,33 +695,31 @@ _FILL = {
 
 
 def _background_buildings(lay: Layout) -> None:
+    """Two rows of buildings behind the stretches: 4-20 m and 22-50 m beyond the sidewalk."""
     rng = lay.rng
-    for a, b in lay.route.straight_runs(margin=0.0):
-        for side in (1, -1):
-            s = a + rng.uniform(0.0, 10.0)
-            while s < b:
-                length = rng.uniform(15.0, 50.0)
-                sm = s + length / 2
-                lat = side * (lay.edge(sm, side) + rng.uniform(10.0, 40.0))
-                yaw = lay.yaw_at(sm) + (np.pi if side > 0 else 0.0) + rng.uniform(-0.15, 0.15)
-                lay.building(
-                    lay.at(sm, lat),
-                    yaw,
-                    length,
-                    rng.uniform(10.0, 28.0),
-                    rng.uniform(4.0, 22.0),
-                    walkable=False,
-                )
-                s += length + rng.uniform(5.0, 25.0)
+    for near, far in ((4.0, 20.0), (22.0, 50.0)):
+        for a, b in lay.route.straight_runs(margin=0.0):
+            for side in (1, -1):
+                s = a + rng.uniform(0.0, 8.0)
+                while s < b:
+                    length = rng.uniform(12.0, 50.0)
+                    sm = s + length / 2
+                    yaw = lay.yaw_at(sm) + (np.pi if side > 0 else 0.0) + rng.uniform(-0.15, 0.15)
+                    depth, height = rng.uniform(10.0, 28.0), rng.uniform(4.0, 22.0)
+                    for _ in range(3):
+                        lat = side * (lay.edge(sm, side) + rng.uniform(near, far))
+                        if lay.building(lay.at(sm, lat), yaw, length, depth, height, walkable=False):
+                            break
+                    s += length + rng.uniform(4.0, 20.0)
 
 
 def _scattered_vegetation(lay: Layout) -> None:
     rng = lay.rng
-    n = int(lay.route.length / 5)
+    n = int(lay.route.length / 3)
     for _ in range(n):
         s = rng.uniform(0, lay.route.length)
         side = 1 if rng.random() < 0.5 else -1
-        xy = lay.at(s, side * (lay.edge(s, side) + rng.uniform(2.0, 45.0)))
+        xy = lay.at(s, side * (lay.edge(s, side) + rng.uniform(1.5, 8.0) ** 1.6))
         if rng.random() < 0.55:
             lay.tree(xy)
         else:

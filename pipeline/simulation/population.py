@@ -89,7 +89,7 @@ def populate_actors(
     car(s_ego + rng.uniform(35.0, 60.0), -rng.uniform(6.0, 9.0))
     car(s_ego - rng.uniform(15.0, 28.0), rng.uniform(7.5, 9.5))
     car(s_ego + rng.uniform(20.0, 35.0), rng.uniform(6.5, 8.5))
-    for _ in range(int(length / 80)):
+    for _ in range(int(length / 60)):
         car(rng.uniform(0, length), -rng.uniform(5.5, 9.5))
     for _ in range(int(length / 160)):
         car(rng.uniform(0, length), rng.uniform(6.5, 9.5))
