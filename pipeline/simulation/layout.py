@@ -588,6 +588,8 @@ def _frontage(lay: Layout, st: Stretch) -> None:
         if ok and hedge:
             lay.hedge(s + 1.0, s + length - 1.0, st.side, 0.3)
         if ok and rng.random() < 0.35:
+            if not hedge:
+                lay.facades.pop()  # the rack stands where people would walk along the wall
             sb = s + rng.uniform(2.0, length - 2.0)
             for k in range(int(rng.integers(2, 7))):
                 p = lay.at(sb + 0.8 * k, st.side * (lay.edge(sb, st.side) + 0.75))
