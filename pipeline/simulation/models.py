@@ -20,7 +20,7 @@ MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON = 252, 253, 254
 BUILDING, FENCE, VEGETATION, TRUNK = 50, 51, 70, 71
 POLE, TRAFFIC_SIGN, OTHER_OBJECT = 80, 81, 99
 
-GLASS = Material(refl=0.08, drop=0.2, spec=0.6, porosity=0.35)
+GLASS = Material(refl=0.08, drop=0.45, spec=0.6)  # windows: sparse, weak returns
 RUBBER = Material(refl=0.05, drop=0.15, spec=0.3)
 PLASTIC = Material(refl=0.15, drop=0.02)
 RETRO = Material(refl=0.9)
