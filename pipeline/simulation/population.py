@@ -1,4 +1,5 @@
-"""Who moves on the campus: traffic in both lanes, cyclists, pedestrians and crossers.
+"""Who moves on the campus: traffic in both lanes, cyclists, pedestrians and crossers
+(people, and cyclists coming off the sidewalk, cross at zebra crossings).
 
 Counts scale with the loop length; a few actors are always put near the ego vehicle's start
 (an oncoming car, a car about to overtake, one pulling away ahead, two cyclists, walkers and
@@ -134,4 +135,35 @@ def populate_actors(
             d_mid = before + 0.5 * abs(lat_b - lat_a)
             t_mid = t_arrive - rng.uniform(3.5, 7.0)
             polyline_walker(pts, t_mid - d_mid / v, v)
+        if rng.random() < 0.5:
+            # A cyclist riding along the far sidewalk, across the zebra and on along the other one.
+            side = 1 if rng.random() < 0.5 else -1
+            lat_a, lat_b = side * (road.road_half + 1.0), -side * (road.road_half + 1.0)
+            before, after = rng.uniform(20.0, 35.0), rng.uniform(20.0, 35.0)
+            d = 1 if rng.random() < 0.5 else -1
+            pts = np.stack(
+                [
+                    route.offset(sc - d * before, lat_a),
+                    route.offset(sc - d * 1.5, lat_a),
+                    route.offset(sc + d * 1.5, lat_b),
+                    route.offset(sc + d * after, lat_b),
+                ]
+            )
+            v = rng.uniform(3.0, 4.5)
+            t_mid = t_arrive - rng.uniform(3.0, 6.0)
+            d_mid = float(np.linalg.norm(pts[1] - pts[0]) + 0.5 * np.linalg.norm(pts[2] - pts[1]))
+            iid = reg.new("cyclist", (m.MOVING_BICYCLIST,), moving=True)
+            path = PolylinePath(pts, v, t_mid - d_mid / v)
+            actors.append(
+                Actor(
+                    iid,
+                    "cyclist",
+                    m.MOVING_BICYCLIST,
+                    path,
+                    m.draw_person(rng),
+                    v,
+                    rng.uniform(0, 2 * np.pi),
+                    rng.uniform(0.15, 0.6),
+                )
+            )
     return actors
