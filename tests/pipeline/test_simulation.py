@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from pipeline.classes import POINT_CLASSES, to_ours
 from pipeline.errors import DataError
@@ -12,10 +14,18 @@ from pipeline.io.semantickitti import read_bin, read_calib_tr, read_label, read_
 from pipeline.sensors import PRESETS
 from pipeline.simulation import simulate_frame, simulate_sequence
 from pipeline.simulation.ground import GroundModel
-from pipeline.simulation.raycast import cast, ray_directions, ray_windows
+from pipeline.simulation.raycast import Windows, cast, ray_directions, ray_windows
 from pipeline.simulation.returns import make_returns
 from pipeline.simulation.scene import build_scene
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, signed_distance, surface_distance
+from pipeline.simulation.shapes import (
+    Material,
+    PrimitiveBuilder,
+    rot_x,
+    rot_y,
+    rot_z,
+    signed_distance,
+    surface_distance,
+)
 
 SEED = 3
 FRAMES = 20
@@ -245,23 +255,45 @@ def test_raycast_box_range_is_exact():
     assert ground < -1 and hits.t[-1, 0] == pytest.approx(1.7 / np.sin(np.deg2rad(30.67)), rel=1e-3)
 
 
-def test_raycast_windows_miss_nothing():
-    """Casting with full windows gives the same hits as the culled windows."""
+@settings(max_examples=15, deadline=None)
+@given(
+    kinds=st.lists(st.integers(0, 3), min_size=1, max_size=4),
+    seed=st.integers(0, 2**31 - 1),
+    tilt=st.tuples(st.floats(-0.05, 0.05), st.floats(-0.05, 0.05), st.floats(-np.pi, np.pi)),
+)
+def test_raycast_windows_miss_nothing(kinds, seed, tilt):
+    """Property: culling rays by window changes no hit, for any primitive, pose and sensor tilt."""
+    rng = np.random.default_rng(seed)
     b = PrimitiveBuilder()
-    b.ellipsoid((6.0, -4.0, 1.0), (1.0, 2.0, 1.5), 70, 1, Material(refl=0.3))
-    b.capsule((-3.0, 5.0, 0.2), (-3.5, 5.5, 1.7), 0.3, 30, 2, Material(refl=0.3))
-    b.cylinder((0.5, -7.0, 2.0), 0.2, 2.0, 71, 3, Material(refl=0.3))
-    prims, dirs, hits = _cast_one(b)
-    full = ray_windows(prims, np.eye(3), np.array([0.0, 0.0, 1.8]), SENSOR)
-    full = type(full)(
-        np.zeros(3, np.int32),
-        np.full(3, 31, np.int32),
-        np.zeros(3, np.int32),
-        np.full(3, SENSOR.width, np.int32),
+    for i, kind in enumerate(kinds):
+        centre = rng.uniform([-25, -25, -1], [25, 25, 4])
+        size = rng.uniform(0.1, 4.0, 3)
+        rot = rot_z(rng.uniform(-np.pi, np.pi)) @ rot_x(rng.uniform(-1, 1))
+        mat = Material(refl=0.3)
+        if kind == 0:
+            b.box(centre, size, 50, i + 1, mat, rot=rot)
+        elif kind == 1:
+            b.cylinder(centre, size[0], size[2], 71, i + 1, mat, rot=rot)
+        elif kind == 2:
+            b.ellipsoid(centre, size, 70, i + 1, mat, rot=rot)
+        else:
+            b.capsule(centre, centre + size * rng.choice([-1, 1], 3), size[0] / 4, 30, i + 1, mat)
+    prims = b.build()
+    sensor_rot = rot_z(tilt[2]) @ rot_x(tilt[0]) @ rot_y(tilt[1])
+    origin = np.array([0.0, 0.0, 1.8])
+    dirs = ray_directions(SENSOR)
+    n = len(prims)
+    full = Windows(
+        np.zeros(n, np.int32),
+        np.full(n, 31, np.int32),
+        np.zeros(n, np.int32),
+        np.full(n, SENSOR.width, np.int32),
     )
-    ref = cast(dirs, np.eye(3), np.array([0.0, 0.0, 1.8]), prims, full, _flat_ground(), SENSOR.max_range, 7)
-    np.testing.assert_array_equal(hits.hit, ref.hit)
-    assert set(np.unique(hits.hit[hits.hit >= 0]).tolist()) == {0, 1, 2}
+    culled = ray_windows(prims, sensor_rot, origin, SENSOR)
+    a = cast(dirs, sensor_rot, origin, prims, culled, _flat_ground(), SENSOR.max_range, 7)
+    ref = cast(dirs, sensor_rot, origin, prims, full, _flat_ground(), SENSOR.max_range, 7)
+    np.testing.assert_array_equal(a.hit, ref.hit)
+    np.testing.assert_array_equal(a.t, ref.t)
 
 
 def test_returns_dark_paint_loses_oblique_returns():
