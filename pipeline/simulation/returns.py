@@ -8,7 +8,8 @@ A hit becomes a point with probability
 
 so dark cars keep only the panels that face the sensor (plus bumpers, wheels and plates) and
 fall apart into several segments. Range noise is Gaussian (sigma 2 cm, more on foliage and
-grass); remission is reflectivity * (0.35 + 0.65 cos) with 8 % multiplicative noise.
+grass); remission is reflectivity * (0.35 + 0.65 cos) with 8 % multiplicative noise and a
+fixed per-beam gain (+-10 %), as each laser of a real sensor has its own.
 Random draws: one uniform per hit (keep or drop), then two normals per kept return.
 Points stay in ray order: beam by beam from the top beam, each beam in column order.
 """
@@ -26,6 +27,8 @@ from pipeline.simulation.shapes import PrimitiveSet
 
 RANGE_SIGMA = 0.02
 RANDOM_DROPOUT = 0.01
+# Each laser of a real HDL-32E reports remission with its own gain; a fixed pattern of +-10 %.
+BEAM_GAIN = (1.0 + 0.1 * np.sin(np.arange(64) * 2.399 + 0.7)).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ def make_returns(
     gauss = rng.standard_normal((2, len(idx)), dtype=np.float32)
     sigma = np.sqrt(RANGE_SIGMA**2 + table[:, 5][row] ** 2)
     t_noisy = t + gauss[0] * sigma
-    remission = refl * (0.35 + 0.65 * cosi) * (1.0 + 0.08 * gauss[1])
+    remission = refl * (0.35 + 0.65 * cosi) * (1.0 + 0.08 * gauss[1]) * BEAM_GAIN[idx // w]
     semantic = np.concatenate([REGION_SEMANTIC, prims.semantic])[row]
     instance = np.concatenate([np.zeros(n_regions, np.uint16), prims.instance])[row]
     points = dirs_lidar.reshape(-1, 3)[idx] * t_noisy[:, None]
