@@ -9,6 +9,8 @@ Per frame k (time k / 10 s):
 Then poses.txt (T_world_lidar, world = the first written frame), calib.txt (identity Tr),
 times.txt and metadata.json (sensor, seed, frames, route, per-instance ground truth).
 Every random draw of frame k comes from (seed, k), so a frame does not depend on `start`.
+Each revolution is a snapshot at time k / 10 (no skew from motion during the sweep, as in
+motion-compensated scans), so static points map to the same world surface in every frame.
 """
 
 from __future__ import annotations
