@@ -10,7 +10,10 @@ Architecture (nanoGPT style, one dataclass config)::
     depth x [conv3x3 -> BN -> ReLU -> maxpool 2]   channels width, 2 width, ... capped at max_width
     global average pool -> dropout -> linear K
 
-Global pooling makes the same network run on S=64 and S=256 canvases.
+The first conv has stride `stem_stride` (2 by default): the canvases repeat each laser ring over
+several rows, so full resolution in the first block costs 5-7x the CPU time for little. Global
+pooling makes the same network run on S=64 and S=256 canvases. Activations are channels-last,
+which is about 1.5x faster on CPU.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ class NetConfig:
     width: int = 32  # channels of the first block
     max_width: int = 128  # channel cap of later blocks
     depth: int = 4  # conv blocks, each halving the resolution
+    stem_stride: int = 2  # stride of the first conv
     dropout: float = 0.3
 
     @classmethod
@@ -51,6 +55,7 @@ class NetConfig:
             width=model.width,
             max_width=model.max_width,
             depth=model.depth,
+            stem_stride=model.stem_stride,
             dropout=model.dropout,
         )
 
@@ -61,14 +66,16 @@ class NetConfig:
 class SampleCNN(nn.Module):
     def __init__(self, config: NetConfig) -> None:
         super().__init__()
-        if config.size % (2**config.depth):
-            raise ValueError(f"canvas size {config.size} is not divisible by 2**depth = {2**config.depth}")
+        factor = config.stem_stride * 2**config.depth
+        if config.size % factor:
+            raise ValueError(f"canvas size {config.size} is not divisible by stem_stride * 2**depth = {factor}")
         self.config = config
         layers: list[nn.Module] = []
         c_in = config.in_channels
-        for c_out in config.block_channels():
+        for i, c_out in enumerate(config.block_channels()):
+            stride = config.stem_stride if i == 0 else 1
             layers += [
-                nn.Conv2d(c_in, c_out, kernel_size=3, padding=1, bias=False),
+                nn.Conv2d(c_in, c_out, kernel_size=3, stride=stride, padding=1, bias=False),
                 nn.BatchNorm2d(c_out),
                 nn.ReLU(inplace=True),
                 nn.MaxPool2d(2),
@@ -78,11 +85,13 @@ class SampleCNN(nn.Module):
         self.dropout = nn.Dropout(config.dropout)
         self.head = nn.Linear(c_in, config.num_classes)
         self.feature_dim = c_in
+        self.to(memory_format=torch.channels_last)
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Embeddings (B, D) of float canvases (B, C, S, S) in [0, 1]."""
         assert x.ndim == 4 and x.shape[1] == self.config.in_channels, x.shape
-        h = self.body(x)  # (B, D, S / 2**depth, S / 2**depth)
+        x = x.contiguous(memory_format=torch.channels_last)  # (B, C, S, S), stored NHWC
+        h = self.body(x)  # (B, D, S / (stem_stride 2**depth), same)
         return h.mean(dim=(2, 3))  # (B, D): global average pool
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
