@@ -356,7 +356,7 @@ def train(
     # batch composition: m labelled samples and n = pairs_per_label * m pairs per step
     m = min(config.batch_labelled, num_l)
     n = min(config.pairs_per_label * config.batch_labelled, num_p)
-    if m == 0 and n == 0:  # labels only with pairs_per_label = 0 cannot happen; pairs only with ppl = 0
+    if m == 0 and n == 0:  # constraints only with pairs_per_label = 0: m pairs per step instead
         n = min(config.batch_labelled, num_p)
     steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
     steps = max(steps, 1)
