@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import io
 import os
+import threading
 import zipfile
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,11 +49,20 @@ class FrameArtifact:
         assert self.sample_segment.shape == (len(self.samples),) and self.sample_segment.dtype == np.int32
 
 
-class ArtifactStore:
-    """Reads and writes frame artifacts under `root`."""
+class ArtifactMissing(FileNotFoundError):
+    """A row points at an artifact file that is not there."""
 
-    def __init__(self, root: str | Path) -> None:
+
+class ArtifactStore:
+    """Reads and writes frame artifacts under `root`; keeps recent viewer payloads in an LRU of
+    `payload_cache_bytes` (keyed by path and file mtime, so a rewritten frame is never stale)."""
+
+    def __init__(self, root: str | Path, payload_cache_bytes: int = 0) -> None:
         self.root = Path(root)
+        self._cache: OrderedDict[tuple[str, int], bytes] = OrderedDict()
+        self._cache_bytes = 0
+        self._cache_limit = payload_cache_bytes
+        self._lock = threading.Lock()
 
     def frame_relpath(self, sequence_id: int, index: int) -> str:
         return f"seq_{sequence_id:06d}/{index:06d}.npz"
@@ -76,8 +87,33 @@ class ArtifactStore:
 
     def read_arrays(self, relpath: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
         """Only the named arrays of a frame (npz members are decompressed lazily)."""
-        with np.load(self.path(relpath)) as z:
-            return {k: z[k] for k in names}
+        try:
+            with np.load(self.path(relpath)) as z:
+                return {k: z[k] for k in names}
+        except FileNotFoundError:
+            raise ArtifactMissing(f"artifact {relpath} is missing") from None
+
+    def payload(self, relpath: str) -> bytes:
+        """The viewer payload of a frame (`frame_payload`), from the LRU when it is there."""
+        try:
+            key = (relpath, self.path(relpath).stat().st_mtime_ns)
+        except FileNotFoundError:
+            raise ArtifactMissing(f"artifact {relpath} is missing") from None
+        with self._lock:
+            body = self._cache.get(key)
+            if body is not None:
+                self._cache.move_to_end(key)
+                return body
+        body = frame_payload(self.read_arrays(relpath, PAYLOAD_ARRAYS))
+        if len(body) <= self._cache_limit:
+            with self._lock:
+                if key not in self._cache:
+                    self._cache[key] = body
+                    self._cache_bytes += len(body)
+                while self._cache_bytes > self._cache_limit:
+                    _, old = self._cache.popitem(last=False)
+                    self._cache_bytes -= len(old)
+        return body
 
     def remove_sequence(self, sequence_id: int) -> None:
         folder = self.root / f"seq_{sequence_id:06d}"

@@ -8,15 +8,18 @@ worker thread in-process (the embedded SQLite default needs no other process).
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
+from app.api.deps import TokenCache
 from app.api.main import api_router
-from app.artifacts import ArtifactStore
+from app.artifacts import ArtifactMissing, ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
 from app.core.errors import ServiceError
@@ -24,6 +27,27 @@ from app.jobs.registry import load_job_types
 
 API_PREFIX = "/api/v1"
 log = logging.getLogger("tracklabel.api")
+
+
+class ServerTiming:
+    """ASGI middleware: `Server-Timing: app;dur=<ms>` from request start to response start."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        t0 = time.perf_counter()
+
+        async def timed_send(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                dur = f"app;dur={1e3 * (time.perf_counter() - t0):.2f}".encode()
+                message = {**message, "headers": [*message.get("headers", []), (b"server-timing", dur)]}
+            await send(message)
+
+        await self.app(scope, receive, timed_send)
 
 
 def create_app(settings: Settings | None = None, db: Database | None = None) -> FastAPI:
@@ -59,11 +83,18 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     )
     app.state.settings = settings
     app.state.db = db or Database.from_settings(settings)
-    app.state.artifacts = ArtifactStore(settings.artifacts_path)
+    app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
+    app.state.token_cache = TokenCache(settings.auth_cache_seconds)
+
+    app.add_middleware(ServerTiming)
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
         return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+
+    @app.exception_handler(ArtifactMissing)
+    async def _artifact_missing(_request: Request, exc: ArtifactMissing) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=404)
 
     @app.exception_handler(ValidationError)
     async def _validation_error(_request: Request, exc: ValidationError) -> JSONResponse:

@@ -134,25 +134,26 @@ class Track(Base):
         CheckConstraint(_in("status", TRACK_STATUSES), name="status"),
         Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
         Index("ix_tracks_status_n_samples", "status", "n_samples"),
+        Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
     sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
     key: Mapped[int] = mapped_column(BigInteger)  # the pipeline's track id (>= 1, per sequence)
     status: Mapped[str] = mapped_column(String(16), default="pending")
-    first_frame: Mapped[int] = mapped_column(Integer)
+    first_frame: Mapped[int] = mapped_column(Integer, index=True)
     last_frame: Mapped[int] = mapped_column(Integer)
     keep_start: Mapped[int] = mapped_column(Integer)
     keep_end: Mapped[int] = mapped_column(Integer)
     length: Mapped[int] = mapped_column(Integer, index=True)  # frames with a segment in the kept range
-    n_samples: Mapped[int] = mapped_column(Integer, default=0)  # valid samples in the kept range
-    n_points: Mapped[int] = mapped_column(Integer, default=0)
-    mean_range: Mapped[float] = mapped_column(Float, default=0.0)
+    n_samples: Mapped[int] = mapped_column(Integer, default=0, index=True)  # valid samples in the kept range
+    n_points: Mapped[int] = mapped_column(Integer, default=0, index=True)
+    mean_range: Mapped[float] = mapped_column(Float, default=0.0, index=True)
     label: Mapped[str | None] = mapped_column(String(16), index=True)
-    predicted_class: Mapped[str | None] = mapped_column(String(16), index=True)
+    predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted
     predicted_confidence: Mapped[float | None] = mapped_column(Float, index=True)
     version: Mapped[int] = mapped_column(Integer, default=1)
-    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow, index=True)
     reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)

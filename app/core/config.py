@@ -44,6 +44,10 @@ class Settings(BaseSettings):
     # Review queue: how long `next` reserves a track for its operator.
     review_lease_seconds: float = Field(default=300.0, gt=0)
 
+    # Viewer frame payloads kept in memory (LRU), and how long a token lookup is trusted.
+    frame_cache_mb: int = Field(default=256, ge=0)
+    auth_cache_seconds: float = Field(default=10.0, ge=0)
+
     # HTTP server (`tracklabel serve`).
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)

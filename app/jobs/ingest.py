@@ -150,6 +150,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         s.execute(
             update(Sequence).where(Sequence.id == params.sequence_id).values(status="ready", n_frames=state.frames)
         )
+        crud.analyze_tables(s)
         s.commit()
     return {
         "sequence_id": params.sequence_id,
@@ -220,8 +221,15 @@ def _insert_new_tracks(s: Session, state: _IngestState, frames: Iterable[Any]) -
         }
         for k, f in first_seen.items()
     ]
-    result = s.execute(insert(Track).returning(Track.id, Track.key, sort_by_parameter_order=True), rows)
-    for db_id, key in result.all():
+    # plain executemany, then read the ids back (bulk RETURNING in order goes row by row on SQLite)
+    s.execute(insert(Track), rows)
+    keys = list(first_seen)
+    result = []
+    for i in range(0, len(keys), 5000):
+        result += s.execute(
+            select(Track.id, Track.key).where(Track.sequence_id == state.sequence_id, Track.key.in_(keys[i : i + 5000]))
+        ).all()
+    for db_id, key in result:
         state.tracks[int(key)] = _TrackAcc(db_id=int(db_id), first=first_seen[int(key)], last=first_seen[int(key)])
 
 
@@ -294,7 +302,10 @@ def _write_frame(ctx: JobContext, s: Session, state: _IngestState, fr: Any, touc
         }
         for i in range(n_seg)
     ]
-    seg_ids = s.execute(insert(Segment).returning(Segment.id, sort_by_parameter_order=True), rows).scalars().all()
+    s.execute(insert(Segment), rows)
+    seg_ids = np.zeros(n_seg, np.int64)
+    for seg_id, local_id in s.execute(select(Segment.id, Segment.local_id).where(Segment.frame_id == frame_id)).all():
+        seg_ids[local_id] = seg_id
     state.segments += n_seg
 
     pairs = []

@@ -6,7 +6,6 @@ from fastapi import APIRouter, Query, Response
 from sqlalchemy import func, select
 
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
-from app.artifacts import PAYLOAD_ARRAYS, frame_payload
 from app.core.errors import NotFound
 from app.models import Frame, Sequence
 from app.schemas import FrameList, FramePublic
@@ -56,5 +55,5 @@ def frame_payload_route(frame_id: IdPath, _user: CurrentUser, session: SessionDe
     if rel is None:
         raise NotFound(f"frame {frame_id} not found")
     session.close()  # release the connection before the file work
-    body = frame_payload(artifacts.read_arrays(rel, PAYLOAD_ARRAYS))
+    body = artifacts.payload(rel)
     return Response(content=body, media_type=NPZ_MEDIA_TYPE, headers={"Cache-Control": "private, max-age=3600"})
