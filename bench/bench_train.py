@@ -4,8 +4,9 @@ Measures `pipeline.training.train` on random canvases (speed does not depend on 
 default model and batch (m labelled + 2 x pairs_per_label x m pair samples per step), one warm-up
 epoch, then a timed epoch. S=64 uses the configured batch; S=256 uses m=8 (88 canvases per step)
 and fewer steps to keep memory and time bounded. Reports canvases through forward+backward per
-second of wall time and per CPU second (the CPU figure is less sensitive to other processes on a
-shared machine), labels-only steps, and `predict` throughput. Repeats on CUDA when present.
+second of wall time and per CPU second, labels-only steps, and `predict` throughput; S=64 training
+runs with 1 and with 2 torch threads (on a busy 2-core machine 2 threads can be slower than 1).
+Repeats on CUDA when present.
 """
 
 from __future__ import annotations
@@ -29,10 +30,12 @@ def _data(size: int, channels: int, n: int, n_pairs: int, with_pairs: bool) -> T
     return TrainingData.build(x, np.arange(n), y, pairs)
 
 
-def _train_speed(size: int, batch: int, steps: int, with_pairs: bool, device: str) -> dict:
+def _train_speed(size: int, batch: int, steps: int, with_pairs: bool, device: str, threads: int = 0) -> dict:
     samples = SampleConfig(size=size)
     model = ModelConfig()
-    cfg = TrainingConfig(epochs=2, steps_per_epoch=steps, batch_labelled=batch, device=device, eval_batch=64)
+    cfg = TrainingConfig(
+        epochs=2, steps_per_epoch=steps, batch_labelled=batch, device=device, eval_batch=64, threads=threads
+    )
     data = _data(size, samples.channels, 256, 1024, with_pairs)
     cpu0 = time.process_time()
     res = train(data, cfg, model, samples)
@@ -43,6 +46,7 @@ def _train_speed(size: int, batch: int, steps: int, with_pairs: bool, device: st
     return {
         "size": size,
         "device": device,
+        "threads": threads or torch.get_num_threads(),
         "canvases_per_step": per_step,
         "steps_timed": steps,
         "samples_per_s": round(timed.samples_per_s, 1),
@@ -74,16 +78,18 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         "predict": [],
     }
     steps64, steps256 = (3, 1) if quick else (8, 2)
+    batch = TrainingConfig().batch_labelled
+    result["train"].append(_train_speed(64, batch, steps64, True, "cpu", threads=1))
     for dev in devices:
-        result["train"].append(_train_speed(64, TrainingConfig().batch_labelled, steps64, True, dev))
+        result["train"].append(_train_speed(64, batch, steps64, True, dev))
         result["train"].append(_train_speed(256, 8, steps256, True, dev))
-        result["train_labels_only"].append(_train_speed(64, TrainingConfig().batch_labelled, steps64, False, dev))
+        result["train_labels_only"].append(_train_speed(64, batch, steps64, False, dev))
         result["predict"].append(_predict_speed(64, 512 if quick else 2048, dev))
         result["predict"].append(_predict_speed(256, 32 if quick else 128, dev))
-    cpu64 = result["train"][0]
+    one, cpu64, cpu256 = result["train"][:3]
     result["headline"] = (
-        f"train S=64 {cpu64['samples_per_s']:.0f} samples/s on CPU "
-        f"({cpu64['canvases_per_step']} per step), S=256 {result['train'][1]['samples_per_s']:.0f}; "
+        f"train S=64 {cpu64['samples_per_s']:.0f} samples/s on CPU ({cpu64['threads']} threads; "
+        f"{one['samples_per_s']:.0f} with 1), S=256 {cpu256['samples_per_s']:.0f}; "
         f"predict S=64 {result['predict'][0]['samples_per_s']:.0f} samples/s"
     )
     return result

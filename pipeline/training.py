@@ -326,6 +326,7 @@ def train(
     progress: a callback receiving `TrainProgress`, True for a tqdm bar on stderr, False for none.
     stop: polled every step; returning True ends training early (`cancelled=True`), keeping the
         best epoch so far.
+    config.threads > 0 sets torch's CPU threads for the run (restored afterwards).
     """
     num_l, num_p = len(data.labelled), len(data.pairs)
     if num_l == 0 and num_p == 0:
@@ -341,6 +342,27 @@ def train(
     if config.batch_labelled < 1 or config.pairs_per_label < 0:
         raise ConfigError("training.batch_labelled must be >= 1 and training.pairs_per_label >= 0")
 
+    threads_before = torch.get_num_threads()
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    try:
+        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, stop)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(
+    data: TrainingData,
+    config: TrainingConfig,
+    model_config: ModelConfig,
+    sample_config: SampleConfig,
+    val: LabelledSamples | None,
+    checkpoint_dir: str | Path | None,
+    init_model: SampleCNN | None,
+    progress: Callable[[TrainProgress], None] | bool,
+    stop: Callable[[], bool] | None,
+) -> TrainResult:
+    num_l, num_p = len(data.labelled), len(data.pairs)
     seed_everything(config.seed)
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)

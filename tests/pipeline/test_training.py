@@ -282,3 +282,18 @@ def test_train_constraints_only_balance_term_keeps_classes_apart(blob_data, pret
     assert (with_balance > 0).sum() >= 6, with_balance
     assert (without > 0).sum() < (with_balance > 0).sum(), (without, with_balance)
     assert without.max() > with_balance.max()  # the largest predicted class is bigger without it
+
+
+def test_train_threads_option_applies_during_the_run_only(blob_data):
+    x, y, _ = blob_data
+    original = torch.get_num_threads()
+    torch.set_num_threads(2)
+    during = []
+    data = TrainingData.build(x[:32], np.arange(32), y[:32])
+    try:
+        train(data, _cfg(epochs=1, threads=1), TINY, SAMPLES, progress=lambda _p: during.append(torch.get_num_threads()))
+        after = torch.get_num_threads()
+    finally:
+        torch.set_num_threads(original)
+    assert set(during) == {1}
+    assert after == 2
