@@ -106,6 +106,11 @@ def build_model(config: NetConfig) -> SampleCNN:
     return SampleCNN(config)
 
 
+def get_model(model: ModelConfig, samples: SampleConfig) -> SampleCNN:
+    """A fresh network for canvases of `samples` (the config-tree factory)."""
+    return build_model(NetConfig.from_configs(model, samples))
+
+
 def resolve_device(name: str = "auto") -> torch.device:
     """`auto` = CUDA when present, else CPU; `cpu` / `cuda` / `cuda:N` as given."""
     if name == "auto":

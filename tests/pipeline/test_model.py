@@ -11,6 +11,7 @@ from pipeline.model import (
     NetConfig,
     build_model,
     embed,
+    get_model,
     load_checkpoint,
     predict,
     save_checkpoint,
@@ -107,3 +108,8 @@ def test_model_load_checkpoint_foreign_dict_raises_data_error(tmp_path):
     torch.save({"state_dict": {}}, path)
     with pytest.raises(DataError, match="not a tracklabel"):
         load_checkpoint(path)
+
+
+def test_model_get_model_follows_sample_config():
+    model = get_model(TINY, SampleConfig(size=32, foreground_channel=False))
+    assert model.config.in_channels == 3 and model.config.size == 32 and model.config.stem_stride == 2
