@@ -8,11 +8,13 @@ worker thread in-process (the embedded SQLite default needs no other process).
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
 
+import anyio.to_thread
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
@@ -59,6 +61,10 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        # Sync routes run in anyio's thread pool. Few threads and a short GIL switch interval keep
+        # a transaction that holds the SQLite write lock from waiting behind many CPU-bound threads.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.threadpool_size
+        sys.setswitchinterval(settings.gil_switch_interval_ms / 1000)
         worker = None
         if settings.embedded_worker:
             from app.worker import Worker

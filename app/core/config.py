@@ -52,6 +52,8 @@ class Settings(BaseSettings):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
     embedded_worker: bool = True  # `serve` runs one worker thread in-process
+    threadpool_size: int = Field(default=8, ge=1, le=256)  # threads for the sync routes
+    gil_switch_interval_ms: float = Field(default=1.0, gt=0, le=100)  # Python's default is 5 ms
 
     @field_validator("data_roots", mode="before")
     @classmethod

@@ -9,6 +9,7 @@ PostgreSQL uses ordinary transactions; writers lock rows (`FOR UPDATE [SKIP LOCK
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,10 +34,35 @@ def _install_sqlite_hooks(engine: Engine) -> None:
         cur.execute("PRAGMA synchronous=NORMAL")
         cur.close()
 
+    # Writers of this process queue on a lock before BEGIN IMMEDIATE: SQLite's busy handler retries
+    # with sleeps of up to 100 ms, which under many concurrent writers gives second-long tails; a
+    # lock hands over at once. (Other processes, e.g. a worker, still meet the busy handler.)
+    write_lock = threading.Lock()
+
+    def _release(conn) -> None:  # noqa: ANN001
+        if conn.info.pop("tracklabel_write_lock", False):
+            write_lock.release()
+
     @event.listens_for(engine, "begin")
     def _on_begin(conn) -> None:  # noqa: ANN001
-        mode = "IMMEDIATE" if conn.get_execution_options().get("sqlite_immediate") else "DEFERRED"
-        conn.exec_driver_sql(f"BEGIN {mode}")
+        immediate = bool(conn.get_execution_options().get("sqlite_immediate"))
+        if immediate and not conn.info.get("tracklabel_write_lock"):
+            if not write_lock.acquire(timeout=SQLITE_BUSY_TIMEOUT_MS / 1000):
+                raise TimeoutError("timed out waiting for the database write lock")
+            conn.info["tracklabel_write_lock"] = True
+        try:
+            conn.exec_driver_sql(f"BEGIN {'IMMEDIATE' if immediate else 'DEFERRED'}")
+        except BaseException:
+            _release(conn)
+            raise
+
+    event.listen(engine, "commit", _release)
+    event.listen(engine, "rollback", _release)
+
+    @event.listens_for(engine, "checkin")
+    def _on_checkin(_dbapi_conn, record) -> None:  # noqa: ANN001
+        if record.info.pop("tracklabel_write_lock", False):
+            write_lock.release()
 
 
 def make_engine(url: str, echo: bool = False) -> Engine:
