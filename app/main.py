@@ -21,6 +21,7 @@ from pydantic import ValidationError
 
 from app.api.deps import TokenCache
 from app.api.main import api_router
+from app.api.routes import health
 from app.artifacts import ArtifactMissing, ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
@@ -108,4 +109,5 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
         return JSONResponse({"detail": exc.errors(include_url=False, include_context=False)}, status_code=422)
 
     app.include_router(api_router, prefix=API_PREFIX)
+    app.include_router(health.router, include_in_schema=False)  # plain /health for load balancers
     return app

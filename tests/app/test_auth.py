@@ -57,3 +57,4 @@ def test_auth_duplicate_user_is_409(client, factory):
 def test_auth_health_needs_no_token(client):
     r = client.get("/api/v1/health")
     assert r.status_code == 200 and r.json()["status"] == "ok"
+    assert client.get("/health").status_code == 200

@@ -63,9 +63,9 @@ def test_datasets_inspect_counts_ingested_rows(client, factory):
     from tests.app.fakes import expected_counts
 
     seq = factory.ingested_sequence(n_frames=5, n_objects=4)
-    op = factory.user()
-    ds = client.get("/api/v1/datasets", headers=op.headers).json()[0]
-    detail = client.get(f"/api/v1/datasets/{ds['id']}", headers=op.headers).json()
+    admin = factory.user("admin")
+    ds = client.get("/api/v1/datasets", headers=admin.headers).json()[0]
+    detail = client.get(f"/api/v1/datasets/{ds['id']}", headers=admin.headers).json()
     stats = detail["stats"][0]
     exp = expected_counts(5, 4)
     assert stats["sequence"]["id"] == seq
@@ -82,3 +82,12 @@ def test_datasets_second_ingest_while_queued_is_409(client, factory, db):
     assert r.status_code == 409
     with db.read() as s:
         assert s.query(Job).count() == 1
+
+
+def test_datasets_operator_gets_403_but_lists_sequences(client, factory):
+    seq = factory.ingested_sequence(n_frames=2, n_objects=1)
+    op = factory.user()
+    assert client.get("/api/v1/datasets", headers=op.headers).status_code == 403
+    assert client.get("/api/v1/datasets/1", headers=op.headers).status_code == 403
+    listed = client.get("/api/v1/sequences", params={"status": "ready"}, headers=op.headers).json()
+    assert [s["id"] for s in listed] == [seq]

@@ -40,6 +40,28 @@ def test_worker_two_workers_never_claim_the_same_job(factory, db, settings):
     assert a.claim() is not None and b.claim() is None
 
 
+def test_worker_concurrent_claims_never_share_a_job(factory, db, settings):
+    import threading
+
+    for _ in range(24):
+        _queue_selftest(factory, db)
+    claimed: list[int] = []
+    lock = threading.Lock()
+
+    def drain() -> None:
+        w = Worker(settings, db=db)
+        while (job := w.claim()) is not None:
+            with lock:
+                claimed.append(job.id)
+
+    threads = [threading.Thread(target=drain) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(claimed) == sorted(set(claimed)) and len(claimed) == 24
+
+
 def test_worker_reclaims_job_with_expired_lease(factory, db, settings):
     job_id = _queue_selftest(factory, db)
     Worker(settings, db=db).claim()

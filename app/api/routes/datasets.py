@@ -16,6 +16,7 @@ from app.schemas import (
     JobPublic,
     SequencePublic,
     SequenceStats,
+    SequenceStatus,
 )
 
 router = APIRouter(tags=["datasets"])
@@ -78,14 +79,14 @@ def register_dataset(
 
 
 @router.get("/datasets")
-def list_datasets(_user: CurrentUser, session: SessionDep) -> list[DatasetPublic]:
-    """Registered datasets with their sequences."""
+def list_datasets(_admin: AdminUser, session: SessionDep) -> list[DatasetPublic]:
+    """Registered datasets with their paths and sequences (admin)."""
     return [_public(session, ds) for ds in session.scalars(select(Dataset).order_by(Dataset.id)).all()]
 
 
 @router.get("/datasets/{dataset_id}")
-def inspect_dataset(dataset_id: IdPath, _user: CurrentUser, session: SessionDep) -> DatasetDetail:
-    """A dataset with per-sequence counts of frames, segments, samples, tracks and constraints."""
+def inspect_dataset(dataset_id: IdPath, _admin: AdminUser, session: SessionDep) -> DatasetDetail:
+    """A dataset with per-sequence counts of frames, segments, samples, tracks and constraints (admin)."""
     ds = session.get(Dataset, dataset_id)
     if ds is None:
         raise NotFound(f"dataset {dataset_id} not found")
@@ -96,6 +97,17 @@ def inspect_dataset(dataset_id: IdPath, _user: CurrentUser, session: SessionDep)
         assert seq is not None
         stats.append(SequenceStats(sequence=sp, **crud.sequence_stats(session, seq)))
     return DatasetDetail(**pub.model_dump(), stats=stats)
+
+
+@router.get("/sequences")
+def list_sequences(
+    _user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
+) -> list[SequencePublic]:
+    """Sequences to review (any user; datasets and their paths are admin routes)."""
+    q = select(Sequence).order_by(Sequence.id)
+    if status is not None:
+        q = q.where(Sequence.status == status)
+    return [SequencePublic.model_validate(s) for s in session.scalars(q).all()]
 
 
 @router.get("/sequences/{sequence_id}")
