@@ -1,4 +1,4 @@
-"""Per-frame artifact files: one compressed `.npz` per frame, next to the database.
+"""Per-frame artifact files: one (partly) compressed `.npz` per frame, next to the database.
 
 A frame row stores the path relative to the artifact root. Layout of a frame file::
 
@@ -10,7 +10,9 @@ A frame row stores the path relative to the artifact root. Layout of a frame fil
     samples        (V, C, S, S) uint8  the frame's samples (see pipeline/config.py SampleConfig)
     sample_segment (V,)   int32    local segment id of each sample
 
-Files are written to a temporary name and renamed, so a reader never sees a partial file.
+Files are `.npz` archives readable by `numpy.load`: points and intensity stored, the rest deflated
+(see STORED_ARRAYS). They are written to a temporary name and renamed, so a reader never sees a
+partial file.
 """
 
 from __future__ import annotations
@@ -49,6 +51,12 @@ class FrameArtifact:
         assert self.sample_segment.shape == (len(self.samples),) and self.sample_segment.dtype == np.int32
 
 
+# Coordinates and intensities are float noise to deflate (it saves ~10 % and costs most of a
+# payload's read time), so they are stored; segment/track/ground ids and samples are long runs
+# that deflate 30-100x.
+STORED_ARRAYS = frozenset({"points", "intensity"})
+
+
 class ArtifactMissing(FileNotFoundError):
     """A row points at an artifact file that is not there."""
 
@@ -76,8 +84,17 @@ class ArtifactStore:
         dest = self.path(rel)
         dest.parent.mkdir(parents=True, exist_ok=True)
         tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **frame.__dict__)
+        with zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
+            for name, arr in frame.__dict__.items():
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
+                stored = name in STORED_ARRAYS
+                zf.writestr(
+                    zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0)),
+                    buf.getbuffer(),
+                    compress_type=zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED,
+                    compresslevel=None if stored else 1,  # long runs: level 1 packs them as well
+                )
         os.replace(tmp, dest)
         return rel
 

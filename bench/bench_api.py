@@ -65,12 +65,15 @@ def load_database(url: str, artifact_dir: Path, n_tracks: int, n_frames: int, po
         seq = Sequence(dataset_id=ds.id, name="bench", path="/bench", format="kitti", status="ready", n_frames=n_frames)
         s.add(seq)
         s.flush()
+        # like a real frame: ground first, then each segment's points together (ids come in runs)
+        segment = np.sort(rng.integers(-1, 400, points)).astype(np.int32)
+        seg_track = rng.integers(1, n_tracks + 1, 400)
         fa = FrameArtifact(
             points=(rng.normal(size=(points, 3)) * 20).astype(np.float32),
             intensity=rng.random(points, dtype=np.float32),
-            segment=rng.integers(-1, 400, points).astype(np.int32),
-            ground=rng.random(points) < 0.4,
-            track=rng.integers(0, n_tracks, points).astype(np.int64),
+            segment=segment,
+            ground=segment < 0,
+            track=np.where(segment >= 0, seg_track[np.maximum(segment, 0)], 0).astype(np.int64),
             samples=rng.integers(0, 255, (50, 4, 64, 64)).astype(np.uint8),
             sample_segment=np.arange(50, dtype=np.int32),
         )

@@ -2,9 +2,9 @@
 
 1. Roll back whatever an earlier, unfinished attempt wrote for the sequence (rows and artifacts).
 2. Run `SequenceProcessor.iter_frames` in frame order.
-3. Every `ingest_batch_frames` frames, in one transaction: new tracks, frames, segments, constraint
-   pairs and track statistics, with the frames' artifact files written before the commit.
-   A frame row is visible only together with all its segments; a killed attempt leaves whole
+3. Every `ingest_batch_frames` frames: the new tracks (one short transaction), the frames'
+   artifact files (no lock held), then in one transaction the frames, segments, constraint pairs
+   and track statistics. A frame row is visible only together with all its segments; a killed attempt leaves whole
    batches, which the next attempt (another worker, after the lease expires) rolls back and redoes.
 4. Mark the sequence `ready`. Reviews need a ready sequence, so no operator work is lost by step 1.
 """
@@ -169,12 +169,20 @@ def _sensor_dict(sensor: Any) -> dict[str, Any] | None:
 
 
 def _write_batch(ctx: JobContext, state: _IngestState, frames: list[Any]) -> None:
-    """Write a batch of FrameResults in one transaction (see the module docstring)."""
+    """Write a batch of FrameResults (see the module docstring).
+
+    New tracks commit first (a short transaction), then the artifacts are compressed and written
+    with no database lock held, then the frames, segments and pairs commit together: the API's
+    writers never wait behind compression.
+    """
     with ctx.db.write() as s:
         _insert_new_tracks(s, state, frames)
+        s.commit()
+    rels = [_write_artifact(ctx, state, fr) for fr in frames]
+    with ctx.db.write() as s:
         touched: set[int] = set()
-        for fr in frames:
-            _write_frame(ctx, s, state, fr, touched)
+        for fr, rel in zip(frames, rels, strict=True):
+            _write_frame(s, state, fr, rel, touched)
         if touched:
             s.execute(
                 update(Track),
@@ -233,20 +241,21 @@ def _insert_new_tracks(s: Session, state: _IngestState, frames: Iterable[Any]) -
         state.tracks[int(key)] = _TrackAcc(db_id=int(db_id), first=first_seen[int(key)], last=first_seen[int(key)])
 
 
-def _write_frame(ctx: JobContext, s: Session, state: _IngestState, fr: Any, touched: set[int]) -> None:
-    seg = fr.segments
-    n_seg = len(seg.n_points)
-    keys = np.asarray(seg.track_id, dtype=np.int64)
-    sample_index = np.full(n_seg, -1, np.int64)
-    sample_index[np.asarray(fr.sample_segment, dtype=np.int64)] = np.arange(len(fr.sample_segment))
-    db_track = np.zeros(n_seg, np.int64)
+def _db_tracks(state: _IngestState, fr: Any) -> np.ndarray:
+    """(S,) int64 database track id of each segment of a frame, 0 = none."""
+    keys = np.asarray(fr.segments.track_id, dtype=np.int64)
+    db_track = np.zeros(len(keys), np.int64)
     for i in np.flatnonzero(keys > 0):
         db_track[i] = state.tracks[int(keys[i])].db_id
+    return db_track
 
-    # artifact first (atomic rename); the row that points at it commits with the batch
+
+def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
+    """The frame's artifact file (atomic rename); the row pointing at it commits later."""
+    db_track = _db_tracks(state, fr)
     point_seg = np.asarray(fr.segment, dtype=np.int32)
     point_track = np.where(point_seg >= 0, db_track[np.maximum(point_seg, 0)], 0).astype(np.int64)
-    rel = ctx.artifacts.write_frame(
+    return ctx.artifacts.write_frame(
         state.sequence_id,
         fr.index,
         FrameArtifact(
@@ -259,6 +268,15 @@ def _write_frame(ctx: JobContext, s: Session, state: _IngestState, fr: Any, touc
             sample_segment=np.asarray(fr.sample_segment, dtype=np.int32),
         ),
     )
+
+
+def _write_frame(s: Session, state: _IngestState, fr: Any, rel: str, touched: set[int]) -> None:
+    seg = fr.segments
+    n_seg = len(seg.n_points)
+    keys = np.asarray(seg.track_id, dtype=np.int64)
+    sample_index = np.full(n_seg, -1, np.int64)
+    sample_index[np.asarray(fr.sample_segment, dtype=np.int64)] = np.arange(len(fr.sample_segment))
+    db_track = _db_tracks(state, fr)
     pose = getattr(fr, "T_world_lidar", None)
     frame_id = s.execute(
         insert(Frame).returning(Frame.id),
@@ -267,7 +285,7 @@ def _write_frame(ctx: JobContext, s: Session, state: _IngestState, fr: Any, touc
                 "sequence_id": state.sequence_id,
                 "index": int(fr.index),
                 "name": str(fr.name),
-                "n_points": len(point_seg),
+                "n_points": len(fr.segment),
                 "n_segments": n_seg,
                 "n_samples": len(fr.sample_segment),
                 "artifact": rel,
