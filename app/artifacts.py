@@ -144,11 +144,13 @@ PAYLOAD_ARRAYS = ("points", "intensity", "segment", "track")
 
 def frame_payload(arrays: dict[str, np.ndarray]) -> bytes:
     """The viewer payload: an uncompressed `.npz` of points (N,3) f32, intensity (N,) f32,
-    segment (N,) int32 and track (N,) int64 (database track id, 0 = none)."""
+    segment (N,) int32 and track (N,) int32 (database track id, 0 = none; int64 past 2**31)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
         for name in PAYLOAD_ARRAYS:
             arr = np.ascontiguousarray(arrays[name])
+            if name == "track" and (len(arr) == 0 or int(arr.max()) <= np.iinfo(np.int32).max):
+                arr = arr.astype(np.int32)  # 4 bytes a point while database ids fit
             with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
                 np.lib.format.write_array(fh, arr, allow_pickle=False)
     return buf.getvalue()

@@ -168,18 +168,19 @@ def create_job(session: Session, job_type: str, params: dict[str, Any], user_id:
     return job
 
 
-def cancel_job(session: Session, job_id: int) -> Job:
-    """Cancel a queued job at once; ask a running one to stop at its next checkpoint. Commits."""
+def cancel_job(session: Session, job_id: int, by: str = "") -> Job:
+    """Cancel a queued job at once; ask a running one to stop at its next checkpoint. Commits.
+    `by` (the caller's name) goes into the job's message."""
     job = session.scalars(select(Job).where(Job.id == job_id).with_for_update()).first()
     if job is None:
         raise NotFound(f"job {job_id} not found")
     if job.status == "queued":
         job.status = "cancelled"
         job.finished_at = utcnow()
-        job.message = "cancelled before it started"
+        job.message = "cancelled before it started" + (f" by {by}" if by else "")
     elif job.status == "running":
         job.cancel_requested = True
-        job.message = "cancel requested"
+        job.message = "cancel requested" + (f" by {by}" if by else "")
     else:
         raise Conflict(f"job {job_id} is already {job.status}")
     session.commit()

@@ -4,7 +4,8 @@ Measures p50/p95 latency (client side, and the server's own time from `Server-Ti
   - a track list page (random filter/sort/offset, 50 per page),
   - a track action (label/accept/discard/truncate with the right version),
   - a frame payload (a 70k-point frame as .npz).
-Targets: list p95 <= 50 ms, action p95 <= 30 ms, frame <= 30 ms (server time).
+Targets: list p95 <= 50 ms, action p95 <= 30 ms, frame <= 30 ms (server time; the client time,
+which adds moving ~1.7 MB over loopback into the shared client process, is reported too).
 
 The server runs `uvicorn` in its own process on the embedded SQLite default (one process, as
 `tracklabel serve`); the clients run as asyncio tasks in this process. Each client is a closed loop
@@ -266,7 +267,13 @@ def run(out_dir: Path, quick: bool = False) -> dict:
             }
         result[mode] = block
     paced = result["paced"]
-    result["targets_met_paced"] = {k: paced[k]["client_p95_ms"] <= TARGETS_MS[k] for k in TARGETS_MS}
+    # list and action: p95 as the client sees it; frame: the issue states it as server time
+    result["targets_met_paced"] = {
+        "list": paced["list"]["client_p95_ms"] <= TARGETS_MS["list"],
+        "action": paced["action"]["client_p95_ms"] <= TARGETS_MS["action"],
+        "frame_server": paced["frame"]["server_p95_ms"] <= TARGETS_MS["frame"],
+        "frame_client": paced["frame"]["client_p95_ms"] <= TARGETS_MS["frame"],
+    }
     return result
 
 

@@ -49,6 +49,7 @@ def test_jobs_cancel_queued(client, factory):
     job = client.post("/api/v1/jobs", json={"type": "selftest"}, headers=op.headers).json()
     r = client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=op.headers)
     assert r.status_code == 202 and r.json()["status"] == "cancelled"
+    assert r.json()["message"].endswith(f"by {op.name}")
 
 
 def test_jobs_cancel_running_stops_at_checkpoint(client, factory, settings, db):

@@ -173,6 +173,6 @@ def test_tracks_frame_payload_is_npz_with_track_per_point(client, factory):
     assert frames["total"] == 3
     r = client.get(f"/api/v1/frames/{frames['items'][0]['id']}/payload", headers=op.headers)
     z = np.load(io.BytesIO(r.content))
-    assert z["points"].dtype == np.float32 and z["points"].shape[1] == 3
+    assert z["points"].dtype == np.float32 and z["points"].shape[1] == 3 and z["track"].dtype == np.int32
     seg, track = z["segment"], z["track"]
     assert set(np.unique(track[seg == 0])) == {ids[0]} and set(np.unique(track[seg < 0])) == {0}

@@ -50,7 +50,8 @@ def read_frame(frame_id: IdPath, _user: CurrentUser, session: SessionDep) -> Fra
 def frame_payload_route(frame_id: IdPath, _user: CurrentUser, session: SessionDep, artifacts: ArtifactsDep) -> Response:
     """The viewer payload of a frame: an uncompressed `.npz` with `points` (N,3) float32 (lidar
     frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none) and `track` (N,)
-    int64 (database track id, 0 = none). Load with `numpy.load(io.BytesIO(body))`."""
+    int32 (database track id, 0 = none; int64 once ids pass 2**31).
+    Load with `numpy.load(io.BytesIO(body))`."""
     rel = session.scalar(select(Frame.artifact).where(Frame.id == frame_id))
     if rel is None:
         raise NotFound(f"frame {frame_id} not found")

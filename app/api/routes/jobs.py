@@ -92,4 +92,4 @@ def read_job(job_id: IdPath, user: CurrentUser, session: SessionDep) -> JobPubli
 def cancel_job(job_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> JobPublic:
     """Cancel a queued job, or ask a running one to stop at its next checkpoint."""
     _visible_job(session, job_id, user)
-    return JobPublic.model_validate(crud.cancel_job(session, job_id))
+    return JobPublic.model_validate(crud.cancel_job(session, job_id, by=user.name))
