@@ -8,7 +8,7 @@ Targets: list p95 <= 50 ms, action p95 <= 30 ms, frame <= 30 ms (server time; th
 which adds moving ~1.7 MB over loopback into the shared client process, is reported too).
 
 The server runs `uvicorn` in its own process on the embedded SQLite default (one process, as
-`tracklabel serve`); the clients run as asyncio tasks in this process. Each client is a closed loop
+`tracklabel serve`; TRACKLABEL_BENCH_DATABASE_URL=postgresql+psycopg://... runs it on PostgreSQL); the clients run as asyncio tasks in this process. Each client is a closed loop
 (send, wait, send). On this 2-core machine the clients and the server share the cores.
 
 Three load shapes:
@@ -41,6 +41,17 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _pg_schema(base: str, schema: str, create: bool) -> str:
+    """Create (or drop) a scratch schema on PostgreSQL; returns a URL whose search_path is it."""
+    from sqlalchemy import create_engine, text
+
+    engine = create_engine(base)
+    with engine.begin() as conn:
+        conn.execute(text(f"CREATE SCHEMA {schema}" if create else f"DROP SCHEMA IF EXISTS {schema} CASCADE"))
+    engine.dispose()
+    return f"{base}{'&' if '?' in base else '?'}options=-csearch_path%3D{schema}"
 
 
 def load_database(url: str, artifact_dir: Path, n_tracks: int, n_frames: int, points: int) -> dict:
@@ -200,9 +211,11 @@ def run(out_dir: Path, quick: bool = False) -> dict:
     n_tracks = 50_000
     clients = 20
     iterations = 10 if quick else 40
+    pg_base = os.environ.get("TRACKLABEL_BENCH_DATABASE_URL")  # e.g. postgresql+psycopg://...; default SQLite
+    schema = f"bench_{os.getpid()}"
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        url = f"sqlite:///{tmp_path / 'bench.db'}"
+        url = f"sqlite:///{tmp_path / 'bench.db'}" if not pg_base else _pg_schema(pg_base, schema, create=True)
         info = load_database(url, tmp_path / "artifacts", n_tracks, n_frames=400, points=70_000)
         port = _free_port()
         env = {**os.environ, "TRACKLABEL_DATABASE_URL": url, "TRACKLABEL_DATA_DIR": str(tmp_path),
@@ -241,6 +254,8 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         finally:
             server.terminate()
             server.wait(timeout=10)
+            if pg_base:
+                _pg_schema(pg_base, schema, create=False)
     result: dict = {
         "tracks": n_tracks,
         "segments": info["segments"],
@@ -248,7 +263,7 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         "load_seconds": info["load_seconds"],
         "clients": clients,
         "frame_points": 70_000,
-        "database": "sqlite (embedded default), one uvicorn process",
+        "database": ("postgresql" if pg_base else "sqlite (embedded default)") + ", one uvicorn process",
         "frame_cache": "off: every payload is read and decoded from its compressed artifact",
         "targets_p95_ms": TARGETS_MS,
     }
