@@ -212,9 +212,12 @@ class TrackFilter:
     predicted_class: str | None = None
     min_confidence: float | None = None
     max_confidence: float | None = None
+    ids: tuple[int, ...] | None = None  # only these track ids (the viewer asks for a frame's tracks)
 
     def clauses(self) -> list[Any]:
         c: list[Any] = []
+        if self.ids is not None:
+            c.append(Track.id.in_(self.ids))
         if self.sequence_id is not None:
             c.append(Track.sequence_id == self.sequence_id)
         if self.status is not None:
@@ -439,15 +442,22 @@ def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes
 
 
 def lease_next_track(
-    session: Session, user: AuthUser, lease_seconds: float, sequence_id: int | None = None
+    session: Session,
+    user: AuthUser,
+    lease_seconds: float,
+    sequence_id: int | None = None,
+    exclude: tuple[int, ...] = (),
 ) -> Track | None:
     """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
-    unleased (or lease-expired) pending track with the most samples. Commits."""
+    unleased (or lease-expired) pending track with the most samples. Tracks in `exclude` are
+    passed over (one user's other viewer tabs hold them, or the operator skipped them). Commits."""
     now = utcnow()
     ready = select(Sequence.id).where(Sequence.status == "ready")
     base = [Track.status == "pending", Track.sequence_id.in_(ready)]
     if sequence_id is not None:
         base.append(Track.sequence_id == sequence_id)
+    if exclude:
+        base.append(Track.id.not_in(exclude))
     own = session.scalars(
         select(Track)
         .where(*base, Track.lease_user_id == user.id, Track.lease_expires_at > now)

@@ -64,3 +64,14 @@ def test_review_release_gives_the_track_back(client, factory):
     t = _next(client, a).json()
     assert client.post(f"/api/v1/review/{t['id']}/release", headers=a.headers).status_code == 204
     assert _next(client, b).json()["id"] == t["id"]
+
+
+def test_review_next_passes_over_excluded_tracks(client, factory):
+    # one user in two viewer tabs: the second tab excludes the first tab's track, own lease included
+    factory.ingested_sequence(n_objects=3)
+    a = factory.user()
+    first = _next(client, a).json()
+    second = _next(client, a, exclude=[first["id"]]).json()
+    third = _next(client, a, exclude=[first["id"], second["id"]]).json()
+    assert len({first["id"], second["id"], third["id"]}) == 3
+    assert _next(client, a, exclude=[first["id"], second["id"], third["id"]]).status_code == 204

@@ -176,3 +176,9 @@ def test_tracks_frame_payload_is_npz_with_track_per_point(client, factory):
     assert z["points"].dtype == np.float32 and z["points"].shape[1] == 3 and z["track"].dtype == np.int32
     seg, track = z["segment"], z["track"]
     assert set(np.unique(track[seg == 0])) == {ids[0]} and set(np.unique(track[seg < 0])) == {0}
+
+
+def test_tracks_list_filters_by_ids(client, factory):
+    seq, op, ids = _setup(factory, n_objects=5)
+    r = client.get("/api/v1/tracks", params={"ids": [ids[3], ids[1], 999_999]}, headers=op.headers)
+    assert [t["id"] for t in r.json()["items"]] == [ids[1], ids[3]]

@@ -3,9 +3,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
+from pydantic import Field
 
 from app import crud
-from app.api.deps import BigIdPath, CurrentUser, SettingsDep, WriteSessionDep
+from app.api.deps import MAX_BIG_ID, BigIdPath, CurrentUser, SettingsDep, WriteSessionDep
 from app.schemas import TrackPublic
 
 router = APIRouter(prefix="/review", tags=["review"])
@@ -19,13 +20,19 @@ def next_track(
     session: WriteSessionDep,
     settings: SettingsDep,
     sequence_id: Annotated[int | None, Query(ge=1, le=2**31 - 1)] = None,
+    exclude: Annotated[
+        list[Annotated[int, Field(ge=1, le=MAX_BIG_ID)]] | None,
+        Query(max_length=1000, description="Track ids to pass over (held by the caller's other viewer tabs, or skipped)."),
+    ] = None,
 ) -> TrackPublic | Response:
     """Lease the next unreviewed track to the caller for `review_lease_seconds`.
 
     Two operators never get the same track while its lease runs; the caller's own live lease is
-    returned again; an expired lease frees the track. 204 when nothing is left.
+    returned again (unless it is in `exclude`); an expired lease frees the track. 204 when nothing is left.
     """
-    track = crud.lease_next_track(session, user, settings.review_lease_seconds, sequence_id)
+    track = crud.lease_next_track(
+        session, user, settings.review_lease_seconds, sequence_id, tuple(sorted(set(exclude or ())))
+    )
     if track is None:
         return Response(status_code=status.HTTP_204_NO_CONTENT)
     return TrackPublic.model_validate(track)

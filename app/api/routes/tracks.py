@@ -3,10 +3,11 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
+from pydantic import Field
 from sqlalchemy import select
 
 from app import crud
-from app.api.deps import ArtifactsDep, BigIdPath, CurrentUser, SessionDep, WriteSessionDep
+from app.api.deps import MAX_BIG_ID, ArtifactsDep, BigIdPath, CurrentUser, SessionDep, WriteSessionDep
 from app.core.errors import NotFound
 from app.models import Frame, Segment
 from app.schemas import (
@@ -48,11 +49,16 @@ def list_tracks(
     sort: SortKey = "id",
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=BIG)] = 0,
+    ids: Annotated[
+        list[Annotated[int, Field(ge=1, le=MAX_BIG_ID)]] | None,
+        Query(max_length=500, description="Only these track ids (e.g. the tracks seen in one frame)."),
+    ] = None,
 ) -> TrackList:
-    """Tracks filtered by status, class, length (frames), predicted class and confidence; sorted by
-    `sort` (`-` = descending) and paginated."""
+    """Tracks filtered by id, status, class, length (frames), predicted class and confidence; sorted
+    by `sort` (`-` = descending) and paginated."""
     flt = crud.TrackFilter(
-        sequence_id, status, label, unlabelled, min_length, max_length, predicted_class, min_confidence, max_confidence
+        sequence_id, status, label, unlabelled, min_length, max_length, predicted_class, min_confidence, max_confidence,
+        ids=None if ids is None else tuple(sorted(set(ids))),
     )
     rows, total = crud.list_tracks(session, flt, sort, limit, offset)
     return TrackList(items=[TrackPublic.model_validate(t) for t in rows], total=total, limit=limit, offset=offset)
