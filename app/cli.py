@@ -149,6 +149,36 @@ def evaluate(
     typer.echo(f"metrics written to {target}")
 
 
+@app.command()
+@friendly_errors
+def predict(
+    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
+    model: Annotated[Path, typer.Option("--model", help="A checkpoint (.pt) written by training.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
+    smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
+    device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+) -> None:
+    """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
+    from pipeline.config import load_config
+    from pipeline.predict import run_predict
+
+    summary = run_predict(
+        seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
+        smooth_tracks=smooth_tracks, progress=True, log=lambda m: typer.echo(f"warning: {m}", err=True),
+    )
+    seg = summary["segments_classified"]
+    typer.echo(
+        f"{summary['frames']} frames, {sum(seg.values())} segments classified "
+        f"({', '.join(f'{k} {v}' for k, v in seg.items() if v)}), {summary['frames_per_second']} frames/s -> {out}"
+    )
+    if "point_iou" in summary:
+        typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f}")
+
+
 # ----------------------------------------------------------------------------- service (app/)
 db_app = typer.Typer(no_args_is_help=True, help="Database migrations.")
 user_app = typer.Typer(no_args_is_help=True, help="Operators, admins and their tokens.")

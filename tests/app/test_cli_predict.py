@@ -1,0 +1,99 @@
+"""`tracklabel predict`: per-frame SemanticKITTI labels and confidences from a checkpoint."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from app.cli import app
+from pipeline.classes import SEMANTICKITTI_WRITE_ID
+from pipeline.config import ModelConfig, SampleConfig
+from pipeline.io.semantickitti import read_bin
+from pipeline.model import get_model, save_checkpoint
+
+runner = CliRunner()
+SIZE = 32
+TINY = ModelConfig(width=8, max_width=16, depth=2, dropout=0.0)
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> Path:
+    from pipeline.simulation import simulate_sequence
+
+    out = tmp_path_factory.mktemp("sim") / "seq"
+    simulate_sequence(out, frames=3, seed=5)
+    return out
+
+
+@pytest.fixture(scope="module")
+def ckpt(tmp_path_factory) -> Path:
+    samples = SampleConfig(size=SIZE)
+    return save_checkpoint(tmp_path_factory.mktemp("m") / "m.pt", get_model(TINY, samples), TINY, samples)
+
+
+def test_cli_predict_writes_labels_confidences_and_summary(sim, ckpt, tmp_path):
+    out = tmp_path / "pred"
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(ckpt), "--out", str(out), "--device", "cpu"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 3 and summary["sample_size"] == SIZE
+    assert sum(summary["segments_classified"].values()) > 0
+    assert 0.0 <= summary["point_iou"]["mean_iou"] <= 1.0
+    sample_ids = {v for k, v in SEMANTICKITTI_WRITE_ID.items() if k != "ground"}
+    for name in ("000000", "000002"):
+        n = len(read_bin(sim / "velodyne" / f"{name}.bin"))
+        label = np.fromfile(out / "labels" / f"{name}.label", dtype=np.uint32)
+        conf = np.fromfile(out / "confidence" / f"{name}.conf", dtype=np.float16)
+        assert label.shape == (n,) and conf.shape == (n,)
+        sem, inst = label & 0xFFFF, label >> 16
+        assert not inst.any()
+        assert set(np.unique(sem).tolist()) <= sample_ids | {SEMANTICKITTI_WRITE_ID["ground"], 0}
+        assert (sem == SEMANTICKITTI_WRITE_ID["ground"]).sum() > n // 4  # the road
+        classified = np.isin(sem, list(sample_ids))
+        assert classified.any() and (sem == 0).any()
+        assert np.all(conf[classified] >= 1.0 / 7 - 1e-3) and np.all(conf[~classified] == 0)
+        seg = np.load(out / "segments" / f"{name}.npz")
+        assert seg["probs"].shape == (len(seg["segment"]), 7)
+        np.testing.assert_allclose(seg["probs"].astype(np.float32).sum(axis=1), 1.0, atol=5e-3)
+
+
+def test_cli_predict_smooth_tracks_runs(sim, ckpt, tmp_path):
+    out = tmp_path / "pred"
+    r = runner.invoke(
+        app, ["predict", str(sim), "--model", str(ckpt), "--out", str(out), "--device", "cpu", "--smooth-tracks"]
+    )
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "summary.json").read_text())["smooth_tracks"] is True
+
+
+def test_cli_predict_missing_checkpoint_exits_2(sim, tmp_path):
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "none.pt" in r.output and "not found" in r.output
+
+
+def test_cli_predict_corrupt_checkpoint_exits_2(sim, ckpt, tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(ckpt.read_bytes()[:200])
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(bad), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "bad.pt" in r.output
+    junk = tmp_path / "junk.pt"
+    junk.write_text("not a checkpoint")
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(junk), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2 and "junk.pt" in r.output
+
+
+def test_cli_predict_size_mismatch_exits_2(sim, ckpt, tmp_path):
+    r = runner.invoke(
+        app, ["predict", str(sim), "--model", str(ckpt), "--out", str(tmp_path / "o"), "--size", "64"]
+    )
+    assert r.exit_code == 2 and "64" in r.output and str(SIZE) in r.output
+    assert not (tmp_path / "o" / "labels").exists()
+
+
+def test_cli_predict_unknown_sequence_exits_2(ckpt, tmp_path):
+    r = runner.invoke(app, ["predict", str(tmp_path / "nope"), "--model", str(ckpt), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 2
