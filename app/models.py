@@ -42,6 +42,8 @@ TRACK_STATUSES = ("pending", "accepted", "discarded")
 SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
 ACTIONS = ("accept", "discard", "truncate", "label", "undo")
+ANCHOR_LEVELS = ("sample", "track")
+ANCHOR_ACTIONS = ("confirm", "correct", "reject")
 
 
 def utcnow() -> datetime:
@@ -282,10 +284,16 @@ class ModelVersion(Base):
 
 
 class AnchorProposal(Base):
-    """A track proposed as a fine-tuning anchor, waiting for an operator's confirmation."""
+    """A sample (`level` sample: `segment_id`) or a whole track (`level` track) proposed as a
+    fine-tuning anchor; the operator confirms it (answer_class = proposed_class), corrects it
+    (another answer_class) or rejects it. See app/jobs/anchors.py."""
 
     __tablename__ = "anchor_proposals"
-    __table_args__ = (CheckConstraint(_in("status", ("proposed", "confirmed", "rejected")), name="status"),)
+    __table_args__ = (
+        CheckConstraint(_in("status", ("proposed", "confirmed", "rejected")), name="status"),
+        CheckConstraint(_in("level", ANCHOR_LEVELS), name="level"),
+        Index("ix_anchor_proposals_sequence_id_status", "sequence_id", "status"),
+    )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
@@ -295,4 +303,27 @@ class AnchorProposal(Base):
     score: Mapped[float] = mapped_column(Float)
     status: Mapped[str] = mapped_column(String(16), default="proposed")
     decided_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    # migration 0003: sample-level proposals, the strategy, the answer
+    segment_id: Mapped[int | None] = mapped_column(ForeignKey("segments.id", ondelete="CASCADE"), index=True)
+    level: Mapped[str] = mapped_column(String(8), default="track", server_default="track")
+    strategy: Mapped[str | None] = mapped_column(String(16))
+    rank: Mapped[int | None] = mapped_column(Integer)  # order within its class (0 = first proposed)
+    answer_class: Mapped[str | None] = mapped_column(String(16))
+    decided_at: Mapped[datetime | None] = mapped_column(DateTime)
+    job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
+
+
+class AnchorEvent(Base):
+    """Append-only log of anchor answers: who confirmed, corrected or rejected which proposal."""
+
+    __tablename__ = "anchor_events"
+    __table_args__ = (CheckConstraint(_in("action", ANCHOR_ACTIONS), name="action"),)
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    proposal_id: Mapped[int] = mapped_column(ForeignKey("anchor_proposals.id", ondelete="CASCADE"), index=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), index=True)
+    action: Mapped[str] = mapped_column(String(16))
+    class_name: Mapped[str | None] = mapped_column(String(16))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
