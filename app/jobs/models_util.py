@@ -1,0 +1,236 @@
+"""What the model jobs (`train`, `predict`, and issue 7's `finetune`, `propose_anchors`) share.
+
+- `model_dir(settings, kind, job_id)`: where a job writes its checkpoints (under the data dir).
+- `register_model_version(session, ...)`: one `model_versions` row for a trained checkpoint.
+- `get_model_version(session, id)`: the row, or NotFound.
+- `load_training_set(session, artifacts, sequence_ids, constraints=...)`: the labelled samples
+  and constraint pairs of sequences, read from the labels/constraints tables and the frames'
+  artifact files, as a `pipeline.training.TrainingData` plus the ids that tie it back to rows.
+- `sample_config_for(settings, sequence)`: the sample settings the sequence was ingested with.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.artifacts import ArtifactMissing, ArtifactStore
+from app.core.config import Settings
+from app.core.errors import Conflict, Invalid, NotFound
+from app.models import Frame, ModelVersion, Segment, Sequence, utcnow
+
+if TYPE_CHECKING:
+    from pipeline.config import SampleConfig
+    from pipeline.training import TrainingData
+
+ConstraintSource = Literal["verified", "automatic", "none"]
+
+
+def model_dir(settings: Settings, kind: str, job_id: int | None) -> Path:
+    """`<data_dir>/models/<kind>_<job id>` (a timestamp when there is no job)."""
+    tag = f"{job_id:06d}" if job_id is not None else utcnow().strftime("%Y%m%dT%H%M%S%f")
+    path = settings.data_dir / "models" / f"{kind}_{tag}"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def register_model_version(
+    session: Session,
+    *,
+    name: str,
+    kind: str,
+    path: str | Path,
+    metrics: dict[str, Any] | None = None,
+    config: dict[str, Any] | None = None,
+    parent_id: int | None = None,
+    job_id: int | None = None,
+    created_by_id: int | None = None,
+) -> ModelVersion:
+    """Insert a model version row (the caller commits). `path` must be an existing checkpoint;
+    stored as given (absolute paths are clearest); metrics/config must be JSON-able."""
+    p = Path(path)
+    if not p.is_file():
+        raise Invalid(f"checkpoint {p} does not exist")
+    if parent_id is not None and session.get(ModelVersion, parent_id) is None:
+        raise NotFound(f"model {parent_id} not found")
+    mv = ModelVersion(
+        name=name[:128],
+        kind=kind[:32],
+        path=str(p),
+        config=config,
+        metrics=metrics,
+        parent_id=parent_id,
+        job_id=job_id,
+        created_by_id=created_by_id,
+        created_at=utcnow(),
+    )
+    session.add(mv)
+    session.flush()
+    return mv
+
+
+def get_model_version(session: Session, model_id: int) -> ModelVersion:
+    mv = session.get(ModelVersion, model_id)
+    if mv is None:
+        raise NotFound(f"model {model_id} not found")
+    return mv
+
+
+def model_version_for_job(session: Session, job_id: int) -> ModelVersion | None:
+    """The model a job registered already (a retried job returns it instead of training again)."""
+    return session.scalars(select(ModelVersion).where(ModelVersion.job_id == job_id).limit(1)).first()
+
+
+def sample_config_for(settings: Settings, seq: Sequence) -> SampleConfig:
+    """The sample settings of a sequence's ingest: the service's pipeline config + its overrides."""
+    from pipeline.config import load_config
+
+    cfg = load_config(settings.pipeline_config)
+    if seq.config:
+        cfg = cfg.override(seq.config)
+    return cfg.samples
+
+
+@dataclass(frozen=True)
+class TrainingSet:
+    """Training data read from the database.
+
+    data:          samples (M, C, S, S) uint8, labelled indices + labels, pairs + weights.
+    segment_ids:   (M,) int64 segment row id of each sample.
+    track_ids:     (M,) int64 track row id of each sample (0 = none).
+    pair_verified: (P,) bool, whether each pair lies on an accepted track.
+    """
+
+    data: TrainingData
+    segment_ids: np.ndarray
+    track_ids: np.ndarray
+    pair_verified: np.ndarray
+
+    @property
+    def label_track_ids(self) -> np.ndarray:
+        """(L,) track id of each labelled sample (for splits by track)."""
+        return self.track_ids[self.data.labelled]
+
+
+def _ready_sequences(session: Session, sequence_ids: list[int]) -> list[Sequence]:
+    out = []
+    for sid in sequence_ids:
+        seq = session.get(Sequence, sid)
+        if seq is None:
+            raise NotFound(f"sequence {sid} not found")
+        if seq.status != "ready":
+            raise Conflict(f"sequence {sid} is {seq.status}, not ready: ingest it first")
+        out.append(seq)
+    return out
+
+
+def read_samples(
+    session: Session, artifacts: ArtifactStore, segment_ids: np.ndarray, progress: Any = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(samples (M, C, S, S) uint8, track ids (M,)) of segment rows, read frame file by frame file.
+
+    progress(done, total) is called after each frame file.
+    """
+    rows = []
+    ids = [int(v) for v in segment_ids]
+    for i in range(0, len(ids), 5000):
+        rows += session.execute(
+            select(Segment.id, Segment.sample_index, Segment.track_id, Frame.artifact)
+            .join(Frame, Frame.id == Segment.frame_id)
+            .where(Segment.id.in_(ids[i : i + 5000]))
+        ).all()
+    pos = {sid: k for k, sid in enumerate(ids)}
+    by_file: dict[str, list[tuple[int, int]]] = defaultdict(list)
+    track = np.zeros(len(ids), np.int64)
+    for seg_id, sample_index, track_id, artifact in rows:
+        if sample_index is None:
+            raise Invalid(f"segment {seg_id} has no sample (not a valid segment)")
+        by_file[artifact].append((pos[int(seg_id)], int(sample_index)))
+        track[pos[int(seg_id)]] = track_id or 0
+    if len(rows) != len(set(ids)):
+        raise NotFound(f"{len(set(ids)) - len(rows)} segment(s) not found")
+    out: np.ndarray | None = None
+    for done, (artifact, items) in enumerate(sorted(by_file.items()), 1):
+        try:
+            samples = artifacts.read_arrays(artifact, ("samples",))["samples"]
+        except ArtifactMissing as exc:
+            raise Conflict(str(exc)) from None
+        if out is None:
+            out = np.zeros((len(ids), *samples.shape[1:]), np.uint8)
+        elif samples.shape[1:] != out.shape[1:] and len(samples):
+            raise Conflict(f"artifact {artifact}: samples are {samples.shape[1:]}, others {out.shape[1:]}")
+        dst = np.array([d for d, _ in items], np.int64)
+        src = np.array([s for _, s in items], np.int64)
+        if len(src) and src.max() >= len(samples):
+            raise Conflict(f"artifact {artifact} holds {len(samples)} samples, a segment points at {src.max()}")
+        out[dst] = samples[src]
+        if progress is not None:
+            progress(done, len(by_file))
+    if out is None:
+        out = np.zeros((0, 4, 1, 1), np.uint8)
+    return out, track
+
+
+def load_training_set(
+    session: Session,
+    artifacts: ArtifactStore,
+    sequence_ids: list[int],
+    constraints: ConstraintSource = "verified",
+    min_score: float = 0.0,
+    classes: tuple[str, ...] | None = None,
+    progress: Any = None,
+) -> TrainingSet:
+    """Labelled samples (the labels table) and must-link pairs of the given ready sequences.
+
+    constraints: "verified" = pairs inside the kept range of accepted tracks, weight 1 (the paper);
+      "automatic" = pairs of every non-discarded track with score >= min_score, weighted by the
+      association score (accepted tracks' pairs weigh 1); "none" = labels only.
+    Pairs of tracks labelled "unknown" are left out (the paper makes no constraints for unknown).
+    classes: the model's class table (default pipeline.classes.SAMPLE_CLASSES); labels outside it
+      are an error.
+    """
+    from pipeline.classes import SAMPLE_CLASSES
+    from pipeline.training import TrainingData
+
+    classes = classes or SAMPLE_CLASSES
+    seqs = _ready_sequences(session, sequence_ids)
+    lab_seg: list[int] = []
+    lab_cls: list[int] = []
+    pair_rows: list[tuple[int, int, float, bool]] = []
+    unknown_tracks: set[int] = set()
+    for seq in seqs:
+        for seg_id, track_id, _frame, class_name, _idx in session.execute(crud.labels_query(seq.id)).all():
+            if class_name not in classes:
+                raise Invalid(f"label {class_name!r} of segment {seg_id} is not a class of the model ({', '.join(classes)})")
+            lab_seg.append(int(seg_id))
+            lab_cls.append(classes.index(class_name))
+            if class_name == "unknown":
+                unknown_tracks.add(int(track_id))
+        if constraints != "none":
+            q = crud.constraints_query(seq.id, verified_only=constraints == "verified")
+            for row in session.execute(q).all():
+                if int(row.track_id) in unknown_tracks:
+                    continue
+                verified = bool(row.verified)
+                score = float(row.score)
+                if not verified and score < min_score:
+                    continue
+                pair_rows.append((int(row.segment_a_id), int(row.segment_b_id), 1.0 if verified else score, verified))
+    seg_ids = np.unique(np.array(lab_seg + [a for a, *_ in pair_rows] + [b for _, b, *_ in pair_rows], np.int64))
+    if len(seg_ids) == 0:
+        raise Invalid(f"sequences {sequence_ids} hold no labels and no constraints to train on")
+    samples, track = read_samples(session, artifacts, seg_ids, progress)
+    where = {int(s): i for i, s in enumerate(seg_ids)}
+    labelled = np.array([where[s] for s in lab_seg], np.int64)
+    pairs = np.array([[where[a], where[b]] for a, b, *_ in pair_rows], np.int64).reshape(-1, 2)
+    weights = np.array([w for *_, w, _v in pair_rows], np.float32)
+    verified = np.array([v for *_, v in pair_rows], bool)
+    data = TrainingData.build(samples, labelled, np.array(lab_cls, np.int64), pairs, weights)
+    return TrainingSet(data, seg_ids, track, verified)
