@@ -1,0 +1,82 @@
+"""Trained models: `GET /models` (newest first, with a metrics summary) and `GET /models/{id}`
+(all stored metrics and the config). Models are registered by the `train` / `finetune` jobs."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query
+from pydantic import BaseModel, ConfigDict
+from sqlalchemy import select
+
+from app.api.deps import CurrentUser, IdPath, SessionDep
+from app.core.errors import NotFound
+from app.models import ModelVersion
+
+router = APIRouter(tags=["models"])
+
+
+class ModelSummary(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: int
+    name: str
+    kind: str
+    path: str
+    parent_id: int | None
+    job_id: int | None
+    created_by_id: int | None
+    created_at: datetime
+    val_mean_f: float | None = None
+    val_f: dict[str, float | None] | None = None
+    num_labelled: int | None = None
+    num_pairs: int | None = None
+
+
+class ModelDetail(ModelSummary):
+    metrics: dict[str, Any] | None
+    config: dict[str, Any] | None
+
+
+def _summary_fields(mv: ModelVersion) -> dict[str, Any]:
+    m = mv.metrics or {}
+    val = m.get("val") if isinstance(m.get("val"), dict) else {}
+    per_class = val.get("per_class") if isinstance(val.get("per_class"), dict) else None
+    val_f = None
+    if per_class is not None:
+        val_f = {c: (v.get("f") if isinstance(v, dict) else None) for c, v in per_class.items()}
+    return {
+        "val_mean_f": val.get("mean_f"),
+        "val_f": val_f,
+        "num_labelled": m.get("num_labelled"),
+        "num_pairs": m.get("num_pairs"),
+    }
+
+
+def _summary(mv: ModelVersion) -> ModelSummary:
+    return ModelSummary.model_validate(mv).model_copy(update=_summary_fields(mv))
+
+
+@router.get("/models")
+def list_models(
+    _user: CurrentUser,
+    session: SessionDep,
+    kind: Annotated[str | None, Query(max_length=32)] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
+) -> list[ModelSummary]:
+    """Registered models, newest first, each with its validation F (mean and per class)."""
+    q = select(ModelVersion).order_by(ModelVersion.id.desc()).limit(limit).offset(offset)
+    if kind is not None:
+        q = q.where(ModelVersion.kind == kind)
+    return [_summary(mv) for mv in session.scalars(q).all()]
+
+
+@router.get("/models/{model_id}")
+def get_model(model_id: IdPath, _user: CurrentUser, session: SessionDep) -> ModelDetail:
+    """One model with all its stored metrics and the config it was trained with; 404 when unknown."""
+    mv = session.get(ModelVersion, model_id)
+    if mv is None:
+        raise NotFound(f"model {model_id} not found")
+    return ModelDetail.model_validate(mv).model_copy(update=_summary_fields(mv))
