@@ -1,0 +1,64 @@
+"""The simulated operator, ground truth of segments, and the experiment data preparation."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.experiments.data import (
+    SceneSamples,
+    operator_review,
+    prepare_scene,
+    route_part,
+    segment_truth,
+    track_pairs,
+)
+
+
+def test_operator_accepts_clean_tracks_truncates_at_first_wrong_link_and_skips_unknown_pairs():
+    # track 1: objects A A B A A -> the first two kept; track 2 starts on an unlabelled segment ->
+    # discarded; track 3 is unknown: labelled but no constraints; track 4: second sample impure.
+    track = np.array([1, 1, 1, 1, 1, 2, 2, 3, 3, 3, 4, 4])
+    frame = np.array([0, 1, 2, 3, 4, 0, 1, 5, 6, 7, 2, 3])
+    cls = np.array([1, 1, 1, 1, 1, 255, 1, 6, 6, 6, 4, 4], np.int16)
+    obj = np.array([10, 10, 11, 10, 10, 5, 5, 7, 7, 7, 8, 8])
+    pur = np.array([1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0.9, 0.3], np.float32)
+    perm = np.random.default_rng(0).permutation(len(track))  # order of samples does not matter
+    label, pairs = operator_review(track[perm], frame[perm], cls[perm], obj[perm], pur[perm])
+    assert label[np.argsort(perm)].tolist() == [1, 1, -1, -1, -1, -1, -1, 6, 6, 6, 4, -1]
+    got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in pairs}
+    assert got == {(0, 1)}
+
+
+def test_track_pairs_link_consecutive_frames_only():
+    track = np.array([3, 3, 3, 5, 5])
+    frame = np.array([2, 0, 1, 4, 6])  # track 5 skips a frame
+    pairs = track_pairs(track, frame)
+    assert {tuple(p) for p in pairs.tolist()} == {(1, 2), (2, 0)}
+
+
+def test_segment_truth_majority_object_and_purity():
+    seg = np.array([0, 0, 0, 1, 1, -1, 2])
+    sem = np.array([10, 10, 30, 40, 40, 40, 70])
+    inst = np.array([1, 1, 2, 0, 0, 0, 3])
+    cls, key, pur = segment_truth(seg, 4, sem, inst)
+    assert cls.tolist() == [1, 7, 4, 255]
+    assert key[0] == (1 << 32) | 1 and key[3] == -1
+    np.testing.assert_allclose(pur, [2 / 3, 1, 1, 0])
+
+
+def test_route_part_splits_by_distance():
+    assert route_part(np.array([0.0, 0.29, 0.3, 0.59, 0.6, 1.0])).tolist() == [0, 0, 1, 1, 2, 2]
+
+
+def test_prepare_scene_runs_the_pipeline_and_caches(tmp_path):
+    scene = prepare_scene(tmp_path, seed=2, frames=4, size=32)
+    assert isinstance(scene, SceneSamples) and len(scene) > 50
+    assert scene.samples.shape[1:] == (4, 32, 32)
+    assert len(scene.labelled) > 0 and len(scene.auto_pairs) >= len(scene.verified_pairs) > 0
+    lab = scene.label[scene.labelled]
+    assert np.array_equal(lab, scene.gt_class[scene.labelled])  # the operator labels with the truth
+    assert scene.progress.min() == 0.0 and scene.progress.max() == 1.0
+    s = scene.summary()
+    assert s["labels"] == len(scene.labelled) and 0.5 < s["auto_pair_precision"] <= 1.0
+    again = prepare_scene(tmp_path, seed=2, frames=4, size=32)  # from the cache
+    assert np.array_equal(again.samples, scene.samples) and not list(tmp_path.glob("seq_*"))
