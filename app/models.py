@@ -293,6 +293,9 @@ class AnchorProposal(Base):
         CheckConstraint(_in("status", ("proposed", "confirmed", "rejected")), name="status"),
         CheckConstraint(_in("level", ANCHOR_LEVELS), name="level"),
         Index("ix_anchor_proposals_sequence_id_status", "sequence_id", "status"),
+        # ids are never reused on SQLite either: an answer to a replaced proposal must get 404,
+        # never land on a newer proposal that took its id
+        {"sqlite_autoincrement": True},
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)

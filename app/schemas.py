@@ -252,3 +252,70 @@ class Health(BaseModel):
     status: Literal["ok"]
     database: str
     version: str
+
+
+# ----------------------------------------------------------------------------- anchors (issue 7)
+AnchorStatus = Literal["proposed", "confirmed", "rejected"]
+AnchorLevel = Literal["sample", "track"]
+
+
+class AnchorPublic(BaseModel):
+    """A proposed fine-tuning anchor: one sample (`level` sample) or a whole track (`level` track,
+    `segment_id` = a representative sample to show)."""
+
+    id: int
+    sequence_id: int
+    track_id: int
+    segment_id: int | None
+    frame_index: int | None = Field(description="Frame of the (representative) sample.")
+    level: AnchorLevel
+    strategy: str | None
+    rank: int | None = Field(description="Order within its proposed class, 0 = proposed first.")
+    proposed_class: str | None
+    score: float = Field(description="The strategy's score (confidence, entropy or k-center distance).")
+    status: AnchorStatus
+    answer_class: str | None = Field(description="The class the operator gave (confirm or correct).")
+    corrected: bool = Field(description="Confirmed with a class other than the proposed one.")
+    decided_by_id: int | None
+    decided_by: str | None
+    decided_at: datetime | None
+    model_id: int | None = Field(description="The model version that proposed it.")
+    job_id: int | None = Field(description="The propose_anchors job that made it.")
+    created_at: datetime
+    sample_url: str | None = Field(description="PNG of the (representative) sample.")
+
+
+class AnchorList(BaseModel):
+    items: list[AnchorPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class AnchorCorrect(_Request):
+    label: str = Field(min_length=1, max_length=16, description="The right class (one of the sample classes).")
+
+
+class AnchorClassCounts(BaseModel):
+    proposed: int = 0
+    confirmed: int = 0
+    corrected: int = 0
+    rejected: int = 0
+
+
+class AnchorSummary(BaseModel):
+    total: int
+    by_status: dict[str, int]
+    per_class: dict[str, AnchorClassCounts] = Field(
+        description="proposed/rejected/corrected by proposed class; confirmed by answer class."
+    )
+
+
+class AnchorEventPublic(_Public):
+    id: int
+    proposal_id: int
+    sequence_id: int
+    user_id: int | None
+    action: Literal["confirm", "correct", "reject"]
+    class_name: str | None
+    created_at: datetime

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
 
     from app.jobs.context import JobContext
 
-BUILTIN_MODULES: tuple[str, ...] = ("app.jobs.ingest", "app.jobs.selftest", "app.jobs.train", "app.jobs.predict")
+BUILTIN_MODULES: tuple[str, ...] = ("app.jobs.ingest", "app.jobs.selftest", "app.jobs.train", "app.jobs.predict", "app.jobs.anchors", "app.jobs.finetune")
 
 
 @dataclass(frozen=True)

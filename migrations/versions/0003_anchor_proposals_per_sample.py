@@ -41,7 +41,12 @@ def upgrade() -> None:
         batch_op.create_index(batch_op.f('ix_anchor_events_sequence_id'), ['sequence_id'], unique=False)
         batch_op.create_index(batch_op.f('ix_anchor_events_user_id'), ['user_id'], unique=False)
 
-    with op.batch_alter_table('anchor_proposals', schema=None) as batch_op:
+    # SQLite: rebuild the table with AUTOINCREMENT so that proposal ids are never reused
+    sqlite = op.get_bind().dialect.name == 'sqlite'
+    with op.batch_alter_table(
+        'anchor_proposals', schema=None, recreate='always' if sqlite else 'auto',
+        table_kwargs={'sqlite_autoincrement': True} if sqlite else {},
+    ) as batch_op:
         batch_op.add_column(sa.Column('segment_id', sa.BigInteger().with_variant(sa.Integer(), 'sqlite'), nullable=True))
         batch_op.add_column(sa.Column('level', sa.String(length=8), server_default='track', nullable=False))
         batch_op.add_column(sa.Column('strategy', sa.String(length=16), nullable=True))
