@@ -179,6 +179,40 @@ def predict(
         typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f}")
 
 
+# ----------------------------------------------------------------------------- experiments
+experiment_app = typer.Typer(no_args_is_help=True, help="Experiments on simulated scenes (issue 5, issue 7).")
+app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("paper")
+@friendly_errors
+def experiment_paper(
+    out: Annotated[Path, typer.Option("--out", help="Folder for paper.md/json/png.")] = Path("data/experiments/paper"),
+    seed: Annotated[int, typer.Option(help="Seed of the training route (test scene D: seed + 1000).")] = 0,
+    frames: Annotated[int | None, typer.Option(min=20, help="Frames of the training route (default 600; --full 1400).")] = None,
+    test_frames: Annotated[int | None, typer.Option(min=10, help="Frames of test scene D (default 240; --full 465).")] = None,
+    size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
+    steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 1200; --full 6000).")] = None,
+    labels_per_class: Annotated[int | None, typer.Option(min=1, help="baseline_min labels per class (default 30; --full 350).")] = None,
+    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 0,
+    full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
+) -> None:
+    """Reproduce the paper's Tables 7 and 8: five settings (+ automatic constraints) on simulated data."""
+    from pipeline.experiments.paper import PaperConfig, run_paper
+
+    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads}
+    for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
+                       ("labels_per_class", labels_per_class)):
+        if value is not None:
+            kw[key] = value
+    cfg = PaperConfig.full(**kw) if full else PaperConfig(**kw)  # type: ignore[arg-type]
+    doc = run_paper(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    typer.echo((out / "paper.md").read_text())
+    typer.echo(f"written: {out / 'paper.md'}, {out / 'paper.json'}, {out / 'paper_train.png'}, {out / 'paper_test.png'}"
+               f" ({doc['seconds']['total']:.0f} s)")
+
+
 # ----------------------------------------------------------------------------- service (app/)
 db_app = typer.Typer(no_args_is_help=True, help="Database migrations.")
 user_app = typer.Typer(no_args_is_help=True, help="Operators, admins and their tokens.")
@@ -257,8 +291,13 @@ def serve(
     port: Annotated[int | None, typer.Option(help="Port (TRACKLABEL_PORT).")] = None,
     worker: Annotated[bool, typer.Option(help="Run one in-process job worker.")] = True,
     wait: Annotated[float, typer.Option(help="Seconds to wait for the database.")] = 30.0,
+    viewer: Annotated[
+        bool, typer.Option("--viewer/--no-viewer", help="Also start the 3D annotator; operators sign in with their token.")
+    ] = True,
+    viewer_port: Annotated[int, typer.Option(help="Annotator port (the next free one when it is taken).")] = 8080,
 ) -> None:
-    """Serve the REST API: wait for the database, upgrade it, then run uvicorn (+ a worker thread)."""
+    """Serve the REST API: wait for the database, upgrade it, then run uvicorn (+ a worker thread)
+    and the annotator (viser) next to it."""
     import uvicorn
 
     from app.core.config import Settings
@@ -277,7 +316,42 @@ def serve(
     engine.dispose()
     upgrade(settings.db_url)
     typer.echo(f"serving http://{settings.host}:{settings.port}/api/v1/docs ({settings.db_url.split('://')[0]})")
+    if viewer:
+        annotator = _start_viewer(settings.host, settings.port, None, viewer_port)
+        typer.echo(f"annotator {annotator.url} (operators sign in with their token)")
     uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+
+
+def _start_viewer(api_host: str, api_port: int, token: str | None, port: int):  # -> AnnotatorViewer
+    """Start the annotator beside an API that this process is about to serve (loopback URL)."""
+    from annotator_ui.main import start_viewer
+
+    local = "127.0.0.1" if api_host in ("0.0.0.0", "::", "") else api_host
+    return start_viewer(f"http://{local}:{api_port}", token, host=api_host, port=port, check=False)
+
+
+@app.command()
+@friendly_errors
+def annotate(
+    api: Annotated[str, typer.Option("--api", envvar="TRACKLABEL_API_URL", help="URL of the track service.")] = "http://127.0.0.1:8000",
+    token: Annotated[
+        str | None,
+        typer.Option("--token", envvar="TRACKLABEL_TOKEN", help="Operator token; without one each browser tab signs in."),
+    ] = None,
+    host: Annotated[str, typer.Option(help="Bind address of the viewer.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(min=0, max=65535, help="Viewer port (the next free one when taken).")] = 8080,
+    wait: Annotated[float, typer.Option(min=0, help="Seconds to wait for the API to answer.")] = 30.0,
+) -> None:
+    """The 3D annotator (viser): review tracks of the track service at --api in the browser."""
+    from annotator_ui.main import ViewerStartError, start_viewer
+
+    try:
+        viewer = start_viewer(api, token, host=host, port=port, wait_s=wait)
+    except ViewerStartError as exc:
+        fail(str(exc))
+        return
+    typer.echo(f"annotator {viewer.url} (API {api})")
+    viewer.serve_forever()
 
 
 @app.command()
@@ -297,8 +371,10 @@ def demo(
     seed: Annotated[int, typer.Option(help="Scene seed.")] = 0,
     port: Annotated[int, typer.Option(help="Port to serve on.")] = 8000,
     serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
+    viewer_port: Annotated[int, typer.Option(help="Annotator port (the next free one when it is taken).")] = 8080,
 ) -> None:
-    """Simulate the campus scene, register and ingest it, then serve it and print an operator token."""
+    """Simulate the campus scene, register and ingest it, then serve it with the annotator signed in
+    as the demo operator, and print the URLs and tokens."""
     from app.demo import prepare_demo
 
     info = prepare_demo(out, frames=frames, seed=seed, port=port, log=typer.echo)
@@ -312,6 +388,8 @@ def demo(
 
         from app.main import create_app
 
+        annotator = _start_viewer(info.settings.host, port, info.operator_token, viewer_port)
+        typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser (keys: A D 1-7 [ ] Z)")
         uvicorn.run(create_app(info.settings), host=info.settings.host, port=port, log_level="warning")
 
 

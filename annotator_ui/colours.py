@@ -1,0 +1,143 @@
+"""Point colours of the three colour modes, the highlight of the reviewed track, and the legend.
+
+All functions are vectorised over the frame's points; colours are (N, 3) uint8 RGB.
+
+Modes:
+  - `track`:     one hue per track id (golden-ratio hues, stable across frames);
+  - `class`:     the track's class label (accepted tracks), grey while unlabelled, dark red when
+                 discarded;
+  - `predicted`: the model's predicted class, blended towards grey as its confidence falls.
+Ground and points without a track are dark grey in every mode.
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Mapping
+from typing import Any, Literal
+
+import numpy as np
+
+from pipeline.classes import CLASS_COLOURS, SAMPLE_CLASSES
+
+ColourMode = Literal["track", "class", "predicted"]
+COLOUR_MODES: tuple[ColourMode, ...] = ("track", "class", "predicted")
+
+GROUND = np.array([70, 70, 70], np.uint8)
+UNTRACKED = np.array([110, 110, 110], np.uint8)
+PENDING = np.array([175, 175, 175], np.uint8)
+DISCARDED = np.array([120, 40, 40], np.uint8)
+NO_PREDICTION = np.array([150, 150, 150], np.uint8)
+HIGHLIGHT_FADE = 0.5  # other points keep this much of their colour while a track is highlighted
+CLASS_RGB = {name: np.array(CLASS_COLOURS[name], np.uint8) for name in SAMPLE_CLASSES}
+
+
+def track_hues(track_ids: np.ndarray) -> np.ndarray:
+    """(N,) int track ids -> (N, 3) uint8: a saturated colour per id (golden-ratio hue steps)."""
+    h = (np.asarray(track_ids, np.int64) * 0.6180339887498949) % 1.0
+    s, v = 0.75, 0.95
+    i = np.floor(h * 6.0).astype(np.int64) % 6
+    f = h * 6.0 - np.floor(h * 6.0)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    vv = np.full_like(h, v)
+    pp = np.full_like(h, p)
+    r = np.choose(i, [vv, q, pp, pp, t, vv])
+    g = np.choose(i, [t, vv, vv, q, pp, pp])
+    b = np.choose(i, [pp, pp, t, vv, vv, q])
+    return (np.stack([r, g, b], axis=1) * 255.0 + 0.5).astype(np.uint8)
+
+
+def _per_track_lut(track: np.ndarray, colour_of: Mapping[int, np.ndarray], default: np.ndarray) -> np.ndarray:
+    """(N,) track ids -> (N, 3) colours through a lookup over the frame's unique ids."""
+    uniq, inverse = np.unique(track, return_inverse=True)
+    lut = np.empty((len(uniq), 3), np.uint8)
+    for k, tid in enumerate(uniq.tolist()):  # one entry per track of the frame, not per point
+        lut[k] = colour_of.get(int(tid), default)
+    return lut[inverse.reshape(-1)]
+
+
+def class_colour(track: Mapping[str, Any]) -> np.ndarray:
+    """Colour of a track (TrackPublic dict) in `class` mode."""
+    if track.get("status") == "discarded":
+        return DISCARDED
+    label = track.get("label")
+    if track.get("status") == "accepted" and label in CLASS_RGB:
+        return CLASS_RGB[label]
+    return PENDING
+
+
+def predicted_colour(track: Mapping[str, Any]) -> np.ndarray:
+    """Colour of a track in `predicted` mode: class colour blended to grey by (1 - confidence)."""
+    cls = track.get("predicted_class")
+    if cls not in CLASS_RGB:
+        return NO_PREDICTION
+    conf = track.get("predicted_confidence")
+    c = 1.0 if conf is None else float(np.clip(conf, 0.0, 1.0))
+    mixed = NO_PREDICTION.astype(np.float32) * (1.0 - c) + CLASS_RGB[cls].astype(np.float32) * c
+    return (mixed + 0.5).astype(np.uint8)
+
+
+def point_colours(
+    segment: np.ndarray,
+    track: np.ndarray,
+    mode: ColourMode,
+    tracks: Mapping[int, Mapping[str, Any]] | None = None,
+) -> np.ndarray:
+    """(N,) segment, (N,) track ids -> (N, 3) uint8 colours in `mode`.
+
+    `tracks` maps track id -> TrackPublic dict (needed by `class` and `predicted`)."""
+    n = len(segment)
+    assert track.shape == (n,), (track.shape, n)
+    out = np.empty((n, 3), np.uint8)
+    has_track = track > 0
+    out[segment < 0] = GROUND
+    out[(segment >= 0) & ~has_track] = UNTRACKED
+    if not has_track.any():
+        return out
+    ids = track[has_track]
+    if mode == "track":
+        out[has_track] = track_hues(ids)
+    else:
+        tracks = tracks or {}
+        fn = class_colour if mode == "class" else predicted_colour
+        default = PENDING if mode == "class" else NO_PREDICTION
+        colour_of = {tid: fn(t) for tid, t in tracks.items()}
+        out[has_track] = _per_track_lut(ids, colour_of, default)
+    return out
+
+
+def fade(colours: np.ndarray, keep: np.ndarray, factor: float = HIGHLIGHT_FADE) -> np.ndarray:
+    """Darken every colour outside the (N,) bool mask `keep` (the highlighted points)."""
+    out = colours.copy()
+    out[~keep] = (out[~keep].astype(np.float32) * factor).astype(np.uint8)
+    return out
+
+
+def legend_entries(mode: ColourMode) -> list[tuple[str, tuple[int, int, int]]]:
+    """(label, RGB) rows of the legend of `mode`."""
+    classes = [(name, tuple(int(v) for v in CLASS_RGB[name])) for name in SAMPLE_CLASSES]
+    common = [("ground", tuple(int(v) for v in GROUND)), ("no track", tuple(int(v) for v in UNTRACKED)),
+              ("track path (kept / cut / this frame)", (255, 140, 0))]
+    if mode == "track":
+        return [("one colour per track", (230, 120, 60)), ("the reviewed track (large points)", (255, 220, 0)), *common]
+    if mode == "class":
+        return [*classes, ("pending", tuple(int(v) for v in PENDING)),
+                ("discarded", tuple(int(v) for v in DISCARDED)), *common]
+    return [*classes, ("no prediction", tuple(int(v) for v in NO_PREDICTION)), *common]
+
+
+def legend_html(mode: ColourMode) -> str:
+    """The legend of `mode` as small HTML (coloured squares and names)."""
+    rows = []
+    for label, (r, g, b) in legend_entries(mode):
+        rows.append(
+            f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;line-height:18px">'
+            f'<span style="display:inline-block;width:12px;height:12px;border-radius:2px;'
+            f'background:rgb({r},{g},{b});border:1px solid #555"></span>{html.escape(label)}</div>'
+        )
+    note = {
+        "track": "Colour by track.",
+        "class": "Colour by the operators' class labels.",
+        "predicted": "Colour by the model's predicted class; greyer = less confident.",
+    }[mode]
+    return f'<div style="padding:2px 4px"><div style="font-size:12px;margin-bottom:4px">{note}</div>{"".join(rows)}</div>'

@@ -1,0 +1,295 @@
+"""The side panels besides the review controls: progress, jobs (train / predict with a learning
+curve) and anchors. Each panel takes the client's GUI API and an `ApiClient`, builds its handles
+(`gui_*`) in the current GUI container, and refreshes on request; slow calls run in the caller's
+thread pool, never in a GUI callback's critical path.
+"""
+
+from __future__ import annotations
+
+import html
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import viser
+import viser.uplot
+
+from annotator_ui.client import ApiClient, ApiError
+from pipeline.classes import CLASS_COLOURS, SAMPLE_CLASSES
+
+JOB_BUTTONS = {"train": "Start training", "predict": "Start prediction"}
+JOB_POLL_SECONDS = 1.0
+ANCHORS_PATH = "/anchors"
+
+
+class ProgressPanel:
+    """Tracks reviewed / pending and samples labelled per class (GET /exports/stats)."""
+
+    def __init__(self, gui: viser.GuiApi, api: ApiClient) -> None:
+        self.api = api
+        self.gui_summary = gui.add_markdown("Loading progress ...")
+        self.gui_bar = gui.add_progress_bar(0.0, color="green")
+        self.gui_classes = gui.add_html("")
+        self.gui_refresh = gui.add_button("Refresh progress", icon=viser.Icon.REFRESH)
+        self.gui_refresh.on_click(lambda _: self.refresh())
+        self.last: dict[str, Any] | None = None
+
+    def refresh(self) -> dict[str, Any] | None:
+        try:
+            st = self.api.stats()
+        except ApiError as exc:
+            self.gui_summary.content = f"Progress unavailable: {exc.detail}"
+            return None
+        self.last = st
+        by = st.get("tracks_by_status", {})
+        total = max(int(st.get("tracks", 0)), 0)
+        reviewed = int(st.get("tracks_reviewed", 0))
+        self.gui_summary.content = (
+            f"**Tracks** {reviewed} reviewed / {by.get('pending', 0)} pending of {total}  \n"
+            f"accepted {by.get('accepted', 0)} · discarded {by.get('discarded', 0)}  \n"
+            f"**Samples** {st.get('samples_labelled', 0)} labelled of {st.get('samples', 0)} · "
+            f"constraints verified {st.get('constraints_verified', 0)} of {st.get('constraints_automatic', 0)}"
+        )
+        self.gui_bar.value = 100.0 * reviewed / total if total else 0.0
+        per = st.get("samples_labelled_per_class", {})
+        top = max([1, *per.values()])
+        rows = []
+        for name in SAMPLE_CLASSES:
+            n = int(per.get(name, 0))
+            r, g, b = CLASS_COLOURS[name]
+            rows.append(
+                f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;line-height:18px">'
+                f'<span style="width:64px">{name}</span>'
+                f'<span style="display:inline-block;height:10px;width:{max(1, int(120 * n / top))}px;'
+                f'background:rgb({r},{g},{b})"></span><span>{n}</span></div>'
+            )
+        self.gui_classes.content = '<div style="padding:2px 4px">Samples per class' + "".join(rows) + "</div>"
+        return st
+
+
+def learning_curve(result: dict[str, Any] | None) -> dict[str, np.ndarray] | None:
+    """Per-epoch series of a job result, or None when it has none.
+
+    Accepts `history` / `epochs` / `metrics` as a list of per-epoch dicts (`{"epoch": 1, "loss":
+    .., "val_f1": ..}`) or as a dict of equal-length lists. Returns {"epoch": x, name: y, ...} of
+    the numeric series."""
+    if not isinstance(result, dict):
+        return None
+    for key in ("history", "epochs", "per_epoch", "metrics", "curve"):
+        raw = result.get(key)
+        if isinstance(raw, dict):
+            for sub in ("history", "epochs", "per_epoch"):
+                if isinstance(raw.get(sub), list | dict):
+                    raw = raw[sub]
+                    break
+        if isinstance(raw, list) and raw and all(isinstance(r, dict) for r in raw):
+            names = [k for k, v in raw[0].items() if isinstance(v, int | float) and not isinstance(v, bool)]
+            cols = {k: [r.get(k) for r in raw] for k in names}
+        elif isinstance(raw, dict) and raw and all(isinstance(v, list) for v in raw.values()):
+            cols = {k: v for k, v in raw.items() if v and all(isinstance(x, int | float) for x in v)}
+        else:
+            continue
+        n = min((len(v) for v in cols.values()), default=0)
+        if n < 1:
+            continue
+        x = np.asarray(cols.pop("epoch", list(range(1, n + 1)))[:n], np.float64)
+        series = {k: np.asarray([np.nan if v is None else v for v in vals[:n]], np.float64) for k, vals in cols.items()}
+        series = {k: v for k, v in series.items() if k not in ("step", "steps")}
+        if series:
+            return {"epoch": x, **series}
+    return None
+
+
+class JobsPanel:
+    """Start training or prediction (when the service has those job types), follow the job's
+    progress, and plot its per-epoch metrics."""
+
+    def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
+                 sequence_id: Callable[[], int | None]) -> None:
+        self.gui = gui
+        self.api = api
+        self.notify = notify
+        self.sequence_id = sequence_id
+        self._closed = threading.Event()
+        self._poll: threading.Thread | None = None
+        self.job: dict[str, Any] | None = None
+        self.types: dict[str, dict[str, Any]] = {}
+        self.gui_types = gui.add_markdown("Loading job types ...")
+        self.gui_buttons: dict[str, viser.GuiButtonHandle] = {}
+        for name, label in JOB_BUTTONS.items():
+            b = gui.add_button(label, disabled=True, icon=viser.Icon.PLAYER_PLAY)
+            b.on_click(lambda _e, n=name: self.start(n))
+            self.gui_buttons[name] = b
+        self.gui_status = gui.add_markdown("No job started from this tab.")
+        self.gui_bar = gui.add_progress_bar(0.0, animated=False)
+        self.gui_cancel = gui.add_button("Cancel job", disabled=True, color="red")
+        self.gui_cancel.on_click(lambda _: self.cancel())
+        self.gui_curve: viser.GuiUplotHandle | None = None
+
+    def close(self) -> None:
+        self._closed.set()
+
+    def refresh_types(self) -> None:
+        try:
+            self.types = {t["name"]: t for t in self.api.job_types()}
+        except ApiError as exc:
+            self.gui_types.content = f"Job types unavailable: {exc.detail}"
+            return
+        missing = [n for n in JOB_BUTTONS if n not in self.types]
+        for name, button in self.gui_buttons.items():
+            button.disabled = name not in self.types
+        known = ", ".join(f"`{n}`" for n in sorted(self.types)) or "none"
+        text = f"Job types of this service: {known}."
+        if missing:
+            text += " Not available here: " + ", ".join(f"`{n}`" for n in missing) + " (their buttons are disabled)."
+        self.gui_types.content = text
+
+    def _params(self, name: str) -> dict[str, Any]:
+        """Defaults, plus the shown sequence when the type's params take a `sequence_id`."""
+        schema = self.types.get(name, {}).get("params_schema", {})
+        params: dict[str, Any] = {}
+        seq = self.sequence_id()
+        if "sequence_id" in schema.get("properties", {}) and seq is not None:
+            params["sequence_id"] = seq
+        return params
+
+    def start(self, name: str) -> dict[str, Any] | None:
+        try:
+            job = self.api.create_job(name, self._params(name))
+        except ApiError as exc:
+            self.notify("Job not started", f"{name}: {exc.detail}", "red")
+            return None
+        self.job = job
+        self._show(job)
+        self.notify("Job queued", f"{name} job #{job['id']} is queued", "blue")
+        if self._poll is None or not self._poll.is_alive():
+            self._poll = threading.Thread(target=self._follow, name=f"job-poll-{job['id']}", daemon=True)
+            self._poll.start()
+        return job
+
+    def cancel(self) -> None:
+        if self.job is None:
+            return
+        try:
+            self._show(self.api.cancel_job(self.job["id"]))
+        except ApiError as exc:
+            self.notify("Cancel failed", exc.detail, "red")
+
+    def _follow(self) -> None:
+        while not self._closed.is_set() and self.job is not None:
+            try:
+                job = self.api.job(self.job["id"])
+            except ApiError:
+                time.sleep(JOB_POLL_SECONDS)
+                continue
+            self.job = job
+            self._show(job)
+            if job["status"] in ("succeeded", "failed", "cancelled"):
+                colour = "green" if job["status"] == "succeeded" else "red"
+                self.notify(f"Job {job['status']}", f"{job['type']} job #{job['id']}: {job.get('message') or job['status']}", colour)
+                return
+            self._closed.wait(JOB_POLL_SECONDS)
+
+    def _show(self, job: dict[str, Any]) -> None:
+        pct = 100.0 * float(job.get("progress") or 0.0)
+        self.gui_bar.value = min(max(pct, 0.0), 100.0)
+        self.gui_bar.animated = job["status"] in ("queued", "running")
+        msg = html.escape(job.get("message") or "")
+        err = job.get("error")
+        self.gui_status.content = (
+            f"**{job['type']}** job #{job['id']}: {job['status']} ({pct:.0f} %)"
+            + (f"  \n{msg}" if msg else "")
+            + (f"  \nerror: {html.escape(str(err))[:300]}" if err else "")
+        )
+        self.gui_cancel.disabled = job["status"] not in ("queued", "running")
+        curve = learning_curve(job.get("result")) or learning_curve({"history": (job.get("result") or {}).get("progress_history")})
+        if curve is not None:
+            self._plot(curve)
+
+    def _plot(self, curve: dict[str, np.ndarray]) -> None:
+        names = [k for k in curve if k != "epoch"]
+        palette = ["#e8590c", "#1c7ed6", "#2f9e44", "#ae3ec9", "#f59f00", "#0ca678", "#c92a2a"]
+        data = tuple(curve[k] for k in ("epoch", *names))
+        series = (viser.uplot.Series(label="epoch"),) + tuple(
+            viser.uplot.Series(label=k, stroke=palette[i % len(palette)], width=2) for i, k in enumerate(names)
+        )
+        if self.gui_curve is not None and len(self.gui_curve.series) == len(series):
+            self.gui_curve.data = data
+            return
+        if self.gui_curve is not None:
+            self.gui_curve.remove()
+        self.gui_curve = self.gui.add_uplot(data, series, title="Learning curve", aspect=1.4)
+
+
+class AnchorsPanel:
+    """Proposed anchor samples with their predicted classes, confirmed or corrected by the operator,
+    once the service offers anchor proposals (GET /api/v1/anchors); otherwise a disabled notice."""
+
+    def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None]) -> None:
+        self.gui = gui
+        self.api = api
+        self.notify = notify
+        self.available = False
+        self.gui_status = gui.add_markdown("Checking for anchor proposals ...")
+        self.gui_refresh = gui.add_button("Refresh anchors", icon=viser.Icon.REFRESH, disabled=True)
+        self.gui_refresh.on_click(lambda _: self.refresh())
+        self._items: list[Any] = []
+
+    def refresh(self) -> None:
+        self.available = self.api.has_route("get", ANCHORS_PATH)
+        self.gui_refresh.disabled = not self.available
+        if not self.available:
+            self.gui_status.content = (
+                "**No anchor proposals.** This track service has no anchor proposals API, so there is "
+                "nothing to confirm here."
+            )
+            return
+        try:
+            body = self.api.get(ANCHORS_PATH, status="proposed", limit=24)
+        except ApiError as exc:
+            self.gui_status.content = f"Anchor proposals unavailable: {exc.detail}"
+            return
+        items = body.get("items", body) if isinstance(body, dict) else body
+        self._render(items if isinstance(items, list) else [])
+
+    def _render(self, items: list[dict[str, Any]]) -> None:
+        for h in self._items:
+            h.remove()
+        self._items = []
+        if not items:
+            self.gui_status.content = "**No anchor proposals** are waiting."
+            return
+        self.gui_status.content = f"{len(items)} anchor proposals waiting for an answer."
+        for item in items:
+            self._items.extend(self._anchor_row(item))
+
+    def _anchor_row(self, item: dict[str, Any]) -> list[Any]:
+        from annotator_ui.samples import sample_image
+
+        handles: list[Any] = []
+        cls = item.get("proposed_class") or item.get("predicted_class")
+        conf = item.get("confidence") or item.get("predicted_confidence")
+        title = f"#{item.get('id')} {cls or '?'}" + (f" ({100 * conf:.0f} %)" if isinstance(conf, int | float) else "")
+        url = item.get("sample_url")
+        if url:
+            try:
+                handles.append(self.gui.add_image(sample_image(self.api.sample_png(url)), label=title, format="png"))
+            except ApiError:
+                handles.append(self.gui.add_markdown(title))
+        else:
+            handles.append(self.gui.add_markdown(title))
+        choice = self.gui.add_dropdown("Class", SAMPLE_CLASSES, initial_value=cls if cls in SAMPLE_CLASSES else "unknown")
+        confirm = self.gui.add_button("Confirm anchor", color="green")
+        confirm.on_click(lambda _e, it=item, ch=choice: self._answer(it, ch.value))
+        handles += [choice, confirm]
+        return handles
+
+    def _answer(self, item: dict[str, Any], class_name: str) -> None:
+        try:
+            self.api.post(f"{ANCHORS_PATH}/{item['id']}/answer", {"label": class_name})
+        except ApiError as exc:
+            self.notify("Anchor not saved", exc.detail, "red")
+            return
+        self.refresh()

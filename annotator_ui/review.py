@@ -1,0 +1,231 @@
+"""The review workflow of one operator's viewer tab, apart from any GUI: which track is shown,
+which frame, what the actions send, and what undo reverts.
+
+Rules:
+  - accept, discard and a class (label = accept with that class) finish the track: the next one
+    is leased from the queue at once;
+  - truncate before / after the current frame edits the kept range and keeps the track open (the
+    operator then labels or accepts it);
+  - undo reverts the operator's last action of this tab (on whatever track it was), and shows
+    that track again;
+  - skip passes a track over for this tab (its lease is given back);
+  - a stale version (409) reloads the track and re-raises, so the GUI says so; nothing is retried
+    silently.
+
+Several tabs of one user (one token) share the queue through a `QueueCoordinator`, which makes
+each tab exclude the tracks the other tabs show, so no two tabs get the same track.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+from annotator_ui.client import ApiClient, StaleEdit
+
+FINISHING = ("accept", "discard", "label")
+
+
+@dataclass
+class QueueCoordinator:
+    """Hands out queue tracks to the tabs of one viewer process (shared by all its sessions)."""
+
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+    _token_locks: dict[str, threading.Lock] = field(default_factory=dict)
+    _sessions: dict[int, ReviewSession] = field(default_factory=dict)
+
+    def register(self, session: ReviewSession) -> None:
+        with self._lock:
+            self._sessions[id(session)] = session
+            self._token_locks.setdefault(session.api.token, threading.Lock())
+
+    def unregister(self, session: ReviewSession) -> None:
+        with self._lock:
+            self._sessions.pop(id(session), None)
+
+    def sessions(self) -> list[ReviewSession]:
+        with self._lock:
+            return list(self._sessions.values())
+
+    def lease_next(self, session: ReviewSession) -> dict[str, Any] | None:
+        """Lease the next track for `session`, passing over the tracks that the other tabs of the
+        same token show and the ones this tab skipped. Serialised per process, so two tabs of one
+        user cannot both receive the user's live lease."""
+        with self._lock:
+            token_lock = self._token_locks.setdefault(session.api.token, threading.Lock())
+        with token_lock:  # one token's tabs take turns; other operators' tabs do not wait
+            held = {
+                s.track_id
+                for s in self.sessions()
+                if s is not session and s.api.token == session.api.token and s.track_id is not None
+            }
+            track = session.api.next_track(exclude=held | session.skipped, sequence_id=session.sequence_id)
+            session._set_queue_track(track)
+            return track
+
+
+class ReviewSession:
+    """One tab's review state. Methods raise `ApiError` / `StaleEdit` for the GUI to show."""
+
+    def __init__(self, api: ApiClient, coordinator: QueueCoordinator | None = None, sequence_id: int | None = None):
+        self.api = api
+        self.coordinator = coordinator or QueueCoordinator()
+        self.sequence_id = sequence_id
+        self.track: dict[str, Any] | None = None  # TrackDetail of the shown track
+        self.frame_index: int | None = None
+        self.from_queue = False  # shown because the queue leased it (not picked)
+        self.history: list[int] = []  # track ids of this tab's actions, for undo
+        self.skipped: set[int] = set()
+        self.done = False  # the queue had nothing left
+        self.lock = threading.RLock()
+        self.coordinator.register(self)
+
+    def close(self) -> None:
+        """Give back the queue lease (when one is held) and leave the coordinator."""
+        self.coordinator.unregister(self)
+        if self.track is not None and self.from_queue and self.track["status"] == "pending":
+            try:
+                self.api.release(self.track["id"])
+            except Exception:  # noqa: BLE001 - closing a tab never fails on a dead service
+                pass
+
+    # ------------------------------------------------------------------ what is shown
+    @property
+    def track_id(self) -> int | None:
+        return None if self.track is None else int(self.track["id"])
+
+    def segment_at(self, frame_index: int) -> dict[str, Any] | None:
+        """The track's segment in frame `frame_index` (or None)."""
+        if self.track is None:
+            return None
+        for seg in self.track["segments"]:
+            if seg["frame_index"] == frame_index:
+                return seg
+        return None
+
+    def frame_range(self) -> tuple[int, int]:
+        assert self.track is not None
+        return int(self.track["first_frame"]), int(self.track["last_frame"])
+
+    def best_frame(self) -> int:
+        """The frame to open a track at: its kept segment with the most points."""
+        assert self.track is not None
+        kept = [s for s in self.track["segments"] if s["in_kept_range"]] or self.track["segments"]
+        if not kept:
+            return int(self.track["keep_start"])
+        return int(max(kept, key=lambda s: (s["n_points"], -s["frame_index"]))["frame_index"])
+
+    # ------------------------------------------------------------------ loading
+    def _set_queue_track(self, track: dict[str, Any] | None) -> None:
+        if track is None:
+            self.track, self.frame_index, self.from_queue, self.done = None, None, False, True
+            return
+        self._show(self.api.track(track["id"]), from_queue=True)
+
+    def _show(self, detail: dict[str, Any], from_queue: bool, frame_index: int | None = None) -> None:
+        self.track = detail
+        self.from_queue = from_queue
+        self.done = False
+        lo, hi = self.frame_range()
+        if frame_index is None or not lo <= frame_index <= hi:
+            frame_index = self.best_frame()
+        self.frame_index = frame_index
+
+    def next(self) -> dict[str, Any] | None:
+        """Show the next track of the queue (None when nothing is left)."""
+        with self.lock:
+            self.coordinator.lease_next(self)
+            return self.track
+
+    def open(self, track_id: int, frame_index: int | None = None) -> dict[str, Any]:
+        """Show any track out of queue order (picked in the scene); the queue lease stays held."""
+        with self.lock:
+            self._show(self.api.track(track_id), from_queue=False, frame_index=frame_index)
+            assert self.track is not None
+            return self.track
+
+    def reload(self) -> dict[str, Any] | None:
+        """Re-read the shown track (after a 409), keeping the frame."""
+        with self.lock:
+            if self.track is None:
+                return None
+            self._show(self.api.track(self.track["id"]), self.from_queue, self.frame_index)
+            return self.track
+
+    def set_frame(self, frame_index: int) -> int:
+        lo, hi = self.frame_range()
+        self.frame_index = int(min(max(frame_index, lo), hi))
+        return self.frame_index
+
+    # ------------------------------------------------------------------ actions
+    def _act(self, action: str, **body: Any) -> dict[str, Any]:
+        assert self.track is not None, "no track is shown"
+        try:
+            result = self.api.act(self.track["id"], action, self.track["version"], **body)
+        except StaleEdit:
+            self.reload()
+            raise
+        self.history.append(int(self.track["id"]))
+        return result
+
+    def _finish(self, action: str, **body: Any) -> dict[str, Any]:
+        with self.lock:
+            result = self._act(action, **body)
+            self.coordinator.lease_next(self)
+            return result
+
+    def accept(self) -> dict[str, Any]:
+        return self._finish("accept")
+
+    def discard(self) -> dict[str, Any]:
+        return self._finish("discard")
+
+    def label(self, class_name: str) -> dict[str, Any]:
+        """Give the track one class (the service accepts it too), then go on to the next."""
+        return self._finish("label", label=class_name)
+
+    def truncate_before(self) -> dict[str, Any]:
+        """Drop the frames before the current one: keep current..keep_end."""
+        with self.lock:
+            assert self.track is not None and self.frame_index is not None
+            end = int(self.track["keep_end"])
+            start = min(self.frame_index, end)
+            result = self._act("truncate", start=start, end=end)
+            self.reload()
+            return result
+
+    def truncate_after(self) -> dict[str, Any]:
+        """Drop the frames after the current one: keep keep_start..current."""
+        with self.lock:
+            assert self.track is not None and self.frame_index is not None
+            start = int(self.track["keep_start"])
+            end = max(self.frame_index, start)
+            result = self._act("truncate", start=start, end=end)
+            self.reload()
+            return result
+
+    def undo(self) -> dict[str, Any]:
+        """Revert this tab's last action and show that track. Nothing to undo -> StaleEdit."""
+        with self.lock:
+            if not self.history:
+                raise StaleEdit(409, "nothing to undo in this tab")
+            track_id = self.history[-1]
+            current = self.api.track(track_id)
+            result = self.api.act(track_id, "undo", current["version"])
+            self.history.pop()
+            shown = self.track_id == track_id
+            # a queue track shown until now stays leased to this user: the next `next` returns it
+            self._show(self.api.track(track_id), from_queue=shown and self.from_queue,
+                       frame_index=self.frame_index if shown else None)
+            return result
+
+    def skip(self) -> dict[str, Any] | None:
+        """Pass the shown track over for this tab and show the next one."""
+        with self.lock:
+            if self.track is not None:
+                self.skipped.add(int(self.track["id"]))
+                if self.from_queue:
+                    self.api.release(self.track["id"])
+            self.coordinator.lease_next(self)
+            return self.track

@@ -1,0 +1,180 @@
+"""The viser viewer end to end without a browser: headless clients connect over the viewer's own
+websocket (as a browser tab does), press hotkeys through viser's command messages, and every
+outcome is checked through the track service's API."""
+
+from __future__ import annotations
+
+import re
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from annotator_ui.client import ApiClient
+from annotator_ui.headless import HeadlessClient, is_points
+from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, learning_curve
+from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
+
+TRACK_RE = re.compile(r"\*\*Track (\d+)\*\*")
+
+
+@pytest.fixture
+def viewer(live_api):
+    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
+    yield v
+    v.stop()
+
+
+@pytest.fixture
+def tab_client(viewer):
+    c = HeadlessClient(viewer.url)
+    c.wait_for(is_points("/frame/points"))
+    yield c
+    c.close()
+
+
+def shown_track(viewer: AnnotatorViewer, client_count: int = 1):
+    deadline = time.monotonic() + 10
+    while len(viewer.tabs) < client_count:
+        assert time.monotonic() < deadline
+        time.sleep(0.02)
+    return [t.session.track for t in viewer.tabs.values()]
+
+
+def wait_until(fn, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while not fn():
+        assert time.monotonic() < deadline, "condition not reached"
+        time.sleep(0.02)
+
+
+def test_viewer_sends_the_frame_points_in_float32(viewer, tab_client, live_api):
+    track = shown_track(viewer)[0]
+    msg = tab_client.wait_for(is_points("/frame/points"))
+    props = msg.fields["props"]
+    assert props["precision"] == "float32" and props["points"]["dtype"] == "<f4"
+    frame = next(s for s in track["segments"] if s["frame_index"] == viewer.tabs[0].session.frame_index)
+    n = props["points"]["nbytes"] // 12
+    api = ApiClient(live_api.url, live_api.admin_token)
+    assert n == len(api.frame_payload(frame["frame_id"]).points)  # every point of the frame
+    hl = tab_client.wait_for(is_points("/frame/track"))
+    assert 0 < hl.fields["props"]["points"]["nbytes"] // 12 < n  # the track's own points, highlighted
+    if len(track["segments"]) > 1:
+        tab_client.wait_for(lambda m: m.type == "LineSegmentsMessage" and m.name == "/track/path")
+    api.close()
+
+
+def test_viewer_accept_hotkey_accepts_and_loads_the_next_track(viewer, tab_client, live_api):
+    track = shown_track(viewer)[0]
+    since = tab_client.mark()
+    tab_client.trigger("Accept track")
+    tab_client.wait_for(is_points("/frame/points"), since=since)
+    assert live_api.track(track["id"])["status"] == "accepted"
+    wait_until(lambda: viewer.tabs[0].session.track_id != track["id"])
+
+    def shows_new_track() -> bool:
+        text = tab_client.markdown_containing("**Track ")
+        return text is not None and int(TRACK_RE.search(text).group(1)) == viewer.tabs[0].session.track_id
+
+    wait_until(shows_new_track)
+
+
+def test_viewer_class_hotkey_labels_the_track(viewer, tab_client, live_api):
+    track = shown_track(viewer)[0]
+    since = tab_client.mark()
+    tab_client.trigger("Class cyclist")
+    tab_client.wait_for(is_points("/frame/points"), since=since)
+    t = live_api.track(track["id"])
+    assert (t["status"], t["label"]) == ("accepted", "cyclist")
+
+
+def test_viewer_stale_edit_is_notified_and_nothing_is_overwritten(viewer, tab_client, live_api):
+    track = shown_track(viewer)[0]
+    other = ApiClient(live_api.url, live_api.new_operator())
+    other.act(track["id"], "discard", track["version"])
+    since = tab_client.mark()
+    tab_client.trigger("Accept track")
+    note = tab_client.wait_for(lambda m: m.type == "NotificationShowMessage", since=since)
+    assert "changed" in note.fields["props"]["title"]
+    assert live_api.track(track["id"])["status"] == "discarded"  # the other edit stands
+    wait_until(lambda: viewer.tabs[0].session.track["version"] == track["version"] + 1)  # reloaded
+    other.close()
+
+
+def test_viewer_two_tabs_of_one_token_show_different_tracks(viewer, tab_client):
+    second = HeadlessClient(viewer.url)
+    second.wait_for(is_points("/frame/points"))
+    tracks = shown_track(viewer, 2)
+    assert tracks[0]["id"] != tracks[1]["id"]
+    second.close()
+
+
+def test_viewer_click_on_another_track_opens_it(viewer, tab_client):
+    tab = viewer.tabs[0]
+    wait_until(lambda: tab.frame_points is not None)
+    pts, tracks = tab.frame_points, tab.frame_tracks
+    others = np.flatnonzero((tracks > 0) & (tracks != tab.session.track_id))
+    target = others[np.argmin(np.linalg.norm(pts[others], axis=1))]  # the nearest point of another track
+    origin = np.zeros(3)
+    tab._on_click(SimpleNamespace(ray_origin=tuple(origin), ray_direction=tuple(pts[target].astype(float))))
+    wait_until(lambda: tab.session.track_id == int(tracks[target]))
+    assert not tab.session.from_queue
+
+
+def test_viewer_undo_hotkey_brings_the_track_back(viewer, tab_client, live_api):
+    track = shown_track(viewer)[0]
+    since = tab_client.mark()
+    tab_client.trigger("Discard track")
+    tab_client.wait_for(is_points("/frame/points"), since=since)
+    since = tab_client.mark()
+    tab_client.trigger("Undo")
+    tab_client.wait_for(is_points("/frame/points"), since=since)
+    assert live_api.track(track["id"])["status"] == "pending"
+    wait_until(lambda: viewer.tabs[0].session.track_id == track["id"])
+
+
+def test_viewer_progress_panel_matches_the_api(viewer, tab_client, live_api):
+    panel: ProgressPanel = viewer.tabs[0].progress
+    st = panel.refresh()
+    api = ApiClient(live_api.url, live_api.admin_token)
+    assert st == api.stats()
+    assert f"{st['tracks_reviewed']} reviewed" in panel.gui_summary.content
+    api.close()
+
+
+def test_viewer_jobs_panel_runs_a_job_to_the_end(viewer, tab_client, live_api):
+    from app.worker import Worker
+
+    panel: JobsPanel = viewer.tabs[0].jobs
+    panel.refresh_types()
+    for name, button in panel.gui_buttons.items():
+        assert button.disabled == (name not in panel.types)  # absent job types: disabled, not faked
+    job = panel.start("selftest")
+    assert job is not None and job["status"] == "queued"
+    assert Worker(live_api.settings).run_once()
+    wait_until(lambda: panel.job["status"] == "succeeded", timeout=15)
+    assert panel.gui_bar.value == pytest.approx(100.0)
+
+
+def test_viewer_jobs_panel_reports_an_unknown_job_type(viewer, tab_client):
+    panel: JobsPanel = viewer.tabs[0].jobs
+    notes = []
+    panel.notify = lambda title, body, colour: notes.append((title, body))
+    assert panel.start("no_such_type") is None and "unknown job type" in notes[0][1]
+
+
+def test_viewer_anchors_panel_without_the_api_says_so(viewer, tab_client):
+    panel: AnchorsPanel = viewer.tabs[0].anchors
+    panel.refresh()
+    if not panel.available:
+        assert "No anchor proposals" in panel.gui_status.content and panel.gui_refresh.disabled
+
+
+def test_learning_curve_reads_per_epoch_metrics():
+    rows = {"history": [{"epoch": 1, "loss": 2.0, "val_f1": 0.3}, {"epoch": 2, "loss": 1.0, "val_f1": 0.6}]}
+    c = learning_curve(rows)
+    assert list(c["epoch"]) == [1, 2] and list(c["val_f1"]) == [0.3, 0.6]
+    cols = learning_curve({"metrics": {"history": {"loss": [3.0, 2.0, 1.5]}}})
+    assert list(cols["epoch"]) == [1, 2, 3]
+    assert learning_curve({"steps": 3}) is None and learning_curve(None) is None
