@@ -30,7 +30,15 @@ class Segmentation:
 
 
 @njit(cache=True)
-def _grow(rng, ok, empty, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover
+def _thin_meets_wide(run_w, thin_below, tr, tc, wr, wc, thin_w, thin_h, wide_w, wide_ratio):  # pragma: no cover
+    """Pixel (tr, tc) lies on a thin vertical structure and pixel (wr, wc) on a wide row run."""
+    wt = run_w[tr, tc]
+    return wt < thin_w and thin_below[tr, tc] >= thin_h and run_w[wr, wc] >= max(wide_w, wide_ratio * wt)
+
+
+@njit(cache=True)
+def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio, use_angle,
+          tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover
     h, w = rng.shape
     labels = np.full((h, w), -1, dtype=np.int32)
     stack_r = np.empty(h * w, dtype=np.int32)
@@ -80,6 +88,25 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha,
                         thr = hb + hs * dmin
                     if dmax - dmin > thr:
                         continue
+                    if thin_w > 0.0:
+                        if vert:
+                            # a crown over a trunk: the lower pixel thin, the upper one wide and not behind
+                            lr, lc, ur, uc = (nr, nc, r, c) if nr > r else (r, c, nr, nc)
+                            cut = rng[ur, uc] <= rng[lr, lc] + 0.1 and _thin_meets_wide(
+                                run_w, thin_below, lr, lc, ur, uc, thin_w, thin_h, wide_w, wide_ratio
+                            )
+                        else:
+                            # a trunk seen through the holes of its crown: a thin pixel beside a wide run
+                            cut = _thin_meets_wide(
+                                run_w, thin_below, r, c, nr, nc, thin_w, thin_h, wide_w, wide_ratio
+                            ) or _thin_meets_wide(run_w, thin_below, nr, nc, r, c, thin_w, thin_h, wide_w, wide_ratio)
+                        if cut:
+                            continue
+                    if vert and os_ > 0.0:
+                        # range of the upper pixel minus that of the lower one
+                        up_minus_low = (d1 - d2) if nr > r else (d2 - d1)
+                        if up_minus_low < 0.0 and -up_minus_low > ob + os_ * dmax:
+                            continue
                     if use_angle:
                         a = v_alpha[min(min(r, nr), h - 2)] if vert else h_alpha
                         # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
@@ -93,6 +120,91 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, use_angle, tan_beta, v_alpha, h_alpha,
                     top += 1
             nxt += 1
     return labels, nxt
+
+
+@njit(cache=True)
+def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
+    """(H, W) float32 width in metres of the row run each ok pixel belongs to (0 elsewhere).
+
+    A row run chains ok pixels left to right whose range stays within the horizontal threshold of
+    the run's previous pixel, stepping over up to `max_gap` other pixels (holes of a porous crown,
+    noisy returns, dropouts). Its width is its column span times the mean range times the column
+    angle. Runs cannot cross a longer gap, so rows are scanned from one (labels stay invariant to
+    column rotation).
+    """
+    h, w = rng.shape
+    run_w = np.zeros((h, w), dtype=np.float32)
+    members = np.empty(w, dtype=np.int32)
+    for r in range(h):
+        # start right after a stretch of more than max_gap non-ok pixels
+        start = 0
+        gap = 0
+        found = False
+        for k in range(2 * w):
+            c = k % w
+            if ok[r, c]:
+                if gap > max_gap:
+                    start = c
+                    found = True
+                    break
+                gap = 0
+            else:
+                gap += 1
+                if gap > w:
+                    break
+        if not found:
+            if gap > w:
+                continue  # no ok pixel in the row
+            start = 0  # no long gap anywhere: the row is nearly full, the seam is as good as any
+        done = np.zeros(w, dtype=np.bool_)
+        for k in range(w):
+            c0 = (start + k) % w
+            if not ok[r, c0] or done[c0]:
+                continue
+            n = 0
+            members[n] = c0
+            n += 1
+            done[c0] = True
+            total = rng[r, c0]
+            last_k = k
+            last_d = rng[r, c0]
+            j = k + 1
+            while j < w and j - last_k - 1 <= max_gap:
+                cj = (start + j) % w
+                if ok[r, cj] and not done[cj]:
+                    d = rng[r, cj]
+                    if abs(d - last_d) <= hb + hs * min(d, last_d):
+                        members[n] = cj
+                        n += 1
+                        done[cj] = True
+                        total += d
+                        last_k = j
+                        last_d = d
+                j += 1
+            width = np.float32((last_k - k + 1) * col_angle * total / n)
+            for m in range(n):
+                run_w[r, members[m]] = width
+    return run_w
+
+
+@njit(cache=True)
+def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover - numba
+    """(H, W) float32 metres of the thin vertical structure from each pixel down (a pixel is thin
+    when its row run is narrower than `thin_w`; the chain follows the vertical criterion)."""
+    h, w = rng.shape
+    below = np.zeros((h, w), dtype=np.float32)
+    for c in range(w):
+        for r in range(h - 1, -1, -1):
+            if not ok[r, c] or run_w[r, c] >= thin_w:
+                continue
+            own = v_alpha[min(r, h - 2)] * rng[r, c]
+            if r + 1 < h and below[r + 1, c] > 0.0:
+                d1 = rng[r, c]
+                d2 = rng[r + 1, c]
+                if abs(d1 - d2) <= vb + vs * min(d1, d2):
+                    own += below[r + 1, c]
+            below[r, c] = own
+    return below
 
 
 @njit(cache=True)
@@ -145,18 +257,37 @@ def segment(
     ok[occupied] = ~ground[index[occupied]]
     el = sensor.elevations_rad()
     v_alpha = np.abs(np.diff(el)) if len(el) == h else np.full(h - 1, np.deg2rad(1.0))
+    empty = ~occupied
+    rng = image.range
+    col_angle = np.float32(2.0 * np.pi / w)
+    v_alpha = v_alpha.astype(np.float32)
+    if config.thin_width > 0:
+        run_w = _row_runs(rng, ok, config.horizontal_base, config.horizontal_slope, col_angle, 3)
+        thin_below = _thin_heights(
+            rng, ok, run_w, config.vertical_base, config.vertical_slope, np.float32(config.thin_width), v_alpha
+        )
+    else:
+        run_w = thin_below = np.zeros((h, w), np.float32)
     labels, count = _grow(
-        image.range,
+        rng,
         ok,
-        ~occupied,
+        empty,
         config.vertical_base,
         config.vertical_slope,
         config.horizontal_base,
         config.horizontal_slope,
+        config.overhang_base,
+        config.overhang_slope,
+        run_w,
+        thin_below,
+        np.float32(config.thin_width),
+        np.float32(config.thin_min_height),
+        np.float32(config.wide_width),
+        np.float32(config.wide_ratio),
         config.use_angle_criterion,
         np.tan(np.deg2rad(config.angle_threshold_deg)),
-        v_alpha.astype(np.float32),
-        np.float32(2.0 * np.pi / w),
+        v_alpha,
+        col_angle,
         config.bridge_empty,
     )
     pixel, point, kept_count = _finish(
