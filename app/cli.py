@@ -213,6 +213,47 @@ def experiment_paper(
                f" ({doc['seconds']['total']:.0f} s)")
 
 
+@experiment_app.command("finetune")
+@friendly_errors
+def experiment_finetune(
+    out: Annotated[Path, typer.Option("--out", help="Folder for finetune.md/json/png.")] = Path("data/experiments/finetune"),
+    seed: Annotated[int, typer.Option(help="Seed of the training route (new scene: seed + 1000).")] = 0,
+    frames: Annotated[int, typer.Option(min=20, help="Frames of the training route.")] = 600,
+    test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 240,
+    size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
+    strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
+    budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",
+    constraints: Annotated[str, typer.Option(help="New scene's constraints: verified, automatic or none.")] = "verified",
+    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 1,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
+) -> None:
+    """The paper's Table 10 on a simulated new scene: baseline_min, constraint100, constraint100 +
+    fine-tuning and baseline_max, and each anchor strategy's F against the confirmations."""
+    from pipeline.anchors import STRATEGIES
+    from pipeline.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
+
+    chosen = tuple(s.strip() for s in strategies.split(",") if s.strip()) or STRATEGIES
+    bad = [s for s in chosen if s not in STRATEGIES]
+    if bad:
+        fail(f"--strategies: unknown {', '.join(bad)}; valid: {', '.join(STRATEGIES)}")
+    try:
+        budget_list = tuple(int(b) for b in budgets.split(",") if b.strip())
+    except ValueError:
+        fail(f"--budgets: expected comma-separated integers, got {budgets!r}")
+    if not budget_list or min(budget_list) < 1:
+        fail("--budgets: give at least one budget >= 1")
+    if constraints not in ("verified", "automatic", "none"):
+        fail(f"--constraints: expected verified, automatic or none, got {constraints!r}")
+    cfg = FinetuneExperimentConfig(
+        train_seed=seed, test_seed=seed + 1000, train_frames=frames, test_frames=test_frames, size=size,
+        strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads,
+    )
+    doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    typer.echo((out / "finetune.md").read_text())
+    typer.echo(f"written: {out / 'finetune.md'}, {out / 'finetune.json'}, {out / 'finetune_f.png'}, "
+               f"{out / 'finetune_curve.png'}, {out / 'finetune_curve.json'} ({doc['seconds']['total']:.0f} s)")
+
+
 # ----------------------------------------------------------------------------- service (app/)
 db_app = typer.Typer(no_args_is_help=True, help="Database migrations.")
 user_app = typer.Typer(no_args_is_help=True, help="Operators, admins and their tokens.")
