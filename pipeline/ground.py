@@ -4,7 +4,7 @@
    from the bottom beam, a point is ground while the slope from the last ground point stays under
    `max_slope_deg` (the first one is compared with the ground under the sensor).
 2. A ground surface on a `grid_cell` grid (mean z of ground points per cell, empty cells filled
-   from the nearest filled cell, bilinear lookup) gives every point its height above ground.
+   from the nearest filled cell by an 8-neighbour breadth-first fill, bilinear lookup) gives every point its height above ground.
 3. Non-ground points within `ground_band` of that surface are ground too (curbs, low grass).
 """
 
@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy import ndimage
 
 from pipeline.config import GroundConfig
 from pipeline.range_image import RangeImage
@@ -59,17 +58,28 @@ def _column_walk(index, points, tan_slope, tan_start, tol, sensor_height, max_ru
     return out
 
 
-def estimate_sensor_height(scan: Scan, image: RangeImage) -> float:
-    """Sensor height (m) from the lowest beams' points 2–15 m away (robust median)."""
-    h = image.shape[0]
-    idx = image.index[h - max(2, h // 8) :].ravel()
-    idx = idx[idx >= 0]
-    pts = scan.points[idx]
-    xy = np.hypot(pts[:, 0], pts[:, 1])
-    z = pts[(xy > 2.0) & (xy < 15.0), 2]
-    if len(z) < 20:
+@njit(cache=True)
+def _sensor_height_kernel(index, points, first_row):  # pragma: no cover - numba
+    h, w = index.shape
+    buf = np.empty((h - first_row) * w, dtype=np.float32)
+    n = 0
+    for r in range(first_row, h):
+        for c in range(w):
+            i = index[r, c]
+            if i >= 0:
+                xy2 = points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1]
+                if 4.0 < xy2 < 225.0:
+                    buf[n] = points[i, 2]
+                    n += 1
+    if n < 20:
         return 1.8
-    return float(-np.percentile(z, 30))
+    return -np.percentile(buf[:n], 30.0)
+
+
+def estimate_sensor_height(scan: Scan, image: RangeImage) -> float:
+    """Sensor height (m) from the lowest beams' points 2–15 m away (robust low percentile)."""
+    h = image.shape[0]
+    return float(_sensor_height_kernel(image.index, scan.points, h - max(2, h // 8)))
 
 
 def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None = None) -> GroundResult:
@@ -80,7 +90,7 @@ def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None =
         return GroundResult(np.zeros(0, bool), np.zeros(0, np.float32), config.sensor_height or 1.8)
     pts = scan.points
     sensor_h = config.sensor_height if config.sensor_height is not None else estimate_sensor_height(scan, image)
-    ground = _column_walk(
+    walk = _column_walk(
         image.index,
         pts,
         np.tan(np.deg2rad(config.max_slope_deg)),
@@ -89,15 +99,27 @@ def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None =
         sensor_h,
         config.max_run,
     )
-    surface_z = _surface_height(pts, ground, sensor_h, config.grid_cell)
-    height = pts[:, 2] - surface_z
-    ground = (ground | (np.abs(height) <= config.ground_band)) & image.kept
+    ground, height = _surface_and_band(pts, walk, image.kept, sensor_h, config.grid_cell, config.ground_band)
     return GroundResult(ground=ground, height=height, sensor_height=float(sensor_h))
 
 
 @njit(cache=True)
-def _surface_kernel(points, ground, cell, fallback):  # pragma: no cover - numba
+def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no cover - numba
+    """Ground surface on a `cell` grid (trimmed mean z of the walk's ground points per cell, empty
+    cells filled from the nearest filled cell, bilinear lookup): (N,) ground mask with the band
+    added and (N,) float32 height above the surface."""
     n = points.shape[0]
+    n_ground = 0
+    for i in range(n):
+        if walk[i]:
+            n_ground += 1
+    height = np.empty(n, dtype=np.float32)
+    ground = np.empty(n, dtype=np.bool_)
+    if n_ground < 3:
+        for i in range(n):
+            height[i] = points[i, 2] + sensor_h
+            ground[i] = (walk[i] or abs(height[i]) <= band) and kept[i]
+        return ground, height
     lo0 = np.inf
     lo1 = np.inf
     hi0 = -np.inf
@@ -114,30 +136,52 @@ def _surface_kernel(points, ground, cell, fallback):  # pragma: no cover - numba
     sums = np.zeros((g0, g1))
     counts = np.zeros((g0, g1), dtype=np.int32)
     for i in range(n):
-        if ground[i]:
+        if walk[i]:
             a = int((points[i, 0] - lo0) / cell)
             b = int((points[i, 1] - lo1) / cell)
             sums[a, b] += points[i, 2]
             counts[a, b] += 1
     # second pass: trimmed mean without points well above the first mean (feet of objects)
-    mean = sums / np.maximum(counts, 1)
+    for a in range(g0):
+        for b in range(g1):
+            if counts[a, b] > 0:
+                sums[a, b] /= counts[a, b]
     sums2 = np.zeros((g0, g1))
     counts2 = np.zeros((g0, g1), dtype=np.int32)
     for i in range(n):
-        if ground[i]:
+        if walk[i]:
             a = int((points[i, 0] - lo0) / cell)
             b = int((points[i, 1] - lo1) / cell)
-            if points[i, 2] <= mean[a, b] + 0.05:
+            if points[i, 2] <= sums[a, b] + 0.05:
                 sums2[a, b] += points[i, 2]
                 counts2[a, b] += 1
-    return sums2, counts2, lo0, lo1
-
-
-@njit(cache=True)
-def _bilinear_kernel(points, grid, lo0, lo1, cell):  # pragma: no cover - numba
-    n = points.shape[0]
-    g0, g1 = grid.shape
-    out = np.empty(n, dtype=np.float32)
+    # fill empty cells from the nearest filled one (breadth-first over 8-neighbours)
+    grid = np.zeros((g0, g1))
+    queue = np.empty(g0 * g1, dtype=np.int64)
+    head = 0
+    tail = 0
+    filled = np.zeros((g0, g1), dtype=np.bool_)
+    for a in range(g0):
+        for b in range(g1):
+            if counts2[a, b] > 0:
+                grid[a, b] = sums2[a, b] / counts2[a, b]
+                filled[a, b] = True
+                queue[tail] = a * g1 + b
+                tail += 1
+    while head < tail:
+        q = queue[head]
+        head += 1
+        a = q // g1
+        b = q % g1
+        for da in range(-1, 2):
+            for db in range(-1, 2):
+                na = a + da
+                nb = b + db
+                if 0 <= na < g0 and 0 <= nb < g1 and not filled[na, nb]:
+                    filled[na, nb] = True
+                    grid[na, nb] = grid[a, b]
+                    queue[tail] = na * g1 + nb
+                    tail += 1
     for i in range(n):
         u = (points[i, 0] - lo0) / cell - 0.5
         v = (points[i, 1] - lo1) / cell - 0.5
@@ -145,23 +189,13 @@ def _bilinear_kernel(points, grid, lo0, lo1, cell):  # pragma: no cover - numba
         b = min(max(int(np.floor(v)), 0), g1 - 2)
         fu = min(max(u - a, 0.0), 1.0)
         fv = min(max(v - b, 0.0), 1.0)
-        out[i] = (
+        z = (
             grid[a, b] * (1 - fu) * (1 - fv)
             + grid[a + 1, b] * fu * (1 - fv)
             + grid[a, b + 1] * (1 - fu) * fv
             + grid[a + 1, b + 1] * fu * fv
         )
-    return out
-
-
-def _surface_height(pts: np.ndarray, ground: np.ndarray, sensor_h: float, cell: float) -> np.ndarray:
-    """(N,) ground-surface z under each point, from a grid of ground points' mean z."""
-    if ground.sum() < 3:
-        return np.full(len(pts), -sensor_h, dtype=np.float32)
-    sums, counts, lo0, lo1 = _surface_kernel(pts, ground, cell, -sensor_h)
-    empty = counts == 0
-    grid = np.where(empty, 0.0, sums / np.maximum(counts, 1))
-    if empty.any():
-        _, (ii, jj) = ndimage.distance_transform_edt(empty, return_indices=True)
-        grid = grid[ii, jj]
-    return _bilinear_kernel(pts, grid, lo0, lo1, cell)
+        hgt = np.float32(points[i, 2] - z)
+        height[i] = hgt
+        ground[i] = (walk[i] or abs(hgt) <= band) and kept[i]
+    return ground, height

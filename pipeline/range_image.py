@@ -71,6 +71,33 @@ def elevation_rows(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
     return (len(beams) - 1 - asc).astype(np.int16)
 
 
+@njit(cache=True, inline="always")
+def _atan2(y, x):  # pragma: no cover - numba
+    """float32 atan2 by an odd minimax polynomial of atan on [0, 1] (max error ~2e-6 rad,
+    0.1 % of a 2160-column bin; several times cheaper than atan2f, which dominated the projection)."""
+    ax = abs(x)
+    ay = abs(y)
+    mx = max(ax, ay)
+    if mx == 0.0:
+        return np.float32(0.0)
+    t = min(ax, ay) / mx
+    s = t * t
+    r = t * (
+        np.float32(0.99997726)
+        + s * (
+            np.float32(-0.33262347)
+            + s * (np.float32(0.19354346) + s * (np.float32(-0.11643287) + s * (np.float32(0.05265332) - s * np.float32(0.0117212))))
+        )
+    )
+    if ay > ax:
+        r = np.float32(1.57079637) - r
+    if x < 0.0:
+        r = np.float32(3.14159274) - r
+    if y < 0.0:
+        r = -r
+    return r
+
+
 @njit(cache=True)
 def _project_kernel(points, ring, height, width, min_range, max_range):  # pragma: no cover - numba
     n = points.shape[0]
@@ -88,8 +115,8 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
         z = points[i, 2]
         r = np.sqrt(x * x + y * y + z * z)
         rng[i] = r
-        # float32 throughout (atan2f): a column is 0.17 deg wide, float32 is exact to ~1e-7 rad
-        c = int(np.floor((half - np.arctan2(y, x) * inv_two_pi) * fw)) % width
+        # float32 throughout: a column is 0.17 deg (2.9e-3 rad) wide
+        c = int(np.floor((half - _atan2(y, x) * inv_two_pi) * fw)) % width
         col[i] = c
         row = ring[i]
         if r < min_range or r > max_range or row < 0 or row >= height:

@@ -41,6 +41,7 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, th
           tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover
     h, w = rng.shape
     labels = np.full((h, w), -1, dtype=np.int32)
+    sizes = np.zeros(h * w, dtype=np.int32)
     stack_r = np.empty(h * w, dtype=np.int32)
     stack_c = np.empty(h * w, dtype=np.int32)
     nxt = 0
@@ -53,6 +54,7 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, th
             stack_r[0] = r0
             stack_c[0] = c0
             top = 1
+            size = 1
             while top > 0:
                 top -= 1
                 r = stack_r[top]
@@ -115,11 +117,13 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, th
                         if den > 0.0 and num < tan_beta * den:
                             continue
                     labels[nr, nc] = nxt
+                    size += 1
                     stack_r[top] = nr
                     stack_c[top] = nc
                     top += 1
+            sizes[nxt] = size
             nxt += 1
-    return labels, nxt
+    return labels, sizes[:nxt], nxt
 
 
 @njit(cache=True)
@@ -135,6 +139,7 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
     h, w = rng.shape
     run_w = np.zeros((h, w), dtype=np.float32)
     members = np.empty(w, dtype=np.int32)
+    done = np.zeros(w, dtype=np.bool_)
     for r in range(h):
         # start right after a stretch of more than max_gap non-ok pixels
         start = 0
@@ -156,7 +161,7 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
             if gap > w:
                 continue  # no ok pixel in the row
             start = 0  # no long gap anywhere: the row is nearly full, the seam is as good as any
-        done = np.zeros(w, dtype=np.bool_)
+        done[:] = False
         for k in range(w):
             c0 = (start + k) % w
             if not ok[r, c0] or done[c0]:
@@ -208,22 +213,17 @@ def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover 
 
 
 @njit(cache=True)
-def _finish(labels, count, min_points, row, col, point_range, pix_range, kept, ground, hb, hs):  # pragma: no cover
+def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, kept, ground, hb, hs):  # pragma: no cover
     """Drop segments under `min_points` pixels, renumber densely, and label every point whose
     range agrees with its pixel's nearest point (within the horizontal threshold)."""
     h, w = labels.shape
-    sizes = np.zeros(count, dtype=np.int64)
-    for r in range(h):
-        for c in range(w):
-            if labels[r, c] >= 0:
-                sizes[labels[r, c]] += 1
     remap = np.full(count, -1, dtype=np.int32)
     nxt = 0
     for k in range(count):
         if sizes[k] >= min_points:
             remap[k] = nxt
             nxt += 1
-    pixel = np.full((h, w), -1, dtype=np.int32)
+    pixel = labels  # relabelled in place
     for r in range(h):
         for c in range(w):
             if labels[r, c] >= 0:
@@ -242,6 +242,35 @@ def _finish(labels, count, min_points, row, col, point_range, pix_range, kept, g
     return pixel, point, nxt
 
 
+@njit(cache=True)
+def _segment_kernel(
+    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_, thin_w, thin_h, wide_w, wide_ratio,
+    use_angle, tan_beta, v_alpha, col_angle, bridge, min_points,
+):  # pragma: no cover - numba
+    """Masks, row runs, growth and point labels in one call (no Python between the passes)."""
+    h, w = index.shape
+    ok = np.zeros((h, w), dtype=np.bool_)
+    empty = np.zeros((h, w), dtype=np.bool_)
+    for r in range(h):
+        for c in range(w):
+            i = index[r, c]
+            if i < 0:
+                empty[r, c] = True
+            elif not ground[i]:
+                ok[r, c] = True
+    if thin_w > 0.0:
+        run_w = _row_runs(rng, ok, hb, hs, col_angle, 3)
+        thin_below = _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha)
+    else:
+        run_w = np.zeros((1, 1), dtype=np.float32)
+        thin_below = run_w
+    labels, sizes, count = _grow(
+        rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio, use_angle,
+        tan_beta, v_alpha, col_angle, bridge,
+    )
+    return _finish(labels, sizes, count, min_points, row, col, point_range, rng, kept, ground, hb, hs)
+
+
 def segment(
     image: RangeImage,
     ground: np.ndarray,
@@ -251,47 +280,27 @@ def segment(
     """Segment the non-ground pixels of `image`; `ground` is the (N,) per-point ground mask."""
     config = config or SegmentationConfig()
     h, w = image.shape
-    index = image.index
-    occupied = index >= 0
-    ok = occupied.copy()
-    ok[occupied] = ~ground[index[occupied]]
-    el = sensor.elevations_rad()
-    v_alpha = np.abs(np.diff(el)) if len(el) == h else np.full(h - 1, np.deg2rad(1.0))
-    empty = ~occupied
-    rng = image.range
-    col_angle = np.float32(2.0 * np.pi / w)
-    v_alpha = v_alpha.astype(np.float32)
-    if config.thin_width > 0:
-        run_w = _row_runs(rng, ok, config.horizontal_base, config.horizontal_slope, col_angle, 3)
-        thin_below = _thin_heights(
-            rng, ok, run_w, config.vertical_base, config.vertical_slope, np.float32(config.thin_width), v_alpha
-        )
-    else:
-        run_w = thin_below = np.zeros((h, w), np.float32)
-    labels, count = _grow(
-        rng,
-        ok,
-        empty,
-        config.vertical_base,
-        config.vertical_slope,
-        config.horizontal_base,
-        config.horizontal_slope,
-        config.overhang_base,
-        config.overhang_slope,
-        run_w,
-        thin_below,
-        np.float32(config.thin_width),
-        np.float32(config.thin_min_height),
-        np.float32(config.wide_width),
-        np.float32(config.wide_ratio),
-        config.use_angle_criterion,
-        np.tan(np.deg2rad(config.angle_threshold_deg)),
-        v_alpha,
-        col_angle,
-        config.bridge_empty,
+    pixel, point, count = _segment_kernel(
+        image.index, image.range, ground, image.row, image.col, image.point_range, image.kept,
+        float(config.vertical_base), float(config.vertical_slope), float(config.horizontal_base),
+        float(config.horizontal_slope), float(config.overhang_base), float(config.overhang_slope),
+        np.float32(config.thin_width), np.float32(config.thin_min_height), np.float32(config.wide_width),
+        np.float32(config.wide_ratio), bool(config.use_angle_criterion),
+        float(np.tan(np.deg2rad(config.angle_threshold_deg))), _beam_steps(sensor, h),
+        np.float32(2.0 * np.pi / w), bool(config.bridge_empty), max(1, config.min_points),
     )
-    pixel, point, kept_count = _finish(
-        labels, count, max(1, config.min_points), image.row, image.col, image.point_range, image.range,
-        image.kept, ground, config.horizontal_base, config.horizontal_slope,
-    )
-    return Segmentation(pixel=pixel, point=point, count=int(kept_count))
+    return Segmentation(pixel=pixel, point=point, count=int(count))
+
+
+_BEAM_STEPS: dict[tuple, np.ndarray] = {}
+
+
+def _beam_steps(sensor: SensorModel, h: int) -> np.ndarray:
+    """(H - 1,) float32 elevation step (rad) between consecutive beams, cached per sensor."""
+    key = (sensor.elevations_deg, h)
+    out = _BEAM_STEPS.get(key)
+    if out is None:
+        el = sensor.elevations_rad()
+        steps = np.abs(np.diff(el)) if len(el) == h else np.full(h - 1, np.deg2rad(1.0))
+        out = _BEAM_STEPS[key] = np.ascontiguousarray(steps, dtype=np.float32)
+    return out
