@@ -1,4 +1,4 @@
-# One image for the api and the workers (docker-compose.yml). CPU PyTorch; CUDA wheels can replace it.
+# One image for the api, the workers and the annotator (docker-compose.yml). CPU PyTorch; CUDA wheels can replace it.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 \
@@ -19,7 +19,7 @@ RUN pip install ".[postgres]" && useradd --create-home tracklabel && mkdir -p /d
     && chown tracklabel /data
 USER tracklabel
 
-EXPOSE 8000
+EXPOSE 8000 8080
 HEALTHCHECK --interval=15s --timeout=5s --retries=5 CMD \
     python -c "import urllib.request,sys; sys.exit(urllib.request.urlopen('http://127.0.0.1:8000/api/v1/health').status != 200)"
 CMD ["tracklabel", "serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -47,15 +47,6 @@ def track_hues(track_ids: np.ndarray) -> np.ndarray:
     return (np.stack([r, g, b], axis=1) * 255.0 + 0.5).astype(np.uint8)
 
 
-def _per_track_lut(track: np.ndarray, colour_of: Mapping[int, np.ndarray], default: np.ndarray) -> np.ndarray:
-    """(N,) track ids -> (N, 3) colours through a lookup over the frame's unique ids."""
-    uniq, inverse = np.unique(track, return_inverse=True)
-    lut = np.empty((len(uniq), 3), np.uint8)
-    for k, tid in enumerate(uniq.tolist()):  # one entry per track of the frame, not per point
-        lut[k] = colour_of.get(int(tid), default)
-    return lut[inverse.reshape(-1)]
-
-
 def class_colour(track: Mapping[str, Any]) -> np.ndarray:
     """Colour of a track (TrackPublic dict) in `class` mode."""
     if track.get("status") == "discarded":
@@ -88,28 +79,31 @@ def point_colours(
     `tracks` maps track id -> TrackPublic dict (needed by `class` and `predicted`)."""
     n = len(segment)
     assert track.shape == (n,), (track.shape, n)
-    out = np.empty((n, 3), np.uint8)
-    has_track = track > 0
-    out[segment < 0] = GROUND
-    out[(segment >= 0) & ~has_track] = UNTRACKED
-    if not has_track.any():
-        return out
-    ids = track[has_track]
+    # one key per point (track id, 0 = segment without track, -1 = ground), colours per unique key,
+    # then a single gather: the frame's few hundred tracks are coloured, not its 70k points
+    key = np.where(track > 0, track, np.where(segment >= 0, 0, -1))
+    uniq, inverse = np.unique(key, return_inverse=True)
+    lut = np.empty((len(uniq), 3), np.uint8)
+    lut[uniq == -1] = GROUND
+    lut[uniq == 0] = UNTRACKED
+    tracked = uniq > 0
     if mode == "track":
-        out[has_track] = track_hues(ids)
+        lut[tracked] = track_hues(uniq[tracked])
     else:
         tracks = tracks or {}
         fn = class_colour if mode == "class" else predicted_colour
         default = PENDING if mode == "class" else NO_PREDICTION
-        colour_of = {tid: fn(t) for tid, t in tracks.items()}
-        out[has_track] = _per_track_lut(ids, colour_of, default)
-    return out
+        for k in np.flatnonzero(tracked).tolist():  # one entry per track of the frame, not per point
+            t = tracks.get(int(uniq[k]))
+            lut[k] = default if t is None else fn(t)
+    return lut[inverse.reshape(-1)]
 
 
 def fade(colours: np.ndarray, keep: np.ndarray, factor: float = HIGHLIGHT_FADE) -> np.ndarray:
     """Darken every colour outside the (N,) bool mask `keep` (the highlighted points)."""
-    out = colours.copy()
-    out[~keep] = (out[~keep].astype(np.float32) * factor).astype(np.uint8)
+    scale = int(round(factor * 256))
+    out = ((colours.astype(np.uint16) * scale) >> 8).astype(np.uint8)
+    out[keep] = colours[keep]
     return out
 
 

@@ -74,7 +74,7 @@ class ClientTab:
         self.user = user
         self.session = ReviewSession(api, viewer.coordinator)
         self.cache = viewer.cache
-        self._busy = threading.Lock()  # one action at a time; key presses during an action are dropped
+        self._busy = threading.Lock()  # one action at a time; keys pressed meanwhile wait (see run_action)
         self._render_lock = threading.Lock()
         self._render_gen = 0
         self._playing = threading.Event()
@@ -83,7 +83,7 @@ class ClientTab:
         self.colour_mode: ColourMode = "track"
         self.frame_points: np.ndarray | None = None  # (N, 3) float32 points of the frame shown
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
-        self.last_render_s = 0.0
+        self.timings_ms: dict[str, float] = {}  # stages of the last action and frame drawn
         self._build_gui()
         self._build_commands()
         client.scene.on_click()(self._on_click)
@@ -177,10 +177,16 @@ class ClientTab:
 
     # ------------------------------------------------------------------ actions
     def run_action(self, action: str, arg: str | None = None) -> bool:
-        """Run one review action; False when another one is still running (the key is dropped)."""
-        if not self._busy.acquire(blocking=False):
+        """Run one review action on the track shown when the key arrived. Keys pressed during an
+        action wait their turn; one whose track was finished meanwhile (say a second A) is dropped
+        with a notice, so no key ever acts on a track the operator has not seen. False if dropped."""
+        seen = self.session.track_id
+        if not self._busy.acquire(timeout=60.0):
             return False
         try:
+            if action != "undo" and self.session.track_id != seen:
+                self.notify("Key ignored", f"'{action}' was meant for track {seen}, which is done.", "yellow")
+                return False
             self._playing.clear()
             if self.session.track is None and action not in ("undo", "skip"):
                 self.notify("Nothing to review", "The review queue is empty.", "yellow")
@@ -194,6 +200,7 @@ class ClientTab:
                 "undo": self.session.undo,
                 "skip": self.session.skip,
             }
+            t0 = time.perf_counter()
             try:
                 if action == "label":
                     assert arg in SAMPLE_CLASSES, arg
@@ -207,6 +214,7 @@ class ClientTab:
             except ApiError as exc:
                 self.notify("Action failed", exc.detail, "red")
                 return True
+            self.timings_ms["action_and_next"] = 1e3 * (time.perf_counter() - t0)
             self.render_track(reset_camera=self.session.track_id != before)
             self.later(self.progress.refresh)
             return True
@@ -341,6 +349,7 @@ class ClientTab:
                     self.notify("Frame missing", f"frame {fi} of sequence {t['sequence_id']} is not in the service", "red")
                     return
                 payload = self.cache.payload(self.api, int(frame["id"]))
+                t_fetched = time.perf_counter()
                 info = None
                 if self.colour_mode != "track":
                     info = self.api.tracks_by_id(np.unique(payload.track[payload.track > 0]).tolist())
@@ -350,6 +359,7 @@ class ClientTab:
             tid = int(t["id"])
             mask = payload.track == tid
             colours = fade(point_colours(payload.segment, payload.track, self.colour_mode, info), mask)
+            t_coloured = time.perf_counter()
             kept = t["keep_start"] <= fi <= t["keep_end"]
             if not kept:
                 highlight: tuple[int, int, int] = OUTSIDE_KEPT
@@ -385,7 +395,9 @@ class ClientTab:
                     self._aim_camera(t, fi, payload.points[mask])
             self.client.flush()
             self.frame_points, self.frame_tracks = payload.points, payload.track
-            self.last_render_s = time.perf_counter() - t0
+            t_sent = time.perf_counter()
+            self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
+                                   send=1e3 * (t_sent - t_coloured))
         seg = self.session.segment_at(fi)
         self.later(lambda: self._load_sample(gen, seg))
 

@@ -14,13 +14,23 @@ REPO = Path(__file__).resolve().parents[2]
 ENV_FIELDS = {f"TRACKLABEL_{name.upper()}" for name in Settings.model_fields}
 
 
+def annotate_envvars() -> set[str]:
+    """Environment variables `tracklabel annotate` reads (its options' envvars)."""
+    import typer
+
+    from app.cli import app
+
+    cmd = typer.main.get_command(app).commands["annotate"]  # type: ignore[attr-defined]
+    return {p.envvar for p in cmd.params if isinstance(p.envvar, str)}
+
+
 @pytest.fixture(scope="module")
 def compose() -> dict:
     return yaml.safe_load((REPO / "docker-compose.yml").read_text())
 
 
 def test_deploy_compose_names_the_services(compose):
-    assert {"api", "worker", "postgres"} <= set(compose["services"])
+    assert {"api", "worker", "postgres", "annotator"} <= set(compose["services"])
 
 
 def test_deploy_compose_api_and_worker_share_one_image(compose):
@@ -33,9 +43,23 @@ def test_deploy_compose_every_service_has_a_healthcheck(compose):
 
 
 def test_deploy_compose_env_vars_are_settings_fields(compose):
-    names = {k for svc in compose["services"].values() for k in (svc.get("environment") or {})}
+    names = {k for name, svc in compose["services"].items() if name != "annotator" for k in (svc.get("environment") or {})}
     ours = {n for n in names if n.startswith("TRACKLABEL_")}
     assert ours and ours <= ENV_FIELDS, ours - ENV_FIELDS
+
+
+def test_deploy_compose_annotator_env_vars_are_annotate_options(compose):
+    names = set(compose["services"]["annotator"].get("environment") or {})
+    assert names and names <= annotate_envvars(), names - annotate_envvars()
+
+
+def test_deploy_compose_annotator_reaches_the_api_over_http_only(compose):
+    ann, api = compose["services"]["annotator"], compose["services"]["api"]
+    assert ann["image"] == api["image"] and ann["build"] == api["build"] == "."
+    cmd = ann["command"]
+    assert cmd[:2] == ["tracklabel", "annotate"] and cmd[cmd.index("--api") + 1] == "http://api:8000"
+    assert "volumes" not in ann and not any(k.endswith("DATABASE_URL") for k in ann.get("environment") or {})
+    assert "8080:8080" in ann["ports"] and "--no-viewer" in api["command"]  # one viewer, the service's
 
 
 def test_deploy_compose_env_parses_into_settings(compose, monkeypatch):
