@@ -80,7 +80,17 @@ def _render(
         uy = cy / dxy if dxy > 1e-6 else 0.0
         for i in range(size):
             r = rows[v, i]
+            if i > 0 and r == rows[v, i - 1]:
+                # canvas rows repeat each laser ring (S rows over a few rings): copy the row above
+                for ch in range(channels):
+                    for j in range(size):
+                        out[v, ch, i, j] = out[v, ch, i - 1, j]
+                continue
             for j in range(size):
+                if j > 0 and cols[v, j] == cols[v, j - 1]:
+                    for ch in range(channels):
+                        out[v, ch, i, j] = out[v, ch, i, j - 1]
+                    continue
                 p = index[r, cols[v, j]]
                 if p < 0:
                     continue

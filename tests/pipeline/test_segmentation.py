@@ -115,3 +115,37 @@ def test_segmentation_bridges_one_empty_column_but_not_a_return():
     obj = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & (scan.points[:, 2] > -1.55)
     _, _, seg = _segment(scan)
     assert len(np.unique(seg.point[obj])) == 2
+
+
+def _tree(crown_range: float) -> tuple[Scan, np.ndarray, np.ndarray]:
+    """A thin trunk (3 columns, ~0.6 m wide, ~1.7 m tall at 12 m) under a wide crown (31 columns)."""
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(8, 14), slice(104, 107), 12.0)  # trunk
+    add_box(rimg, slice(2, 8), slice(90, 121), crown_range)  # crown right above it
+    scan = scan_from_range_image(rimg, SENSOR)
+    r = np.linalg.norm(scan.points, axis=1)
+    above = scan.points[:, 2] > -1.8 + 0.25
+    trunk = np.isclose(r, 12.0, atol=1e-3) & above & (scan.ring >= 8)
+    crown = np.isclose(r, crown_range, atol=1e-3) & (scan.ring < 8)
+    return scan, trunk, crown
+
+
+def _joined(seg, a: np.ndarray, b: np.ndarray) -> bool:
+    ids_a, ids_b = np.unique(seg.point[a]), np.unique(seg.point[b])
+    assert len(ids_a) == 1 and len(ids_b) == 1 and ids_a[0] >= 0 and ids_b[0] >= 0
+    return bool(ids_a[0] == ids_b[0])
+
+
+def test_segmentation_cuts_a_thin_trunk_from_the_wide_crown_above_it():
+    scan, trunk, crown = _tree(12.0)  # same range: only the thin-under-wide rule can cut
+    assert not _joined(_segment(scan)[2], trunk, crown)
+    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
+
+
+def test_segmentation_cuts_an_overhang():
+    scan, trunk, crown = _tree(11.6)  # the crown 0.4 m nearer: within the vertical threshold, an overhang
+    assert not _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
+    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0, overhang_slope=0.0))[2], trunk, crown)
+    # a wall stepping back above (upper pixel farther) is not an overhang
+    scan, trunk, crown = _tree(12.4)
+    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
