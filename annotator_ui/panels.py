@@ -77,6 +77,14 @@ def learning_curve(result: dict[str, Any] | None) -> dict[str, np.ndarray] | Non
     the numeric series."""
     if not isinstance(result, dict):
         return None
+    if isinstance(result.get("train_loss"), list) and result["train_loss"]:  # a model's stored metrics
+        loss = result["train_loss"]
+        val = result.get("val_f") if isinstance(result.get("val_f"), list) else []
+        x = np.arange(1, len(loss) + 1, dtype=np.float64)
+        out = {"epoch": x, "loss": np.asarray(loss, np.float64)}
+        if len(val) == len(loss) and any(v is not None for v in val):
+            out["val_f"] = np.asarray([np.nan if v is None else v for v in val], np.float64)
+        return out
     for key in ("history", "epochs", "per_epoch", "metrics", "curve"):
         raw = result.get(key)
         if isinstance(raw, dict):
@@ -107,9 +115,10 @@ class JobsPanel:
     progress, and plot its per-epoch metrics."""
 
     def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
-                 sequence_id: Callable[[], int | None]) -> None:
+                 sequence_id: Callable[[], int | None], is_admin: bool = False) -> None:
         self.gui = gui
         self.api = api
+        self.is_admin = is_admin
         self.notify = notify
         self.sequence_id = sequence_id
         self._closed = threading.Event()
@@ -138,21 +147,33 @@ class JobsPanel:
             self.gui_types.content = f"Job types unavailable: {exc.detail}"
             return
         missing = [n for n in JOB_BUTTONS if n not in self.types]
+        admin_only = [n for n in JOB_BUTTONS if n in self.types and self.types[n]["admin_only"] and not self.is_admin]
         for name, button in self.gui_buttons.items():
-            button.disabled = name not in self.types
+            button.disabled = name in missing or name in admin_only
         known = ", ".join(f"`{n}`" for n in sorted(self.types)) or "none"
         text = f"Job types of this service: {known}."
         if missing:
             text += " Not available here: " + ", ".join(f"`{n}`" for n in missing) + " (their buttons are disabled)."
+        if admin_only:
+            text += " " + ", ".join(f"`{n}`" for n in admin_only) + " need the admin role (sign in with an admin token)."
         self.gui_types.content = text
 
     def _params(self, name: str) -> dict[str, Any]:
         """Defaults, plus the shown sequence when the type's params take a `sequence_id`."""
-        schema = self.types.get(name, {}).get("params_schema", {})
+        props = self.types.get(name, {}).get("params_schema", {}).get("properties", {})
         params: dict[str, Any] = {}
         seq = self.sequence_id()
-        if "sequence_id" in schema.get("properties", {}) and seq is not None:
+        if seq is not None and "sequence_id" in props:
             params["sequence_id"] = seq
+        if seq is not None and "sequence_ids" in props:  # train: the labels of the shown sequence
+            params["sequence_ids"] = [seq]
+        if "model_id" in props:  # predict: the newest model
+            try:
+                models = self.api.get("/models", limit=1)
+            except ApiError:
+                models = []
+            if models:
+                params["model_id"] = models[0]["id"]
         return params
 
     def start(self, name: str) -> dict[str, Any] | None:
@@ -187,6 +208,14 @@ class JobsPanel:
             self.job = job
             self._show(job)
             if job["status"] in ("succeeded", "failed", "cancelled"):
+                model_id = (job.get("result") or {}).get("model_id")
+                if job["status"] == "succeeded" and model_id:
+                    try:  # the finished run's full per-epoch metrics live with its model
+                        curve = learning_curve((self.api.get(f"/models/{model_id}") or {}).get("metrics"))
+                    except ApiError:
+                        curve = None
+                    if curve is not None:
+                        self._plot(curve)
                 colour = "green" if job["status"] == "succeeded" else "red"
                 self.notify(f"Job {job['status']}", f"{job['type']} job #{job['id']}: {job.get('message') or job['status']}", colour)
                 return
@@ -204,7 +233,7 @@ class JobsPanel:
             + (f"  \nerror: {html.escape(str(err))[:300]}" if err else "")
         )
         self.gui_cancel.disabled = job["status"] not in ("queued", "running")
-        curve = learning_curve(job.get("result")) or learning_curve({"history": (job.get("result") or {}).get("progress_history")})
+        curve = learning_curve(job.get("result"))
         if curve is not None:
             self._plot(curve)
 
@@ -224,15 +253,23 @@ class JobsPanel:
 
 
 class AnchorsPanel:
-    """Proposed anchor samples with their predicted classes, confirmed or corrected by the operator,
-    once the service offers anchor proposals (GET /api/v1/anchors); otherwise a disabled notice."""
+    """Anchor proposals (issue 7's `/anchors`): the waiting proposals of the shown sequence, each
+    with its sample and proposed class; the operator confirms, corrects (another class) or rejects
+    it, or opens its track in the 3D view. Without that API the panel says so and stays disabled."""
 
-    def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None]) -> None:
+    PAGE = 8
+
+    def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
+                 sequence_id: Callable[[], int | None], open_track: Callable[[int], None]) -> None:
         self.gui = gui
         self.api = api
         self.notify = notify
+        self.sequence_id = sequence_id
+        self.open_track = open_track
         self.available = False
         self.gui_status = gui.add_markdown("Checking for anchor proposals ...")
+        self.gui_propose = gui.add_button("Propose anchors", icon=viser.Icon.ANCHOR, disabled=True)
+        self.gui_propose.on_click(lambda _: self.propose())
         self.gui_refresh = gui.add_button("Refresh anchors", icon=viser.Icon.REFRESH, disabled=True)
         self.gui_refresh.on_click(lambda _: self.refresh())
         self._items: list[Any] = []
@@ -241,27 +278,46 @@ class AnchorsPanel:
         self.available = self.api.has_route("get", ANCHORS_PATH)
         self.gui_refresh.disabled = not self.available
         if not self.available:
+            self.gui_propose.disabled = True
             self.gui_status.content = (
                 "**No anchor proposals.** This track service has no anchor proposals API, so there is "
                 "nothing to confirm here."
             )
             return
         try:
-            body = self.api.get(ANCHORS_PATH, status="proposed", limit=24)
+            types = {t["name"] for t in self.api.job_types()}
+            seq = self.sequence_id()
+            params = {"status": "proposed", "limit": self.PAGE}
+            if seq is not None:
+                params["sequence_id"] = seq
+            body = self.api.get(ANCHORS_PATH, **params)
         except ApiError as exc:
             self.gui_status.content = f"Anchor proposals unavailable: {exc.detail}"
             return
-        items = body.get("items", body) if isinstance(body, dict) else body
-        self._render(items if isinstance(items, list) else [])
+        self.gui_propose.disabled = "propose_anchors" not in types or self.sequence_id() is None
+        self._render(body.get("items", []), int(body.get("total", 0)))
 
-    def _render(self, items: list[dict[str, Any]]) -> None:
+    def propose(self) -> None:
+        seq = self.sequence_id()
+        if seq is None:
+            return
+        try:
+            job = self.api.create_job("propose_anchors", {"sequence_id": seq})
+        except ApiError as exc:
+            self.notify("Anchors not proposed", exc.detail, "red")
+            return
+        self.notify("Anchor proposal queued", f"job #{job['id']}; refresh when it has finished", "blue")
+
+    def _render(self, items: list[dict[str, Any]], total: int) -> None:
         for h in self._items:
             h.remove()
         self._items = []
         if not items:
-            self.gui_status.content = "**No anchor proposals** are waiting."
+            self.gui_status.content = (
+                "**No anchor proposals** are waiting. A trained model proposes them (Propose anchors)."
+            )
             return
-        self.gui_status.content = f"{len(items)} anchor proposals waiting for an answer."
+        self.gui_status.content = f"**{total}** anchor proposals waiting; the first {len(items)}:"
         for item in items:
             self._items.extend(self._anchor_row(item))
 
@@ -269,27 +325,35 @@ class AnchorsPanel:
         from annotator_ui.samples import sample_image
 
         handles: list[Any] = []
-        cls = item.get("proposed_class") or item.get("predicted_class")
-        conf = item.get("confidence") or item.get("predicted_confidence")
-        title = f"#{item.get('id')} {cls or '?'}" + (f" ({100 * conf:.0f} %)" if isinstance(conf, int | float) else "")
+        cls = item.get("proposed_class")
+        title = (f"#{item['id']} {cls or '?'} · {item.get('level')} · track {item['track_id']}"
+                 + (f" · frame {item['frame_index']}" if item.get("frame_index") is not None else ""))
         url = item.get("sample_url")
+        image = None
         if url:
             try:
-                handles.append(self.gui.add_image(sample_image(self.api.sample_png(url)), label=title, format="png"))
+                image = sample_image(self.api.sample_png(url))
             except ApiError:
-                handles.append(self.gui.add_markdown(title))
-        else:
-            handles.append(self.gui.add_markdown(title))
-        choice = self.gui.add_dropdown("Class", SAMPLE_CLASSES, initial_value=cls if cls in SAMPLE_CLASSES else "unknown")
-        confirm = self.gui.add_button("Confirm anchor", color="green")
-        confirm.on_click(lambda _e, it=item, ch=choice: self._answer(it, ch.value))
-        handles += [choice, confirm]
-        return handles
+                image = None
+        handles.append(self.gui.add_image(image, label=title, format="png") if image is not None
+                       else self.gui.add_markdown(title))
+        choice = self.gui.add_dropdown(f"Class #{item['id']}", SAMPLE_CLASSES,
+                                       initial_value=cls if cls in SAMPLE_CLASSES else "unknown")
+        answer = self.gui.add_button_group(f"Anchor #{item['id']}", ("Confirm", "Reject", "Show track"))
+        answer.on_click(lambda e, it=item, ch=choice: self._answer(it, e.target.value, ch.value))
+        return [*handles, choice, answer]
 
-    def _answer(self, item: dict[str, Any], class_name: str) -> None:
-        try:
-            self.api.post(f"{ANCHORS_PATH}/{item['id']}/answer", {"label": class_name})
-        except ApiError as exc:
-            self.notify("Anchor not saved", exc.detail, "red")
+    def _answer(self, item: dict[str, Any], what: str, class_name: str) -> None:
+        if what == "Show track":
+            self.open_track(int(item["track_id"]))
             return
+        try:
+            if what == "Reject":
+                self.api.post(f"{ANCHORS_PATH}/{item['id']}/reject")
+            elif class_name == item.get("proposed_class"):
+                self.api.post(f"{ANCHORS_PATH}/{item['id']}/confirm")
+            else:
+                self.api.post(f"{ANCHORS_PATH}/{item['id']}/correct", {"label": class_name})
+        except ApiError as exc:
+            self.notify("Anchor answer not saved", exc.detail, "red")
         self.refresh()

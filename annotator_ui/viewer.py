@@ -119,6 +119,9 @@ class ClientTab:
             self.gui_undo.on_click(lambda _: self.run_action("undo"))
             self.gui_skip = gui.add_button("Skip (S)", icon=viser.Icon.PLAYER_SKIP_FORWARD)
             self.gui_skip.on_click(lambda _: self.run_action("skip"))
+            self.gui_goto = gui.add_text("Open track #", initial_value="", hint="review a track by its id")
+            self.gui_open = gui.add_button("Open track", icon=viser.Icon.SEARCH)
+            self.gui_open.on_click(lambda _: self._open_typed())
             self.gui_colour = gui.add_dropdown("Colour by", COLOUR_MODES, initial_value="track")
             self.gui_colour.on_update(self._on_colour)
             self.gui_follow = gui.add_checkbox("Camera follows track", self.viewer.config.follow_camera)
@@ -131,10 +134,20 @@ class ClientTab:
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api)
         with tabs.add_tab("Jobs", viser.Icon.CPU):
-            self.jobs = JobsPanel(gui, self.api, self.notify, lambda: self.session.sequence_id or (
-                None if self.session.track is None else int(self.session.track["sequence_id"])))
+            self.jobs = JobsPanel(gui, self.api, self.notify, self.sequence_id, is_admin=self.user.get("role") == "admin")
         with tabs.add_tab("Anchors", viser.Icon.ANCHOR):
-            self.anchors = AnchorsPanel(gui, self.api, self.notify)
+            self.anchors = AnchorsPanel(gui, self.api, self.notify, self.sequence_id,
+                                        lambda tid: self.later(lambda: self.open_track(tid)))
+
+    def sequence_id(self) -> int | None:
+        """The sequence under review: the shown track's, else the first ready one."""
+        if self.session.track is not None:
+            return int(self.session.track["sequence_id"])
+        try:
+            ready = [s for s in self.api.sequences() if s["status"] == "ready"]
+        except ApiError:
+            return None
+        return int(ready[0]["id"]) if ready else None
 
     def _build_commands(self) -> None:
         actions = {
@@ -224,8 +237,17 @@ class ClientTab:
     def open_track(self, track_id: int) -> None:
         with self._busy:
             self._playing.clear()
+            before = self.session.track_id
             self._load(lambda: self.session.open(track_id))
-            self.notify("Track picked", f"Reviewing track {track_id} out of queue order.", "blue")
+            if self.session.track_id == track_id != before:
+                self.notify("Track picked", f"Reviewing track {track_id} out of queue order.", "blue")
+
+    def _open_typed(self) -> None:
+        text = self.gui_goto.value.strip().lstrip("#")
+        if not text.isdigit() or int(text) < 1:
+            self.notify("Not a track id", f"{text!r} is not a track id", "yellow")
+            return
+        self.open_track(int(text))
 
     def _load(self, fn: Any) -> None:
         try:
@@ -388,7 +410,7 @@ class ClientTab:
                     scene.add_line_segments("/track/path", polyline_segments(path), seg_colours, thickness=0.06)
                 else:
                     scene.remove_by_name("/track/path")
-                scene.add_point_cloud("/track/nodes", path, node_colours, point_size=0.35, precision="float32",
+                scene.add_point_cloud("/track/nodes", path, node_colours, point_size=0.25, precision="float32",
                                       point_shape="circle", point_shading="flat")
                 self.gui_track.content = self._track_info(fi)
                 if reset_camera and self.gui_follow.value:
@@ -415,8 +437,8 @@ class ClientTab:
         dist = float(np.clip(2.0 * extent + 8.0, 10.0, 70.0))
         outward = c[:2] / max(float(np.linalg.norm(c[:2])), 1e-6)
         eye = np.array([c[0] - 0.8 * dist * outward[0], c[1] - 0.8 * dist * outward[1], c[2] + 0.6 * dist])
+        self.client.camera.position = eye  # position first: viser shifts look_at along with it
         self.client.camera.look_at = c
-        self.client.camera.position = eye
 
     def _load_sample(self, gen: int, seg: dict[str, Any] | None) -> None:
         image = blank_image()

@@ -148,8 +148,10 @@ def test_viewer_jobs_panel_runs_a_job_to_the_end(viewer, tab_client, live_api):
 
     panel: JobsPanel = viewer.tabs[0].jobs
     panel.refresh_types()
-    for name, button in panel.gui_buttons.items():
-        assert button.disabled == (name not in panel.types)  # absent job types: disabled, not faked
+    for name, button in panel.gui_buttons.items():  # absent or admin-only types: disabled, not faked
+        assert button.disabled == (name not in panel.types or panel.types[name]["admin_only"])
+    if "train" in panel.types and panel.types["train"]["admin_only"]:
+        assert "need the admin role" in panel.gui_types.content
     job = panel.start("selftest")
     assert job is not None and job["status"] == "queued"
     assert Worker(live_api.settings).run_once()
@@ -164,11 +166,59 @@ def test_viewer_jobs_panel_reports_an_unknown_job_type(viewer, tab_client):
     assert panel.start("no_such_type") is None and "unknown job type" in notes[0][1]
 
 
-def test_viewer_anchors_panel_without_the_api_says_so(viewer, tab_client):
+def test_viewer_jobs_panel_fills_train_and_predict_params(viewer, tab_client):
+    panel: JobsPanel = viewer.tabs[0].jobs
+    panel.refresh_types()
+    seq = viewer.tabs[0].sequence_id()
+    if "train" in panel.types:
+        assert panel._params("train")["sequence_ids"] == [seq]
+    if "predict" in panel.types:
+        assert panel._params("predict").get("sequence_id") == seq
+
+
+def add_proposals(live_api, n: int) -> list[int]:
+    """Anchor proposals as a propose_anchors job would write them (track level, a sample shown)."""
+    from sqlalchemy import select
+
+    from app.core.db import Database
+    from app.models import AnchorProposal, Segment, Track
+
+    db = Database.from_settings(live_api.settings)
+    with db.write() as s:
+        tracks = s.scalars(select(Track).where(Track.status == "pending").order_by(Track.id.desc()).limit(n)).all()
+        ids = []
+        for rank, t in enumerate(tracks):
+            seg = s.scalars(select(Segment).where(Segment.track_id == t.id, Segment.sample_index.is_not(None))).first()
+            a = AnchorProposal(sequence_id=t.sequence_id, track_id=t.id, proposed_class="car", score=0.9,
+                               level="track", strategy="track", rank=rank, segment_id=None if seg is None else seg.id)
+            s.add(a)
+            s.flush()
+            ids.append(a.id)
+        s.commit()
+    db.dispose()
+    return ids
+
+
+def test_viewer_anchors_panel_confirms_corrects_and_rejects(viewer, tab_client, live_api):
     panel: AnchorsPanel = viewer.tabs[0].anchors
     panel.refresh()
-    if not panel.available:
+    if not panel.available:  # a service without issue 7's API: a plain notice, nothing to click
         assert "No anchor proposals" in panel.gui_status.content and panel.gui_refresh.disabled
+        return
+    ids = add_proposals(live_api, 3)
+    panel.refresh()
+    assert "waiting" in panel.gui_status.content
+    api = ApiClient(live_api.url, live_api.admin_token)
+    by_id = {a["id"]: a for a in api.get("/anchors", status="proposed", limit=1000)["items"]}
+    panel._answer(by_id[ids[0]], "Confirm", "car")
+    panel._answer(by_id[ids[1]], "Confirm", "person")  # another class than proposed: a correction
+    panel._answer(by_id[ids[2]], "Reject", "car")
+    got = {i: api.get(f"/anchors/{i}") for i in ids}
+    assert (got[ids[0]]["status"], got[ids[0]]["answer_class"]) == ("confirmed", "car")
+    assert (got[ids[1]]["answer_class"], got[ids[1]]["corrected"]) == ("person", True)
+    assert got[ids[2]]["status"] == "rejected"
+    assert live_api.track(by_id[ids[1]]["track_id"])["label"] == "person"  # a track anchor labels its track
+    api.close()
 
 
 def test_learning_curve_reads_per_epoch_metrics():
@@ -177,4 +227,6 @@ def test_learning_curve_reads_per_epoch_metrics():
     assert list(c["epoch"]) == [1, 2] and list(c["val_f1"]) == [0.3, 0.6]
     cols = learning_curve({"metrics": {"history": {"loss": [3.0, 2.0, 1.5]}}})
     assert list(cols["epoch"]) == [1, 2, 3]
+    model = learning_curve({"train_loss": [2.0, 1.0], "val_f": [None, 55.0], "epochs_run": 2})
+    assert list(model["loss"]) == [2.0, 1.0] and np.isnan(model["val_f"][0]) and model["val_f"][1] == 55.0
     assert learning_curve({"steps": 3}) is None and learning_curve(None) is None
