@@ -15,10 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial.distance import cdist
 
 from pipeline.config import AssociationConfig
-from pipeline.range_image import azimuth_columns, elevation_rows
+from pipeline.range_image import fast_atan2
 from pipeline.sensors import SensorModel
 
 
@@ -48,6 +50,40 @@ class Links:
     score: np.ndarray
 
 
+@njit(cache=True)
+def _votes(points, seg_point, n_curr, seg_pixel, pix_range, R, t, beams_asc, n_prev):  # pragma: no cover - numba
+    """Move each segment point with (R, t), project it onto t-1's range image (nearest beam,
+    azimuth column) and count it for the t-1 segment there when the ranges agree."""
+    h, w = seg_pixel.shape
+    nb = beams_asc.shape[0]
+    votes = np.zeros((n_curr, n_prev), dtype=np.int64)
+    inv_two_pi = 0.5 / np.pi
+    for i in range(points.shape[0]):
+        a = seg_point[i]
+        if a < 0:
+            continue
+        x0 = np.float64(points[i, 0])
+        y0 = np.float64(points[i, 1])
+        z0 = np.float64(points[i, 2])
+        x = R[0, 0] * x0 + R[0, 1] * y0 + R[0, 2] * z0 + t[0]
+        y = R[1, 0] * x0 + R[1, 1] * y0 + R[1, 2] * z0 + t[1]
+        z = R[2, 0] * x0 + R[2, 1] * y0 + R[2, 2] * z0 + t[2]
+        el = fast_atan2(np.float32(z), np.float32(np.sqrt(x * x + y * y)))
+        # nearest beam (beams ascending), as `elevation_rows`
+        pos = np.searchsorted(beams_asc, el)
+        pos = min(max(pos, 1), nb - 1)
+        asc = pos - 1 if (el - beams_asc[pos - 1]) < (beams_asc[pos] - el) else pos
+        row = nb - 1 - asc
+        col = int(np.floor((0.5 - fast_atan2(np.float32(y), np.float32(x)) * inv_two_pi) * w)) % w
+        b = seg_pixel[row, col]
+        if b < 0:
+            continue
+        r_proj = np.sqrt(x * x + y * y + z * z)
+        if abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
+            votes[a, b] += 1
+    return votes
+
+
 def vote_matrix(
     points: np.ndarray,
     seg_point: np.ndarray,
@@ -58,20 +94,13 @@ def vote_matrix(
 ) -> np.ndarray:
     """(S_t, S_{t-1}) int64 votes: points of each t segment that land on each t-1 segment."""
     n_prev = len(prev.n_points)
-    m = seg_point >= 0
-    if not m.any() or n_prev == 0:
+    if n_curr == 0 or n_prev == 0:
         return np.zeros((n_curr, n_prev), dtype=np.int64)
-    p = points[m].astype(np.float64) @ T_prev_curr[:3, :3].T + T_prev_curr[:3, 3]
-    h, w = prev.seg_pixel.shape
-    rows = elevation_rows(p, sensor).astype(np.int64)
-    cols = azimuth_columns(p, w).astype(np.int64)
-    target = prev.seg_pixel[rows, cols]
-    r_proj = np.linalg.norm(p, axis=1)
-    r_pix = prev.range[rows, cols]
-    agree = (target >= 0) & (np.abs(r_proj - r_pix) <= 0.3 + 0.03 * r_proj)
-    a = seg_point[m][agree].astype(np.int64)
-    b = target[agree].astype(np.int64)
-    return np.bincount(a * n_prev + b, minlength=n_curr * n_prev).reshape(n_curr, n_prev)
+    T = np.asarray(T_prev_curr, dtype=np.float64)
+    return _votes(
+        points, seg_point, n_curr, prev.seg_pixel, prev.range, np.ascontiguousarray(T[:3, :3]),
+        np.ascontiguousarray(T[:3, 3]), np.ascontiguousarray(sensor.elevations_rad()[::-1]), n_prev,
+    )
 
 
 def associate(
@@ -120,7 +149,7 @@ def associate(
         moving = speed > 0.5
         if moving.any():
             pred = cw_b[moving] + vel_b[moving] * dt
-            dist = np.linalg.norm(cw_a[:, None, :2] - pred[None, :, :2], axis=2)
+            dist = cdist(cw_a[:, :2], pred[:, :2])
             cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
             sub = score[:, moving]
             score[:, moving] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
@@ -129,7 +158,7 @@ def associate(
     ratio = n_a[:, None] / n_b[None, :]
     bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
     max_jump = config.max_centroid_distance + 1.0 + speed[None, :] * dt * 2.0
-    jump = np.linalg.norm(cw_a[:, None, :] - cw_b[None, :, :], axis=2)
+    jump = cdist(cw_a, cw_b)
     score[bad_ratio | (jump > max_jump)] = 0.0
 
     # 4. one-to-one
@@ -144,7 +173,7 @@ def associate(
         free_a = np.setdiff1d(np.arange(len(va)), r[ok])
         free_b = np.setdiff1d(np.arange(len(vb)), c[ok])
         if len(free_a) and len(free_b):
-            d = np.linalg.norm(cw_a[free_a, None, :2] - cw_b[None, free_b, :2], axis=2)
+            d = cdist(cw_a[free_a, :2], cw_b[free_b, :2])
             dz = np.abs(cw_a[free_a, None, 2] - cw_b[None, free_b, 2])
             rat = ratio[np.ix_(free_a, free_b)]
             d = np.where((dz < 0.3) & (rat < 1.5) & (rat > 1 / 1.5), d, np.inf)
