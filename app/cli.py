@@ -194,6 +194,8 @@ def experiment_paper(
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
     steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 1200; --full 6000).")] = None,
     labels_per_class: Annotated[int | None, typer.Option(min=1, help="baseline_min labels per class (default 30; --full 350).")] = None,
+    evals: Annotated[int | None, typer.Option(min=1, help="Model-selection checkpoints per setting (default 8).")] = None,
+    eval_max: Annotated[int | None, typer.Option(min=0, help="Samples per evaluation set, random subsample (default 6000; 0 = all).")] = None,
     threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 0,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
@@ -203,7 +205,7 @@ def experiment_paper(
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
-                       ("labels_per_class", labels_per_class)):
+                       ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max)):
         if value is not None:
             kw[key] = value
     cfg = PaperConfig.full(**kw) if full else PaperConfig(**kw)  # type: ignore[arg-type]

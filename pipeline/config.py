@@ -112,6 +112,7 @@ class TrainingConfig(_Section):
     steps_per_epoch: int | None = None  # None = one pass over the larger of labels / pairs
     augment: bool = False  # random horizontal flip and small shifts of the canvases
     augment_shift: float = 0.0625  # max shift as a fraction of the canvas side
+    balanced_labels: bool = False  # draw each batch's labels class-uniformly (rare classes as often as common ones)
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda

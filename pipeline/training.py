@@ -12,6 +12,9 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
   entropy of the batch-mean prediction keeps constraints-only training from collapsing onto one
   class (the paper reports everything becoming "trunk").
 
+With `balanced_labels` each batch draws its labelled samples class-uniformly (the labels of a rare
+class are seen as often as those of a common one); the default draws them uniformly, as the paper.
+
 Each step holds m labelled samples and n = pairs_per_label * m pairs, run as one siamese forward
 over [labelled; pair left sides; pair right sides]. M = 0 (constraints only) and N = 0 (labels
 only) are the degenerate cases. Model selection follows the paper: the best validation F among
@@ -293,6 +296,24 @@ class _Cycler:
         return np.concatenate(out)
 
 
+class _BalancedCycler:
+    """Labelled positions drawn class-uniformly: each draw picks a class present at random, then the
+    next of that class's own shuffled passes."""
+
+    def __init__(self, labels: np.ndarray, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.members = [np.flatnonzero(labels == k) for k in np.unique(labels)]
+        self.cyclers = [_Cycler(len(m), rng) for m in self.members]
+
+    def take(self, k: int) -> np.ndarray:
+        cls = self.rng.integers(0, len(self.members), k)  # (k,)
+        out = np.empty(k, np.int64)
+        for c in np.unique(cls):
+            sel = np.flatnonzero(cls == c)
+            out[sel] = self.members[c][self.cyclers[c].take(len(sel))]
+        return out
+
+
 def _select(history: list[EpochRecord], threshold: float) -> tuple[int, str]:
     if not history:
         return -1, "none"
@@ -382,7 +403,9 @@ def _train(
         n = min(config.batch_labelled, num_p)
     steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
     steps = max(steps, 1)
-    lab_cycle = _Cycler(num_l, rng) if m else None
+    lab_cycle: _Cycler | _BalancedCycler | None = None
+    if m:
+        lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
     pair_cycle = _Cycler(num_p, rng) if n else None
 
     samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device

@@ -62,3 +62,41 @@ def test_prepare_scene_runs_the_pipeline_and_caches(tmp_path):
     assert s["labels"] == len(scene.labelled) and 0.5 < s["auto_pair_precision"] <= 1.0
     again = prepare_scene(tmp_path, seed=2, frames=4, size=32)  # from the cache
     assert np.array_equal(again.samples, scene.samples) and not list(tmp_path.glob("seq_*"))
+
+
+def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:
+    rng = np.random.default_rng(0)
+    m = n_tracks * length
+    track = np.repeat(np.arange(1, n_tracks + 1), length)
+    frame = np.tile(np.arange(length), n_tracks) + np.repeat(np.arange(n_tracks), length)
+    cls = np.repeat(np.arange(n_tracks) % 7, length).astype(np.int16)
+    obj = track.astype(np.int64)
+    label, verified = operator_review(track, frame, cls, obj, np.ones(m, np.float32))
+    auto = track_pairs(track, frame)
+    return SceneSamples(
+        samples=rng.integers(0, 255, (m, 4, 8, 8), dtype=np.uint8), frame=frame.astype(np.int32),
+        segment=np.zeros(m, np.int32), track=track, link_score=np.ones(m, np.float32), gt_class=cls,
+        gt_object=obj, gt_purity=np.ones(m, np.float32), progress=(frame / frame.max()).astype(np.float32),
+        label=label, verified_pairs=verified, auto_pairs=auto, auto_scores=np.full(len(auto), 0.8, np.float32),
+    )
+
+
+def test_paper_split_by_track_and_settings_grow_constraints():
+    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+
+    scene = _toy_scene()
+    split = split_scene(scene, PaperConfig(labels_per_class=2))
+    assert not set(scene.track[split.train_labelled]) & set(scene.track[split.val_labelled])  # no track on both sides
+    assert np.bincount(scene.label[split.min_labelled], minlength=7).tolist() == [2] * 7
+    assert set(split.min_labelled) <= set(split.train_labelled)
+    sizes = []
+    for name in ("constraint30", "constraint60", "constraint100"):
+        lab, pairs, w = setting_data(name, scene, split)
+        assert np.array_equal(lab, split.min_labelled) and (w == 1).all()
+        assert not np.isin(scene.track[pairs[:, 0]], split.val_tracks).any()  # no validation track leaks in
+        sizes.append(len(pairs))
+    assert 0 < sizes[0] < sizes[1] < sizes[2]
+    lab, pairs, w = setting_data("constraint100_auto", scene, split)
+    assert len(pairs) >= sizes[2] and np.allclose(w, 0.8)
+    lab, pairs, _ = setting_data("baseline_max", scene, split)
+    assert np.array_equal(lab, split.train_labelled) and len(pairs) == 0

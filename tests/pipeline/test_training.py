@@ -297,3 +297,21 @@ def test_train_threads_option_applies_during_the_run_only(blob_data):
         torch.set_num_threads(original)
     assert set(during) == {1}
     assert after == 2
+
+
+def test_balanced_labels_draw_classes_uniformly():
+    from pipeline.training import _BalancedCycler, _Cycler
+
+    labels = np.array([0] * 900 + [1] * 90 + [2] * 10)
+    rng = np.random.default_rng(0)
+    drawn = labels[_BalancedCycler(labels, rng).take(3000)]
+    share = np.bincount(drawn, minlength=3) / 3000
+    assert np.all(np.abs(share - 1 / 3) < 0.05)
+    plain = labels[_Cycler(len(labels), np.random.default_rng(0)).take(3000)]
+    assert np.bincount(plain, minlength=3)[2] == 30  # uniform over samples: the rare class 1 %
+
+
+def test_train_with_balanced_labels_runs():
+    x, y = blobs(120, 3)
+    res = train(TrainingData.build(x, np.arange(len(y)), y), _cfg(epochs=1, balanced_labels=True), TINY, SAMPLES)
+    assert len(res.history) == 1 and math.isfinite(res.history[0].loss)

@@ -1,0 +1,366 @@
+"""`tracklabel experiment paper`: the paper's training experiment (Tables 6-8) on simulated scenes.
+
+1. Simulate a training route (seed S) and a test scene D (seed S + 1000: another layout), run the
+   real perception pipeline and let the ground-truth-checking operator review every track
+   (`pipeline.experiments.data`). Split the route by distance travelled into A (0-30 %),
+   B (30-60 %) and C (60-100 %).
+2. Split the operator's labelled tracks 70/30 into train/validation, by track and per class
+   (samples of one track are near-duplicates; a random split of samples would validate on
+   copies of training samples).
+3. Train the settings, every one for the same number of steps, same seed and network:
+   - baseline_min: `labels_per_class` labels per class drawn from the training split, no constraints;
+   - constraint30/60/100: the same labels + the verified constraints of A / A+B / A+B+C
+     (training-split tracks; no constraints for unknown, as in the paper);
+   - baseline_max: every label of the training split;
+   - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
+     weighted by its association score.
+   Model selection is the paper's rule on the validation split.
+4. Evaluate each on the training data (train + validation, as the paper's Table 7), on the
+   validation split alone, and on test scene D (Table 8), and write `paper.md`, `paper.json` and
+   PNG bar charts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
+from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
+from pipeline.experiments.data import SceneSamples, prepare_scene, route_part
+
+SETTINGS: tuple[str, ...] = (
+    "baseline_min",
+    "constraint30",
+    "constraint60",
+    "constraint100",
+    "baseline_max",
+    "constraint100_auto",
+)
+METHOD = {"baseline_min": "sup.", "baseline_max": "sup."}
+TEST_SEED_OFFSET = 1000
+
+
+@dataclass(frozen=True)
+class PaperConfig:
+    seed: int = 0
+    frames: int = 600  # training route; A/B/C by distance
+    test_frames: int = 240  # test scene D
+    size: int = 64
+    labels_per_class: int = 30  # baseline_min (the paper: 350 of 531-10103 per class)
+    steps: int = 1200  # per setting
+    evals: int = 8  # model-selection checkpoints (epochs) over the steps
+    batch_labelled: int = 16  # m; n = pairs_per_label * m pairs
+    pairs_per_label: int = 5
+    gamma: float = 1.0
+    lr: float = 1e-3
+    balance_weight: float = 0.0
+    augment: bool = True
+    val_fraction: float = 0.3
+    select_val: int = 2100  # validation samples used for model selection (stratified subsample)
+    eval_max: int = 6000  # each evaluation set is a random subsample of at most this many samples (0 = all)
+    balanced_labels: bool = True  # class-uniform label draws (matters for baseline_max's imbalanced labels)
+    threads: int = 0
+    settings: tuple[str, ...] = SETTINGS
+
+    @classmethod
+    def full(cls, **kw: Any) -> PaperConfig:
+        """Toward the paper's size: 1400 training frames, 465 test frames, 350 labels per class."""
+        return cls(**({"frames": 1400, "test_frames": 465, "labels_per_class": 350, "steps": 6000, "evals": 20,
+                        "eval_max": 0} | kw))
+
+    def training_config(self) -> TrainingConfig:
+        evals = max(1, min(self.evals, self.steps))
+        return TrainingConfig(
+            epochs=evals,
+            steps_per_epoch=max(1, self.steps // evals),
+            batch_labelled=self.batch_labelled,
+            pairs_per_label=self.pairs_per_label,
+            gamma=self.gamma,
+            lr=self.lr,
+            seed=self.seed,
+            balance_weight=self.balance_weight,
+            augment=self.augment,
+            balanced_labels=self.balanced_labels,
+            threads=self.threads,
+        )
+
+
+@dataclass
+class Split:
+    """Indices into the training scene's samples."""
+
+    train_labelled: np.ndarray  # (L_t,) labelled samples of training-split tracks
+    val_labelled: np.ndarray  # (L_v,)
+    val_tracks: np.ndarray  # pipeline track ids on the validation side
+    min_labelled: np.ndarray  # baseline_min's labels (subset of train_labelled)
+
+
+def split_scene(scene: SceneSamples, cfg: PaperConfig) -> Split:
+    """70/30 by track, per class; then `labels_per_class` random training labels per class."""
+    rng = np.random.default_rng(cfg.seed)
+    lab = scene.labelled
+    cls = scene.label[lab]
+    trk = scene.track[lab]
+    val_tracks: list[np.ndarray] = []
+    for k in range(NUM_SAMPLE_CLASSES):
+        tracks = np.unique(trk[cls == k])
+        tracks = tracks[rng.permutation(len(tracks))]
+        n_val = int(round(len(tracks) * cfg.val_fraction))
+        val_tracks.append(tracks[: min(n_val, max(len(tracks) - 1, 0))])
+    vt = np.unique(np.concatenate(val_tracks)) if val_tracks else np.zeros(0, np.int64)
+    in_val = np.isin(trk, vt)
+    train_l, val_l = lab[~in_val], lab[in_val]
+    mins = []
+    for k in range(NUM_SAMPLE_CLASSES):
+        idx = train_l[scene.label[train_l] == k]
+        mins.append(rng.choice(idx, size=min(cfg.labels_per_class, len(idx)), replace=False))
+    return Split(train_l, val_l, vt, np.sort(np.concatenate(mins)).astype(np.int64))
+
+
+def setting_data(name: str, scene: SceneSamples, split: Split) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(labelled indices, pairs (P, 2), pair weights (P,)) of a setting."""
+    none = np.zeros((0, 2), np.int64), np.zeros(0, np.float32)
+    if name == "baseline_min":
+        return split.min_labelled, *none
+    if name == "baseline_max":
+        return split.train_labelled, *none
+    if name == "constraint100_auto":
+        pairs, weights = scene.auto_pairs, scene.auto_scores
+        up_to = 2
+    else:
+        up_to = {"constraint30": 0, "constraint60": 1, "constraint100": 2}[name]
+        pairs, weights = scene.verified_pairs, np.ones(len(scene.verified_pairs), np.float32)
+    part = route_part(scene.progress)
+    keep = (part[pairs[:, 0]] <= up_to) & ~np.isin(scene.track[pairs[:, 0]], split.val_tracks)
+    return split.min_labelled, pairs[keep], weights[keep]
+
+
+def _stratified_subsample(idx: np.ndarray, labels: np.ndarray, n: int, seed: int) -> np.ndarray:
+    if len(idx) <= n:
+        return idx
+    rng = np.random.default_rng(seed)
+    per = max(1, n // NUM_SAMPLE_CLASSES)
+    out = []
+    for k in np.unique(labels):
+        sel = idx[labels == k]
+        out.append(rng.choice(sel, size=min(per, len(sel)), replace=False))
+    return np.sort(np.concatenate(out))
+
+
+def _random_subsample(idx: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """A random subset of at most n of `idx` (keeps the class priors, so precision stays unbiased)."""
+    if n <= 0 or len(idx) <= n:
+        return idx
+    return np.sort(np.random.default_rng(seed).choice(idx, size=n, replace=False))
+
+
+def _f_row(report: Any) -> dict[str, Any]:
+    d = report.to_dict()
+    return {"f": {c: d["per_class"][c]["f"] for c in SAMPLE_CLASSES}, "mean_f": d["mean_f"],
+            "accuracy": d["accuracy"], "support": {c: d["per_class"][c]["support"] for c in SAMPLE_CLASSES},
+            "confusion": d["confusion"]}
+
+
+def run_paper(
+    out: str | Path,
+    cfg: PaperConfig | None = None,
+    cache: str | Path | None = None,
+    progress: bool = True,
+    log: Any = None,
+) -> dict[str, Any]:
+    """Run the experiment; writes OUT/paper.md, paper.json, paper_train.png, paper_test.png."""
+    from pipeline.model import resolve_device
+    from pipeline.training import LabelledSamples, TrainingData, evaluate, train
+
+    cfg = cfg or PaperConfig()
+    log = log or (lambda _m: None)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(cache) if cache is not None else out / "cache"
+    t_start = time.perf_counter()
+    load0 = os.getloadavg() if hasattr(os, "getloadavg") else None
+
+    log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames) and test scene D "
+        f"(seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames) at S={cfg.size}")
+    t0 = time.perf_counter()
+    scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress)
+    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress)
+    t_data = time.perf_counter() - t0
+    split = split_scene(scene, cfg)
+    n_select = min(cfg.select_val, cfg.eval_max) if cfg.eval_max > 0 else cfg.select_val
+    sel = _stratified_subsample(split.val_labelled, scene.label[split.val_labelled], n_select, cfg.seed)
+    val_select = LabelledSamples(scene.samples[sel], scene.label[sel].astype(np.int64))
+    sub = _random_subsample
+    evals = {
+        "train_val": sub(np.sort(np.concatenate([split.train_labelled, split.val_labelled])), cfg.eval_max, cfg.seed),
+        "val": sub(split.val_labelled, cfg.eval_max, cfg.seed + 1),
+    }
+    test_idx = sub(test.labelled, cfg.eval_max, cfg.seed + 2)
+
+    sample_cfg = PipelineConfig().samples.model_copy(update={"size": cfg.size})
+    model_cfg = ModelConfig()
+    tcfg = cfg.training_config()
+    results: dict[str, Any] = {}
+    data_table: dict[str, Any] = {}
+    names = list(cfg.settings)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(names), desc="settings", unit="setting", position=0)
+    for name in names:
+        labelled, pairs, weights = setting_data(name, scene, split)
+        data = TrainingData.build(scene.samples, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
+        pair_cls = scene.label[pairs[:, 0]] if name != "constraint100_auto" else scene.gt_class[pairs[:, 0]]
+        data_table[name] = {
+            "labels": np.bincount(scene.label[labelled], minlength=NUM_SAMPLE_CLASSES).tolist(),
+            "constraints": np.bincount(
+                np.clip(pair_cls.astype(np.int64), 0, NUM_SAMPLE_CLASSES), minlength=NUM_SAMPLE_CLASSES + 1
+            )[:NUM_SAMPLE_CLASSES].tolist(),
+            "pairs": int(len(pairs)),
+        }
+        t1 = time.perf_counter()
+        res = train(data, tcfg.model_copy(update={"weighted_pairs": name == "constraint100_auto"}), model_cfg,
+                    sample_cfg, val=val_select, progress=progress)
+        t_train = time.perf_counter() - t1
+        row: dict[str, Any] = {"train_seconds": round(t_train, 1), "selected_epoch": res.selected_epoch,
+                               "selection": res.selection, "train_loss": [round(r.loss, 5) for r in res.history],
+                               "val_select_f": [round(r.val_f, 3) for r in res.history]}
+        for key, idx in evals.items():
+            row[key] = _f_row(evaluate(res.model, LabelledSamples(scene.samples[idx], scene.label[idx].astype(np.int64))))
+        row["test"] = _f_row(evaluate(res.model, LabelledSamples(test.samples[test_idx], test.label[test_idx].astype(np.int64))))
+        steps = len(res.history) * tcfg.steps_per_epoch  # type: ignore[operator]
+        row["steps"] = steps
+        row["seconds_per_step"] = round(sum(r.seconds for r in res.history) / max(steps, 1), 4)
+        results[name] = row
+        log(f"{name}: {len(labelled)} labels, {len(pairs)} pairs, {t_train:.0f} s; F train/val "
+            f"{row['train_val']['mean_f']:.1f}, val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+
+    doc: dict[str, Any] = {
+        "config": asdict(cfg) | {"settings": list(cfg.settings)},
+        "training": tcfg.model_dump(mode="json"),
+        "model": model_cfg.model_dump(mode="json"),
+        "scenes": {"train": scene.summary(), "test": test.summary()},
+        "split": {"train_labelled": int(len(split.train_labelled)), "val_labelled": int(len(split.val_labelled)),
+                  "val_tracks": int(len(split.val_tracks)), "test_labelled": int(len(test.labelled)),
+                  "evaluated": {"train_val": int(len(evals["train_val"])), "val": int(len(evals["val"])),
+                                "test": int(len(test_idx))},
+                  "min_labels_per_class": np.bincount(scene.label[split.min_labelled],
+                                                      minlength=NUM_SAMPLE_CLASSES).tolist()},
+        "data": data_table,
+        "results": results,
+        "targets": targets(results),
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_start": load0,
+                    "load_average_end": os.getloadavg() if hasattr(os, "getloadavg") else None,
+                    "device": str(resolve_device(tcfg.device)), "threads": cfg.threads or None},
+        "seconds": {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)},
+    }
+    (out / "paper.json").write_text(json.dumps(doc, indent=1))
+    (out / "paper.md").write_text(markdown(doc))
+    _plots(doc, out)
+    return doc
+
+
+def targets(results: dict[str, Any]) -> dict[str, Any]:
+    """The issue's targets: constraint100 >= baseline_min + 10 on D; the train/val ordering."""
+    out: dict[str, Any] = {}
+    if "constraint100" in results and "baseline_min" in results:
+        gain = results["constraint100"]["test"]["mean_f"] - results["baseline_min"]["test"]["mean_f"]
+        out["test_gain_constraint100_over_baseline_min"] = {"value": round(gain, 2), "target": 10.0, "met": gain >= 10.0}
+    order = [n for n in ("baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max") if n in results]
+    if len(order) == 5:
+        for key in ("train_val", "val"):
+            vals = [results[n][key]["mean_f"] for n in order]
+            met = all(a < b for a, b in zip(vals[:-1], vals[1:], strict=True))
+            out[f"ordering_{key}"] = {"value": [round(v, 2) for v in vals], "met": met}
+    return out
+
+
+def _fmt(v: float | None) -> str:
+    return "-" if v is None else f"{v:.1f}"
+
+
+def markdown(doc: dict[str, Any]) -> str:
+    res, cfg = doc["results"], doc["config"]
+    head = "| Learning method | Classifier | " + " | ".join(c.capitalize() for c in SAMPLE_CLASSES) + " | Average |"
+    rule = "|---|---|" + "---|" * (len(SAMPLE_CLASSES) + 1)
+
+    def table(key: str) -> list[str]:
+        rows = [head, rule]
+        for name, r in res.items():
+            f = r[key]
+            rows.append(f"| {METHOD.get(name, 'semi-sup.')} | {name} | "
+                        + " | ".join(_fmt(f["f"][c]) for c in SAMPLE_CLASSES) + f" | {_fmt(f['mean_f'])} |")
+        return rows
+
+    data_rows = ["| Setting | | " + " | ".join(c.capitalize() for c in SAMPLE_CLASSES) + " |",
+                 "|---|---|" + "---|" * len(SAMPLE_CLASSES)]
+    for name, d in doc["data"].items():
+        data_rows.append(f"| {name} | constraint | " + " | ".join(str(v) for v in d["constraints"]) + " |")
+        data_rows.append("| | annotation | " + " | ".join(str(v) for v in d["labels"]) + " |")
+    tr, te = doc["scenes"]["train"], doc["scenes"]["test"]
+    tgt = doc["targets"]
+    lines = [
+        f"Simulated training route: seed {cfg['seed']}, {cfg['frames']} frames, {tr['samples']} samples, "
+        f"{tr['labels']} operator labels, {tr['verified_pairs']} verified / {tr['auto_pairs']} automatic constraints "
+        f"(automatic link precision {_fmt(100 * tr['auto_pair_precision'] if tr['auto_pair_precision'] else None)} %). "
+        f"Test scene D: seed {cfg['seed'] + TEST_SEED_OFFSET}, {cfg['test_frames']} frames, {te['labels']} labelled samples. "
+        f"S={cfg['size']}, {cfg['steps']} steps per setting (m={cfg['batch_labelled']} labels + "
+        f"{cfg['pairs_per_label'] * cfg['batch_labelled']} pairs per step), gamma={cfg['gamma']}, "
+        f"70/30 train/validation split by track.",
+        "",
+        "**Training data per setting** (like the paper's Table 6; constraints by the class of their track):",
+        "",
+        *data_rows,
+        "",
+        "**F-measure on the training data** (train + validation samples, like the paper's Table 7):",
+        "",
+        *table("train_val"),
+        "",
+        "**F-measure on the validation split only** (30 % of the tracks, never trained on):",
+        "",
+        *table("val"),
+        "",
+        "**F-measure on test scene D** (like the paper's Table 8):",
+        "",
+        *table("test"),
+        "",
+        "Targets: " + "; ".join(
+            f"{k}: {v['value']} ({'met' if v['met'] else 'NOT met'})" for k, v in tgt.items()
+        ),
+        "",
+        f"Time: {doc['seconds']['total']:.0f} s in all (data {doc['seconds']['data']:.0f} s); load average at "
+        f"start {_load(doc['machine']['load_average_start'])}, at end {_load(doc['machine']['load_average_end'])}.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _load(v: list[float] | None) -> str:
+    return "-" if not v else ", ".join(f"{x:.2f}" for x in v)
+
+
+def _plots(doc: dict[str, Any], out: Path) -> None:
+    from pipeline.plots import plot_f_bars
+
+    names = list(doc["results"])
+    for key, title, fname in (("train_val", "F on training data (train + val)", "paper_train.png"),
+                              ("test", "F on test scene D", "paper_test.png")):
+        f = np.array([[np.nan if doc["results"][n][key]["f"][c] is None else doc["results"][n][key]["f"][c]
+                       for c in SAMPLE_CLASSES] for n in names])
+        plot_f_bars(f, names, SAMPLE_CLASSES, out / fname, title=title)
+
+
+__all__ = ["SETTINGS", "PaperConfig", "Split", "markdown", "run_paper", "setting_data", "split_scene", "targets"]
+

@@ -1,0 +1,36 @@
+"""`tracklabel experiment paper` end to end at a toy size (the real default takes ~25 minutes)."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from app.cli import app
+
+runner = CliRunner()
+
+
+def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
+    out = tmp_path / "paper"
+    r = runner.invoke(
+        app,
+        ["experiment", "paper", "--out", str(out), "--frames", "20", "--test-frames", "10", "--size", "32",
+         "--steps", "4", "--labels-per-class", "3", "--threads", "1", "--evals", "2", "--eval-max", "300"],
+    )
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "paper.json").read_text())
+    assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
+                                    "constraint100_auto"]
+    for row in doc["results"].values():
+        assert row["steps"] == 4 and len(row["train_loss"]) == 2 and {"train_val", "val", "test"} <= set(row)
+    assert doc["data"]["constraint30"]["pairs"] <= doc["data"]["constraint100"]["pairs"]
+    assert "test_gain_constraint100_over_baseline_min" in doc["targets"]
+    md = (out / "paper.md").read_text()
+    assert "| semi-sup. | constraint100 |" in md and "test scene D" in md
+    assert (out / "paper_train.png").stat().st_size > 1000 and (out / "paper_test.png").stat().st_size > 1000
+
+
+def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--frames", "5"])
+    assert r.exit_code == 2
