@@ -230,3 +230,20 @@ def test_learning_curve_reads_per_epoch_metrics():
     model = learning_curve({"train_loss": [2.0, 1.0], "val_f": [None, 55.0], "epochs_run": 2})
     assert list(model["loss"]) == [2.0, 1.0] and np.isnan(model["val_f"][0]) and model["val_f"][1] == 55.0
     assert learning_curve({"steps": 3}) is None and learning_curve(None) is None
+
+
+def test_viewer_without_token_each_tab_signs_in(live_api):
+    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=None, port=0))
+    try:
+        c = HeadlessClient(v.url)
+        c.wait_for(lambda m: m.type == "GuiButtonMessage" and m.fields["props"]["label"] == "Sign in")
+        handle = next(iter(v.server.get_clients().values()))
+        v._sign_in(handle, "tl_wrong", form=None)
+        c.wait_for(lambda m: m.type == "NotificationShowMessage" and "Sign-in failed" in m.fields["props"]["title"])
+        assert not v.tabs
+        v._sign_in(handle, live_api.new_operator(), form=None)
+        c.wait_for(is_points("/frame/points"))
+        assert v.tabs[handle.client_id].user["role"] == "operator"
+        c.close()
+    finally:
+        v.stop()
