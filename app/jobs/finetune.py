@@ -30,9 +30,12 @@ class FinetuneParams(BaseModel):
     model_id: int = Field(ge=1, le=2**31 - 1, description="The pretrained model (a model version id).")
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0, description="automatic: drop pairs scored below this.")
-    epochs: int = Field(default=8, ge=1, le=1000)
-    steps_per_epoch: int | None = Field(default=40, ge=1, le=100_000)
+    epochs: int = Field(default=6, ge=1, le=1000)
+    steps_per_epoch: int | None = Field(default=20, ge=1, le=100_000)
+    batch_labelled: int = Field(default=16, ge=1, le=4096, description="Anchors per step.")
+    pairs_per_label: int = Field(default=2, ge=0, le=100, description="Constraint pairs per anchor in a step.")
     lr: float = Field(default=3e-4, gt=0.0, le=1.0)
+    balance: bool = Field(default=True, description="Draw the anchors' classes evenly (see pipeline/finetune.py).")
     gamma: float = Field(default=1.0, ge=0.0, le=1.0)
     augment: bool = True
     seed: int = 0
@@ -92,6 +95,10 @@ def _training_data(ctx: JobContext, params: FinetuneParams, classes: tuple[str, 
         labels = np.concatenate([labels, np.array([c for _, c in add], np.int64)])
     if len(labelled) == 0:
         raise Invalid(f"sequence {params.sequence_id} has no confirmed anchors or labels: confirm some proposals first")
+    if params.balance:
+        from pipeline.finetune import balance_classes
+
+        labelled, labels = balance_classes(labelled, labels)
     return TrainingData.build(samples, labelled, labels, pairs, weights)
 
 
@@ -121,6 +128,8 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
         update={
             "epochs": params.epochs,
             "steps_per_epoch": params.steps_per_epoch,
+            "batch_labelled": params.batch_labelled,
+            "pairs_per_label": params.pairs_per_label,
             "lr": params.lr,
             "gamma": params.gamma,
             "augment": params.augment,
@@ -171,7 +180,7 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
         "model_id": mv_id,
         "parent_model_id": parent_id,
         "path": str(res.checkpoint.resolve()),
-        "labelled": int(len(data.labelled)),
+        "labelled": int(len(np.unique(data.labelled))),
         "pairs": int(len(data.pairs)),
         "anchors_per_class": metrics.get("anchors_per_class"),
         "predict_job_id": predict_job_id,

@@ -67,18 +67,24 @@ class FinetuneExperimentConfig:
     pretrain_label_steps: int = 1200  # steps of the labels-only runs (batch 32)
     pretrain_pair_steps: int = 400  # steps of constraint100 (16 labels + 80 pairs per step)
     val_max: int = 2000  # validation samples per pretraining run (a random subset)
-    finetune_epochs: int = 3
-    finetune_steps_per_epoch: int = 10
-    finetune_batch: int = 16  # labelled anchors per step (+ 5x as many constraint pairs)
-    finetune_lr: float = 1e-3
+    finetune_epochs: int = 6
+    finetune_steps_per_epoch: int = 20
+    finetune_batch: int = 16  # labelled anchors per step
+    finetune_pairs_per_label: int = 2  # constraint pairs per anchor in a step
+    finetune_lr: float = 3e-4
+    balance: bool = True  # draw the anchors' classes evenly (pipeline.finetune.balance_classes)
     seed: int = 0
     threads: int = 1
 
-    def key(self) -> str:
-        """Hash of what the pretrained models depend on (they are cached under this key)."""
+    def key(self, scene: SceneSamples | None = None) -> str:
+        """Hash of what the pretrained models depend on (they are cached under this key): these
+        settings and the training scene (its summary changes with the pipeline's config)."""
         fields_ = ("train_seed", "train_frames", "size", "min_labels", "pretrain_evals", "pretrain_label_steps",
                    "pretrain_pair_steps", "val_max", "seed")
-        blob = json.dumps({k: getattr(self, k) for k in fields_}, sort_keys=True)
+        data = {k: getattr(self, k) for k in fields_}
+        if scene is not None:
+            data["scene"] = scene.summary()
+        blob = json.dumps(data, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:10]
 
 
@@ -136,7 +142,7 @@ def _pretrain(
     mc = ModelConfig()
     sc = SampleConfig(size=cfg.size, foreground_channel=scene.samples.shape[1] == 4)
     for name, (data, val) in _pretrain_sets(scene, cfg).items():
-        out = models_dir / f"{name}_{cfg.key()}"
+        out = models_dir / f"{name}_{cfg.key(scene)}"
         ckpt = out / "best.pt"
         if ckpt.is_file():
             log(f"{name}: reusing {ckpt}")
@@ -278,12 +284,14 @@ def run_finetune_experiment(
             data = finetune_data(
                 test_scene.samples, idx, y, pairs, scores, verified,
                 "automatic" if cfg.constraints == "automatic" else cfg.constraints,
+                balance=cfg.balance,
             )
             tc = finetune_config(
                 TrainingConfig(seed=cfg.seed, threads=cfg.threads),
                 epochs=cfg.finetune_epochs,
                 steps_per_epoch=cfg.finetune_steps_per_epoch,
                 batch_labelled=cfg.finetune_batch,
+                pairs_per_label=cfg.finetune_pairs_per_label,
                 lr=cfg.finetune_lr,
             )
             res = finetune((pre_model, pre_meta), data, tc)

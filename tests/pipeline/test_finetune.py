@@ -112,3 +112,14 @@ def test_finetune_config_keeps_explicit_base_values():
     cfg = finetune_config(TrainingConfig(lr=0.01))
     assert cfg.lr == 0.01 and cfg.augment is True
     assert finetune_config(None, epochs=2).epochs == 2
+
+
+def test_balance_classes_repeats_rare_classes():
+    from pipeline.finetune import balance_classes
+
+    idx, y = balance_classes(np.array([10, 11, 12, 13, 20]), np.array([4, 4, 4, 4, 0]))
+    assert np.bincount(y, minlength=5).tolist() == [4, 0, 0, 0, 4]
+    assert sorted(idx[y == 0].tolist()) == [20] * 4 and sorted(idx[y == 4].tolist()) == [10, 11, 12, 13]
+    x = np.zeros((30, 4, SIZE, SIZE), np.uint8)
+    d = finetune_data(x, [10, 11, 12, 13, 20], [4, 4, 4, 4, 0], balance=True)
+    assert len(d.labelled) == 8 and len(np.unique(d.labelled)) == 5
