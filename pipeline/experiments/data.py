@@ -15,7 +15,8 @@ its points, and that object's share of them), the fraction of the route travelle
 - **automatic constraints**: every link the association made (consecutive samples of a track),
   with its association score, whether right or wrong.
 
-Results are cached as one `.npz` per (seed, frames, start, size, config) under `cache`, so
+Results are cached as one `.npz` per (seed, frames, start, size, config, source code of the
+simulator and perception modules) under `cache`, so
 experiments re-run in seconds and other experiments (fine-tuning) reuse the same scenes.
 """
 
@@ -177,10 +178,26 @@ def operator_review(
     return label, pairs[keep_pair]
 
 
-def _cache_key(seed: int, frames: int, start: int, config: PipelineConfig) -> str:
-    from pipeline import __version__
+# Code that shapes the samples: a change to any of these files invalidates cached scenes.
+_SOURCES = ("simulation", "range_image.py", "ground.py", "segmentation.py", "samples.py", "association.py",
+            "processing.py", "sensors.py", "classes.py", "experiments/data.py")
 
-    blob = json.dumps([CACHE_VERSION, __version__, seed, frames, start, config.model_dump(mode="json")], sort_keys=True)
+
+def _code_fingerprint() -> str:
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for name in _SOURCES:
+        p = root / name
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
+            if f.is_file():
+                h.update(f.relative_to(root).as_posix().encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def _cache_key(seed: int, frames: int, start: int, config: PipelineConfig) -> str:
+    blob = json.dumps([CACHE_VERSION, _code_fingerprint(), seed, frames, start, config.model_dump(mode="json")],
+                      sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 

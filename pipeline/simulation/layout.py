@@ -285,6 +285,19 @@ class Layout:
             cz = m.add_canopy(b, rng, base, radius, height, crown_id, m.foliage(rng))
             top = cz
         m.add_trunk(b, rt, top, trunk_id, bark)
+        if style != "conifer" and rng.random() < 0.3:
+            # shoots and low twigs on the trunk (epicormic growth): leaves next to the bark
+            leaves = m.foliage(rng)
+            for _ in range(int(rng.integers(1, 4))):
+                ang = rng.uniform(0, 2 * np.pi)
+                z = rng.uniform(0.4, max(0.5, min(base, 2.2)))
+                r = rng.uniform(0.15, 0.35)
+                c = ((rt + 0.6 * r) * np.cos(ang), (rt + 0.6 * r) * np.sin(ang), z)
+                b.ellipsoid(c, (r, r, 0.8 * r), m.VEGETATION, crown_id, leaves)
+        if style == "young" and rng.random() < 0.5:
+            # a tree stake (unknown object class) beside a young trunk
+            stake_id = self.reg.new("stake", (m.POLE,), position=pos)
+            b.cylinder((rt + 0.12, 0.0, 0.9), 0.03, 0.95, m.POLE, stake_id, Material(refl=0.3, noise=0.005))
         self.put(b, xy, rng.uniform(0, 2 * np.pi))
         return True
 

@@ -145,17 +145,26 @@ class PersonShape:
     top: Material
     bottom: Material
     backpack: bool
+    carry: str = ""  # "" | "bag" (shoulder bag / suitcase at the side) | "umbrella" | "coat" (long coat)
 
 
 def draw_person(rng: np.random.Generator) -> PersonShape:
-    """Adults and teenagers of 1.45-1.98 m, clothes from dark to bright."""
-    height = float(np.clip(rng.normal(1.72, 0.1), 1.45, 1.98))
+    """Adults and teenagers of 1.45-1.98 m and children of 1.0-1.45 m (12 %), slim to broad
+    builds; clothes from dark to bright; some carry a backpack, a bag or an umbrella, or wear a
+    long coat that hides the legs."""
+    if rng.random() < 0.12:
+        height = float(rng.uniform(1.0, 1.45))
+    else:
+        height = float(np.clip(rng.normal(1.72, 0.1), 1.45, 1.98))
 
     def cloth() -> Material:
         refl = rng.uniform(0.06, 0.6)
         return Material(refl=refl, drop=0.03, spec=0.5 if refl < 0.1 else 0.1)
 
-    return PersonShape(height, rng.uniform(0.85, 1.2), cloth(), cloth(), bool(rng.random() < 0.3))
+    build = float(rng.uniform(0.8, 1.35))
+    top, bottom, backpack = cloth(), cloth(), bool(rng.random() < 0.25)
+    carry = str(rng.choice(["", "bag", "umbrella", "coat"], p=[0.62, 0.16, 0.08, 0.14]))
+    return PersonShape(height, build, top, bottom, backpack, carry)
 
 
 def add_person(
@@ -185,6 +194,13 @@ def add_person(
     b.ellipsoid((0.01, 0, 0.935 * h), (0.095 * s, 0.08 * s, 0.115 * s), semantic, instance, SKIN)
     if p.backpack:
         b.box((-0.2 * wf, 0, 0.66 * h), (0.09, 0.15 * wf, 0.2), semantic, instance, PLASTIC)
+    if p.carry == "bag":  # a bag at the right hip (or a suitcase at hand height)
+        b.box((0.0, -0.3 * wf, 0.45 * h), (0.17, 0.07, 0.16), semantic, instance, PLASTIC)
+    elif p.carry == "umbrella":  # open canopy above the head, shaft in the right hand
+        b.capsule((0.05, -0.2 * wf, 0.55 * h), (0.05, -0.1, 1.12 * h), 0.012, semantic, instance, METAL)
+        b.ellipsoid((0.05, -0.1, 1.14 * h), (0.5, 0.5, 0.12), semantic, instance, PLASTIC)
+    elif p.carry == "coat":  # a long coat: a cone-like skirt from the hips to the knees
+        b.ellipsoid((0, 0, 0.36 * h), (0.16 * wf, 0.23 * wf, 0.2 * h), semantic, instance, p.top)
 
 
 # ---------------------------------------------------------------------------- bicycles
@@ -283,9 +299,37 @@ def add_canopy(
     return cz
 
 
+BUSH_KINDS = ("round", "columnar", "spreading", "sparse")
+BUSH_P = (0.5, 0.18, 0.17, 0.15)
+
+
 def add_bush(b: PrimitiveBuilder, rng: np.random.Generator, size: float, instance: int) -> None:
-    """1-3 overlapping ellipsoids, `size` metres across, sunk a little into the ground."""
-    leaves = foliage(rng, dense=True)
+    """A shrub about `size` metres across, sunk a little into the ground; one of BUSH_KINDS:
+
+    round      1-3 overlapping dense ellipsoids (the common garden shrub);
+    columnar   a tall narrow shrub (cypress, yew) of 1.3-3 m, 0.5-0.9 m across: the height and
+               width of a person or of a tree trunk with its lower crown;
+    spreading  2-4 low wide lobes, 0.4-0.9 m high (ground cover, low hedging plants);
+    sparse     round but open foliage (few leaves, winter): fewer, scattered returns.
+    """
+    kind = str(rng.choice(BUSH_KINDS, p=BUSH_P))
+    if kind == "columnar":
+        leaves = foliage(rng, dense=True)
+        h = rng.uniform(1.3, 3.0)
+        r = rng.uniform(0.25, 0.45)
+        b.ellipsoid((0, 0, 0.5 * h - 0.05), (r, r * rng.uniform(0.8, 1.1), 0.5 * h), VEGETATION, instance, leaves)
+        return
+    if kind == "spreading":
+        leaves = foliage(rng, dense=True)
+        for _ in range(int(rng.integers(2, 5))):
+            r = size / 2 * rng.uniform(0.4, 0.8)
+            rz = rng.uniform(0.2, 0.45)
+            off = size * rng.uniform(0.0, 0.4)
+            ang = rng.uniform(0, 2 * np.pi)
+            b.ellipsoid((off * np.cos(ang), off * np.sin(ang), 0.6 * rz), (r, r * rng.uniform(0.7, 1.3), rz),
+                        VEGETATION, instance, leaves)
+        return
+    leaves = foliage(rng, dense=kind == "round")
     for k in range(int(rng.integers(1, 4))):
         r = size / 2 * rng.uniform(0.6, 1.0)
         rz = r * rng.uniform(0.6, 1.0)
