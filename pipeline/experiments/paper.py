@@ -55,7 +55,7 @@ class PaperConfig:
     test_frames: int = 240  # test scene D
     size: int = 64
     labels_per_class: int = 30  # baseline_min (the paper: 350 of 531-10103 per class)
-    steps: int = 1200  # per setting
+    steps: int = 800  # per setting (~11 min for all six at S=64 on 2 idle cores; see README)
     evals: int = 8  # model-selection checkpoints (epochs) over the steps
     batch_labelled: int = 16  # m; n = pairs_per_label * m pairs
     pairs_per_label: int = 5
