@@ -226,6 +226,7 @@ def experiment_finetune(
     strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
     budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",
     constraints: Annotated[str, typer.Option(help="New scene's constraints: verified, automatic or none.")] = "verified",
+    finetune_seeds: Annotated[str, typer.Option(help="Comma-separated seeds; each point is their mean.")] = "0",
     threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 1,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
@@ -244,11 +245,17 @@ def experiment_finetune(
         fail(f"--budgets: expected comma-separated integers, got {budgets!r}")
     if not budget_list or min(budget_list) < 1:
         fail("--budgets: give at least one budget >= 1")
+    try:
+        seeds = tuple(int(v) for v in finetune_seeds.split(",") if v.strip())
+    except ValueError:
+        fail(f"--finetune-seeds: expected comma-separated integers, got {finetune_seeds!r}")
+    if not seeds:
+        fail("--finetune-seeds: give at least one seed")
     if constraints not in ("verified", "automatic", "none"):
         fail(f"--constraints: expected verified, automatic or none, got {constraints!r}")
     cfg = FinetuneExperimentConfig(
         train_seed=seed, test_seed=seed + 1000, train_frames=frames, test_frames=test_frames, size=size,
-        strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads,
+        strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads, finetune_seeds=seeds,
     )
     doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
     typer.echo((out / "finetune.md").read_text())

@@ -73,6 +73,7 @@ class FinetuneExperimentConfig:
     finetune_pairs_per_label: int = 2  # constraint pairs per anchor in a step
     finetune_lr: float = 3e-4
     balance: bool = True  # draw the anchors' classes evenly (pipeline.finetune.balance_classes)
+    finetune_seeds: tuple[int, ...] = (0,)  # each point is the mean over fine-tuning runs of these seeds
     seed: int = 0
     threads: int = 1
 
@@ -195,7 +196,7 @@ def _curve_plot(curves: dict[str, dict[str, list]], lines: dict[str, float], pat
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for name, c in curves.items():
-        ax.plot(c["budget"], c["mean_f"], marker="o", label=name)
+        ax.errorbar(c["budget"], c["mean_f"], yerr=c.get("mean_f_std"), marker="o", capsize=3, label=name)
     styles = ["--", ":", "-."]
     for i, (name, v) in enumerate(lines.items()):
         ax.axhline(v, color="grey", linestyle=styles[i % len(styles)], label=f"{name} ({v:.1f})")
@@ -268,13 +269,13 @@ def run_finetune_experiment(
         else:
             pairs, scores, verified = test_scene.verified_pairs, None, None
         runs: list[dict[str, Any]] = []
-        jobs = [(s, b) for s in cfg.strategies for b in cfg.budgets]
+        jobs = [(s, b, fs) for s in cfg.strategies for b in cfg.budgets for fs in cfg.finetune_seeds]
         bar = None
         if progress:
             from tqdm import tqdm
 
             bar = tqdm(total=len(jobs), desc="fine-tune runs", unit="run")
-        for strategy, budget in jobs:
+        for strategy, budget, fseed in jobs:
             t0 = time.perf_counter()
             counts = class_counts(budget, cfg.unknown_ratio * budget)
             props = propose(
@@ -287,7 +288,7 @@ def run_finetune_experiment(
                 balance=cfg.balance,
             )
             tc = finetune_config(
-                TrainingConfig(seed=cfg.seed, threads=cfg.threads),
+                TrainingConfig(seed=fseed, threads=cfg.threads),
                 epochs=cfg.finetune_epochs,
                 steps_per_epoch=cfg.finetune_steps_per_epoch,
                 batch_labelled=cfg.finetune_batch,
@@ -303,6 +304,7 @@ def run_finetune_experiment(
             run = {
                 "strategy": strategy,
                 "budget": budget,
+                "seed": fseed,
                 "proposals": len(props),
                 "confirmed": n_conf,
                 "rejected": n_rej,
@@ -326,27 +328,29 @@ def run_finetune_experiment(
         torch.set_num_threads(threads_before)
 
     target = rows["baseline_max"].mean_f
+    points = _mean_over_seeds(runs)
     curves: dict[str, dict[str, list]] = {}
     for s in cfg.strategies:
-        rs = [r for r in runs if r["strategy"] == s]
+        rs = [r for r in points if r["strategy"] == s]
         curves[s] = {
             "budget": [r["budget"] for r in rs],
             "confirmed": [r["confirmed"] for r in rs],
             "labelled_samples": [r["labelled_samples"] for r in rs],
             "mean_f": [r["mean_f"] for r in rs],
+            "mean_f_std": [r["mean_f_std"] for r in rs],
             "held_out_mean_f": [r["held_out_mean_f"] for r in rs],
         }
     reaching = {
-        s: min((r["budget"] for r in runs if r["strategy"] == s and r["mean_f"] >= target), default=None)
+        s: min((r["budget"] for r in points if r["strategy"] == s and r["mean_f"] >= target), default=None)
         for s in cfg.strategies
     }
     best_budget = max(b for b in cfg.budgets if b <= 20) if any(b <= 20 for b in cfg.budgets) else max(cfg.budgets)
     candidates = [s for s in cfg.strategies if reaching[s] is not None]
     if candidates:
-        best = min(candidates, key=lambda s: (reaching[s], -_f_at(runs, s, reaching[s])))
+        best = min(candidates, key=lambda s: (reaching[s], -_f_at(points, s, reaching[s])))
     else:
-        best = max(cfg.strategies, key=lambda s: _f_at(runs, s, best_budget))
-    ft = next(r for r in runs if r["strategy"] == best and r["budget"] == best_budget)
+        best = max(cfg.strategies, key=lambda s: _f_at(points, s, best_budget))
+    ft = next(r for r in points if r["strategy"] == best and r["budget"] == best_budget)
     rows_out = [
         rows["baseline_min"],
         rows["constraint100"],
@@ -362,6 +366,7 @@ def run_finetune_experiment(
         "table": [{"name": r.name, "f": r.f, "mean_f": r.mean_f} for r in rows_out],
         "pretrained": {k: {"f": v.f, "mean_f": v.mean_f, "report": v.extra["report"]} for k, v in rows.items()},
         "runs": runs,
+        "points": points,
         "curves": curves,
         "target": {
             "baseline_max_mean_f": target,
@@ -377,11 +382,17 @@ def run_finetune_experiment(
     )
     (out / "finetune.md").write_text(
         "F-measure on the new scene (Table 10 layout)\n\n" + _table(rows_out) + "\n\n"
-        + "Average F against confirmations per class (unknown x5):\n\n"
+        + f"Average F against confirmations per class (unknown x{cfg.unknown_ratio}), mean over fine-tuning seeds "
+        + f"{list(cfg.finetune_seeds)}:\n\n"
         + "| strategy | " + " | ".join(str(b) for b in cfg.budgets) + " | reaches baseline_max at |\n"
         + "|---|" + "---|" * (len(cfg.budgets) + 1) + "\n"
         + "\n".join(
-            f"| {s} | " + " | ".join(f"{v:.1f}" for v in curves[s]["mean_f"]) + f" | {reaching[s] or '-'} |"
+            f"| {s} | "
+            + " | ".join(
+                f"{v:.1f}" + (f" ± {sd:.1f}" if len(cfg.finetune_seeds) > 1 else "")
+                for v, sd in zip(curves[s]["mean_f"], curves[s]["mean_f_std"], strict=True)
+            )
+            + f" | {reaching[s] or '-'} |"
             for s in cfg.strategies
         )
         + "\n"
@@ -391,6 +402,29 @@ def run_finetune_experiment(
     _curve_plot(curves, {"baseline_max": target, "constraint100": rows["constraint100"].mean_f,
                          "baseline_min": rows["baseline_min"].mean_f}, out / "finetune_curve.png")
     return result
+
+
+def _mean_over_seeds(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One point per (strategy, budget): F per class and averages as means over its seeds."""
+    out: list[dict[str, Any]] = []
+    keys = list(dict.fromkeys((r["strategy"], r["budget"]) for r in runs))
+    for strategy, budget in keys:
+        rs = [r for r in runs if r["strategy"] == strategy and r["budget"] == budget]
+        f = np.array([[np.nan if v is None else v for v in r["f"]] for r in rs], np.float64)
+        with np.errstate(all="ignore"):
+            f_mean = np.nanmean(f, axis=0) if len(rs) else f
+        means = np.array([r["mean_f"] for r in rs])
+        out.append(
+            rs[0]
+            | {
+                "seeds": [r["seed"] for r in rs],
+                "f": [None if not np.isfinite(v) else round(float(v), 2) for v in f_mean],
+                "mean_f": round(float(means.mean()), 2),
+                "mean_f_std": round(float(means.std()), 2),
+                "held_out_mean_f": round(float(np.mean([r["held_out_mean_f"] for r in rs])), 2),
+            }
+        )
+    return out
 
 
 def _f_at(runs: list[dict[str, Any]], strategy: str, budget: int | None) -> float:

@@ -31,6 +31,11 @@ ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "un
 assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
 BIG = 2**31 - 1
+ANSWER_RESPONSES: dict[int | str, dict[str, str]] = {
+    404: {"description": "The proposal no longer exists (replaced by a newer proposal run, or re-ingested)."},
+    409: {"description": "Already answered, its track was discarded, or its sequence is not ready."},
+    422: {"description": "Unknown class."},
+}
 
 
 @router.get("/anchors")
@@ -75,21 +80,21 @@ def anchor_events(anchor_id: IdPath, _user: CurrentUser, session: SessionDep) ->
     return [AnchorEventPublic.model_validate(e) for e in anchors.anchor_events(session, anchor_id)]
 
 
-@router.post("/anchors/{anchor_id}/confirm")
+@router.post("/anchors/{anchor_id}/confirm", responses=ANSWER_RESPONSES)
 def confirm_anchor(anchor_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Confirm the proposed class. A track-level proposal labels its whole track (as the track
     `label` action does). Already answered -> 409; gone -> 404."""
     return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "confirm", SAMPLE_CLASSES))
 
 
-@router.post("/anchors/{anchor_id}/correct")
+@router.post("/anchors/{anchor_id}/correct", responses=ANSWER_RESPONSES)
 def correct_anchor(anchor_id: IdPath, body: AnchorCorrect, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Answer with another class (`label`); unknown class -> 422. A track-level proposal labels its
     whole track with it. Already answered -> 409; gone -> 404."""
     return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "correct", SAMPLE_CLASSES, body.label))
 
 
-@router.post("/anchors/{anchor_id}/reject")
+@router.post("/anchors/{anchor_id}/reject", responses=ANSWER_RESPONSES)
 def reject_anchor(anchor_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Reject the proposal (not a usable anchor: a wrong segment or association). Already
     answered -> 409; gone -> 404."""
