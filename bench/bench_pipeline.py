@@ -8,7 +8,8 @@ span every frame on the real recordings in ../shared/data/real (no labels there)
 The projection + ground + segmentation target is the median wall time per frame inside the
 single-worker 64x64 run. `pgs_isolated` times the three stages alone, wall and thread CPU time:
 on the shared 2-core machine, the gap between the two is time spent waiting for a core. Quality is
-also measured on a second simulated scene (seed 1, `*_seed1`).
+also measured on three more simulated scenes (seeds 1-3, `*_seed1` ... `*_seed3`); seed 1 helped
+choose the association thresholds, seeds 2 and 3 did not.
 """
 
 from __future__ import annotations
@@ -107,18 +108,18 @@ def run(out_dir: Path, quick: bool = False) -> dict:
                 v["value"] >= v["target"] if higher_is_better else v["value"] <= v["target"]
             )
         if not quick:
-            # the same defaults on a second simulated scene (seed 1): the thresholds were chosen on
-            # both seeds, so this shows they are not fitted to one scene
-            seq1 = tmp / "sim1"
-            simulate_sequence(seq1, frames=frames, seed=1)
-            run_process(seq1, tmp / "out_seed1", PipelineConfig(), workers=1)
-            o1 = evaluate_folder(seq1, tmp / "out_seed1")["overall"]
-            result["evaluation_seed1_overall"] = o1
-            for name, key in (("association_precision", "association_precision"),
-                              ("association_recall", "association_recall"), ("purity", "purity")):
-                t = result["targets"][name]
-                t["value_seed1"] = o1[key]
-                t["met_seed1"] = o1[key] is not None and o1[key] >= t["target"]
+            # the same defaults on other simulated scenes: seed 1 was used with seed 0 to choose the
+            # association thresholds; seeds 2 and 3 were only looked at afterwards (held out)
+            for seed in (1, 2, 3):
+                seq_s = tmp / f"sim{seed}"
+                simulate_sequence(seq_s, frames=frames, seed=seed)
+                run_process(seq_s, tmp / f"out_seed{seed}", PipelineConfig(), workers=1)
+                o_s = evaluate_folder(seq_s, tmp / f"out_seed{seed}")["overall"]
+                result[f"evaluation_seed{seed}_overall"] = o_s
+                for name in ("association_precision", "association_recall", "purity"):
+                    t = result["targets"][name]
+                    t[f"value_seed{seed}"] = o_s[name]
+                    t[f"met_seed{seed}"] = o_s[name] is not None and o_s[name] >= t["target"]
         real: dict = {}
         k = kitti_seq09(tmp / "kitti09")
         if k is not None:

@@ -50,38 +50,89 @@ class Links:
     score: np.ndarray
 
 
+@njit(cache=True, inline="always")
+def _land(x0, y0, z0, R, t, beams_asc, h, w):  # pragma: no cover - numba
+    """Move one point with (R, t) and return its (row, col, range) in t-1's range image
+    (nearest beam, azimuth column), as `range_image.project` would place it."""
+    nb = beams_asc.shape[0]
+    x = R[0, 0] * x0 + R[0, 1] * y0 + R[0, 2] * z0 + t[0]
+    y = R[1, 0] * x0 + R[1, 1] * y0 + R[1, 2] * z0 + t[1]
+    z = R[2, 0] * x0 + R[2, 1] * y0 + R[2, 2] * z0 + t[2]
+    el = fast_atan2(np.float32(z), np.float32(np.sqrt(x * x + y * y)))
+    pos = np.searchsorted(beams_asc, el)
+    pos = min(max(pos, 1), nb - 1)
+    asc = pos - 1 if (el - beams_asc[pos - 1]) < (beams_asc[pos] - el) else pos
+    row = nb - 1 - asc
+    col = int(np.floor((0.5 - fast_atan2(np.float32(y), np.float32(x)) * (0.5 / np.pi)) * w)) % w
+    return row, col, np.sqrt(x * x + y * y + z * z)
+
+
 @njit(cache=True)
 def _votes(points, seg_point, n_curr, seg_pixel, pix_range, R, t, beams_asc, n_prev):  # pragma: no cover - numba
-    """Move each segment point with (R, t), project it onto t-1's range image (nearest beam,
-    azimuth column) and count it for the t-1 segment there when the ranges agree."""
+    """Move each segment point with (R, t), project it onto t-1's range image and count it for
+    the t-1 segment there when the ranges agree."""
     h, w = seg_pixel.shape
-    nb = beams_asc.shape[0]
     votes = np.zeros((n_curr, n_prev), dtype=np.int64)
-    inv_two_pi = 0.5 / np.pi
     for i in range(points.shape[0]):
         a = seg_point[i]
         if a < 0:
             continue
-        x0 = np.float64(points[i, 0])
-        y0 = np.float64(points[i, 1])
-        z0 = np.float64(points[i, 2])
-        x = R[0, 0] * x0 + R[0, 1] * y0 + R[0, 2] * z0 + t[0]
-        y = R[1, 0] * x0 + R[1, 1] * y0 + R[1, 2] * z0 + t[1]
-        z = R[2, 0] * x0 + R[2, 1] * y0 + R[2, 2] * z0 + t[2]
-        el = fast_atan2(np.float32(z), np.float32(np.sqrt(x * x + y * y)))
-        # nearest beam (beams ascending), as `elevation_rows`
-        pos = np.searchsorted(beams_asc, el)
-        pos = min(max(pos, 1), nb - 1)
-        asc = pos - 1 if (el - beams_asc[pos - 1]) < (beams_asc[pos] - el) else pos
-        row = nb - 1 - asc
-        col = int(np.floor((0.5 - fast_atan2(np.float32(y), np.float32(x)) * inv_two_pi) * w)) % w
+        row, col, r_proj = _land(np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]),
+                                 R, t, beams_asc, h, w)
         b = seg_pixel[row, col]
-        if b < 0:
-            continue
-        r_proj = np.sqrt(x * x + y * y + z * z)
-        if abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
+        if b >= 0 and abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
             votes[a, b] += 1
     return votes
+
+
+@njit(cache=True)
+def _pair_votes(points, order, starts, pair_a, pair_b, shift, seg_pixel, pix_range, R, t, beams_asc):  # pragma: no cover - numba
+    """Votes of segment pair_a[k]'s points for pair_b[k] after moving them by (R, t) and then by
+    shift[k] (in t-1's lidar frame: the b track's own motion undone)."""
+    h, w = seg_pixel.shape
+    out = np.zeros(pair_a.shape[0], dtype=np.int64)
+    for k in range(pair_a.shape[0]):
+        a, b = pair_a[k], pair_b[k]
+        tk = t + shift[k]
+        n = 0
+        for j in range(starts[a], starts[a + 1]):
+            i = order[j]
+            row, col, r_proj = _land(np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]),
+                                     R, tk, beams_asc, h, w)
+            if seg_pixel[row, col] == b and abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
+                n += 1
+        out[k] = n
+    return out
+
+
+def moving_votes(
+    points: np.ndarray,
+    seg_point: np.ndarray,
+    n_curr: int,
+    pairs: np.ndarray,
+    shift_prev: np.ndarray,
+    prev: AssociationFrame,
+    T_prev_curr: np.ndarray,
+    sensor: SensorModel,
+) -> np.ndarray:
+    """(P,) int64 motion-compensated votes of t segment pairs[:, 0] for t-1 segment pairs[:, 1].
+
+    shift_prev: (P, 3) displacement (t-1 lidar frame) added after the ego-motion: minus the
+    motion of the t-1 track over dt, so that a moving object's points land where it was.
+    """
+    if len(pairs) == 0:
+        return np.zeros(0, np.int64)
+    order = np.argsort(seg_point, kind="stable")
+    first = np.searchsorted(seg_point[order], 0)
+    order = order[first:]
+    starts = np.searchsorted(seg_point[order], np.arange(n_curr + 1)).astype(np.int64)
+    T = np.asarray(T_prev_curr, dtype=np.float64)
+    return _pair_votes(
+        points, order.astype(np.int64), starts, pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64),
+        np.ascontiguousarray(shift_prev, dtype=np.float64), prev.seg_pixel, prev.range,
+        np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]),
+        np.ascontiguousarray(sensor.elevations_rad()[::-1]),
+    )
 
 
 def vote_matrix(
@@ -137,7 +188,7 @@ def associate(
     # 1. ambiguity: a segment whose votes split between two t-1 segments is a likely merge
     if len(vb) >= 2:
         top2 = np.sort(share, axis=1)[:, -2:]
-        ambiguous = (top2[:, 0] > 0.5 * top2[:, 1]) & (top2[:, 0] >= 0.1)
+        ambiguous = (top2[:, 0] > config.ambiguity_ratio * top2[:, 1]) & (top2[:, 0] >= 0.1)
         overlap[ambiguous] = 0.0
     score = np.where(share >= config.min_overlap, overlap, 0.0)
 
@@ -148,18 +199,37 @@ def associate(
     if config.use_motion_prediction:
         moving = speed > 0.5
         if moving.any():
-            pred = cw_b[moving] + vel_b[moving] * dt
+            mv = np.flatnonzero(moving)
+            pred = cw_b[mv] + vel_b[mv] * dt
             dist = cdist(cw_a[:, :2], pred[:, :2])
             cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
-            sub = score[:, moving]
-            score[:, moving] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
+            # a moving object keeps its height: a bollard under a crown is not the crown moved
+            dz = np.abs(cw_a[:, None, 2] - cw_b[None, mv, 2])
+            cscore[dz > config.max_height_change] = 0.0
+            # motion-compensated votes: a's points moved back by the b track's own motion
+            ia, jb = np.nonzero(dist < config.max_centroid_distance + 1.5)
+            if len(ia):
+                R_wp = prev.T_world_lidar[:3, :3]
+                shift = -(vel_b[mv[jb]] * dt) @ R_wp  # world -> t-1 lidar frame: R^T d
+                mvotes = moving_votes(curr_points, curr_seg_point, n_curr,
+                                      np.stack([va[ia], vb[mv[jb]]], axis=1), shift, prev, T_prev_curr, sensor)
+                mshare = mvotes / n_a[ia]
+                mover = mvotes / np.maximum(n_a[ia], n_b[mv[jb]])
+                good = (mshare >= config.min_overlap) & (dz[ia, jb] <= config.max_height_change)
+                cscore[ia[good], jb[good]] = np.maximum(cscore[ia[good], jb[good]], mover[good])
+                share[ia[good], mv[jb[good]]] = np.maximum(share[ia[good], mv[jb[good]]], mshare[good])
+            sub = score[:, mv]
+            score[:, mv] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
 
     # 3. gates: point counts must be comparable, centroids must be near after ego-motion
     ratio = n_a[:, None] / n_b[None, :]
     bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
     max_jump = config.max_centroid_distance + 1.0 + speed[None, :] * dt * 2.0
     jump = cdist(cw_a, cw_b)
-    score[bad_ratio | (jump > max_jump)] = 0.0
+    # strong votes are geometric evidence already: the centroid of a large segment (a wall, a
+    # hedge) moves by metres as the visible part changes, so only weak matches face the jump gate
+    strong = share >= config.strong_share
+    score[bad_ratio | ((jump > max_jump) & ~strong)] = 0.0
 
     # 4. one-to-one
     r, c = linear_sum_assignment(-score)

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pipeline.association import AssociationFrame, associate, moving_votes
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.processing import SequenceProcessor
@@ -80,6 +81,49 @@ def test_association_split_links_only_the_larger_piece():
     assert int(results[0].segments.valid.sum()) == 1 and int(results[1].segments.valid.sum()) == 2
     links = _links(results, gts)
     assert links == [(1, 1)]
+
+
+def _assoc_frame(fr, velocity_time: float = 0.0) -> AssociationFrame:
+    seg = fr.segments
+    return AssociationFrame(fr.seg_pixel, fr.range_pixels, seg.n_points, seg.centroid_world, seg.valid,
+                            np.eye(4), velocity_time)
+
+
+def test_moving_votes_land_only_when_the_objects_motion_is_undone():
+    # a box moves 8 columns (~1.7 m at 12 m) between frames: more than its own width
+    results, _ = _run([[(100, 106, 12.0)], [(108, 114, 12.0)]])
+    prev, curr = results
+    a = int(np.flatnonzero(curr.segments.valid)[0])
+    b = int(np.flatnonzero(prev.segments.valid)[0])
+    shift = prev.segments.centroid_world[b] - curr.segments.centroid_world[a]
+    pairs = np.array([[a, b], [a, b]])
+    votes = moving_votes(curr.scan.points, curr.segment, len(curr.segments), pairs,
+                         np.stack([shift, np.zeros(3)]), _assoc_frame(prev), np.eye(4), SENSOR)
+    n_a = int(curr.segments.n_points[a])
+    assert votes[0] >= 0.8 * n_a  # the box's own motion undone: its points land on it
+    assert votes[1] == 0  # ego-motion alone: they land beside it
+
+
+def test_association_predicted_centroid_keeps_the_height():
+    # a moving track's segment at t-1, and at t a segment right below its predicted centroid
+    # (a bollard under a crown): the centroid match must not link them
+    results, _ = _run([[(100, 106, 12.0)], [(200, 206, 20.0)]])
+    prev, curr = results
+    pf, cf = _assoc_frame(prev, 0.0), _assoc_frame(curr, 0.1)
+    b = int(np.flatnonzero(prev.segments.valid)[0])
+    a = int(np.flatnonzero(curr.segments.valid)[0])
+    velocity = np.zeros((len(prev.segments), 3))
+    velocity[b] = [2.0, 0.0, 0.0]
+    below = pf.centroid_world[b] + velocity[b] * 0.1 - [0.0, 0.0, 1.5]
+    cw = cf.centroid_world.copy()
+    cw[a] = below
+    links = associate(curr.scan.points, curr.segment, dataclasses.replace(cf, centroid_world=cw), pf,
+                      velocity, SENSOR, CFG.association)
+    assert links.prev[a] == -1
+    cw[a] = below + [0.0, 0.0, 1.5]  # the same place at the same height: linked
+    links = associate(curr.scan.points, curr.segment, dataclasses.replace(cf, centroid_world=cw), pf,
+                      velocity, SENSOR, CFG.association)
+    assert links.prev[a] == b
 
 
 def test_association_without_poses_makes_one_frame_tracks():
