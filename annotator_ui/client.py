@@ -85,15 +85,17 @@ def _detail(response: httpx.Response) -> str:
 class ApiClient:
     """A bearer-token client of one track service. Thread-safe (httpx pools connections)."""
 
-    def __init__(self, base_url: str, token: str, timeout: float = 30.0, transport: httpx.BaseTransport | None = None):
+    def __init__(self, base_url: str, token: str | None, timeout: float = 30.0,
+                 transport: httpx.BaseTransport | None = None):
+        """`token` None: no Authorization header (enough for /health)."""
         base = base_url.rstrip("/")
         if base.endswith(API_PREFIX):
             base = base[: -len(API_PREFIX)]
         self.base_url = base
-        self.token = token
+        self.token = token or ""
         self._http = httpx.Client(
             base_url=base + API_PREFIX,
-            headers={"Authorization": f"Bearer {token}"},
+            headers={"Authorization": f"Bearer {token}"} if token else {},
             timeout=timeout,
             transport=transport,
         )

@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import time
 
-import httpx
-
+from annotator_ui.client import ApiClient, ApiError
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 
 
@@ -16,26 +15,21 @@ class ViewerStartError(Exception):
 
 def wait_for_api(api_url: str, timeout_s: float = 30.0) -> None:
     """Poll `<api>/api/v1/health` until it answers 200; ViewerStartError after `timeout_s`."""
-    base = api_url.rstrip("/").removesuffix("/api/v1")
     deadline = time.monotonic() + timeout_s
-    last = ""
-    while True:
-        try:
-            r = httpx.get(f"{base}/api/v1/health", timeout=2.0)
-            if r.status_code == 200:
+    with ApiClient(api_url, token=None, timeout=2.0) as api:  # the one HTTP client, even for this poll
+        while True:
+            try:
+                api.health()
                 return
-            last = f"HTTP {r.status_code}"
-        except httpx.HTTPError as exc:
-            last = str(exc) or type(exc).__name__
-        if time.monotonic() >= deadline:
-            raise ViewerStartError(f"the track service at {base} did not answer /api/v1/health ({last})")
-        time.sleep(0.25)
+            except ApiError as exc:
+                last = exc.detail if exc.status == 0 else f"HTTP {exc.status}"
+            if time.monotonic() >= deadline:
+                raise ViewerStartError(f"the track service at {api.base_url} did not answer /api/v1/health ({last})")
+            time.sleep(0.25)
 
 
 def check_token(api_url: str, token: str) -> str:
     """The user name behind `token`; ViewerStartError when the service refuses it."""
-    from annotator_ui.client import ApiClient, ApiError
-
     with ApiClient(api_url, token) as api:
         try:
             return str(api.me()["name"])

@@ -1,5 +1,5 @@
-"""The viewer in a real browser: Debian's chromium driven by playwright (flags as DEVELOPERS.md
-states). Skips cleanly where chromium or playwright is absent."""
+"""The viewer in a real browser: Debian's chromium (/usr/bin/chromium, else `chromium` on PATH)
+driven by playwright with the flags in ARGS. Skips cleanly where chromium or playwright is absent."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 
-CHROMIUM = "/usr/bin/chromium"
+CHROMIUM = "/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else shutil.which("chromium")
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
         "--disable-component-update", "--no-first-run"]
 CANVAS = "canvas[data-engine]"  # the three.js canvas of the 3D view
@@ -21,7 +21,7 @@ TRACK_TEXT = re.compile(r"Track (\d+) \((queue|picked)\)")
 
 pytestmark = [
     pytest.mark.browser,
-    pytest.mark.skipif(not Path(CHROMIUM).exists() and shutil.which("chromium") is None, reason="chromium is absent"),
+    pytest.mark.skipif(CHROMIUM is None, reason="chromium is absent"),
 ]
 
 
@@ -86,20 +86,21 @@ def test_browser_viewer_draws_the_cloud_and_accept_button_accepts(page, live_api
 def test_browser_review_twenty_tracks_with_hotkeys_only(page, live_api):
     """The issue's "done means": review 20 tracks with hotkeys only, without an error."""
     keys = ["a", "d", "1", "2", "3", "4", "5", "6", "7"]
-    expected: dict[int, tuple[str, str | None]] = {}
+    expected: dict[int, tuple[str, str | None, int]] = {}
     for i in range(20):
         tid = shown_track_id(page)
+        version = live_api.track(tid)["version"]
         key = keys[i % len(keys)]
         if i % 5 == 2:  # now and then cut the track to the current frame first
             page.keyboard.press("]")  # the next key waits for it (same track), as a fast operator types
         page.keyboard.press(key)
         status = {"a": "accepted", "d": "discarded"}.get(key, "accepted")
         label = None if key in "ad" else ["person", "car", "cyclist", "trunk", "bush", "building", "unknown"][int(key) - 1]
-        expected[tid] = (status, label)
+        expected[tid] = (status, label, version + (2 if i % 5 == 2 else 1))  # "]" is an edit of its own
         wait_for_new_track(page, tid)
-    for tid, (status, label) in expected.items():
+    for tid, (status, label, version) in expected.items():
         t = live_api.track(tid)
-        assert (t["status"], t["label"]) == (status, label), tid
+        assert (t["status"], t["label"], t["version"]) == (status, label, version), tid
     assert len(expected) == 20
     assert not page.errors
     assert page.locator("text=Action failed").count() == 0 and page.locator("text=Not saved").count() == 0

@@ -166,6 +166,16 @@ def test_viewer_jobs_panel_reports_an_unknown_job_type(viewer, tab_client):
     assert panel.start("no_such_type") is None and "unknown job type" in notes[0][1]
 
 
+def test_viewer_jobs_panel_plots_the_learning_curve(viewer, tab_client):
+    panel: JobsPanel = viewer.tabs[0].jobs
+    job = {"id": 1, "type": "train", "status": "running", "progress": 0.5, "message": "epoch 2",
+           "result": {"history": [{"epoch": 1, "loss": 2.0}, {"epoch": 2, "loss": 1.0}]}}
+    panel._show(job)
+    assert panel.gui_curve is not None and list(panel.gui_curve.data[1]) == [2.0, 1.0]
+    assert panel.gui_bar.value == pytest.approx(50.0)
+    tab_client.wait_for(lambda m: m.type == "GuiUplotMessage")  # the plot reached the client
+
+
 def test_viewer_jobs_panel_fills_train_and_predict_params(viewer, tab_client):
     panel: JobsPanel = viewer.tabs[0].jobs
     panel.refresh_types()
