@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from app.viewer_payload import PAYLOAD_ARRAYS, frame_payload, payload_from_artifact
+
 
 @dataclass(frozen=True)
 class FrameArtifact:
@@ -67,7 +69,7 @@ class ArtifactStore:
 
     def __init__(self, root: str | Path, payload_cache_bytes: int = 0) -> None:
         self.root = Path(root)
-        self._cache: OrderedDict[tuple[str, int], bytes] = OrderedDict()
+        self._cache: OrderedDict[tuple[str, int], memoryview] = OrderedDict()
         self._cache_bytes = 0
         self._cache_limit = payload_cache_bytes
         self._lock = threading.Lock()
@@ -110,10 +112,11 @@ class ArtifactStore:
         except FileNotFoundError:
             raise ArtifactMissing(f"artifact {relpath} is missing") from None
 
-    def payload(self, relpath: str) -> bytes:
-        """The viewer payload of a frame (`frame_payload`), from the LRU when it is there."""
+    def payload(self, relpath: str) -> memoryview:
+        """The viewer payload of a frame (app/viewer_payload.py), from the LRU when it is there."""
+        path = self.path(relpath)
         try:
-            key = (relpath, self.path(relpath).stat().st_mtime_ns)
+            key = (relpath, path.stat().st_mtime_ns)
         except FileNotFoundError:
             raise ArtifactMissing(f"artifact {relpath} is missing") from None
         with self._lock:
@@ -121,7 +124,12 @@ class ArtifactStore:
             if body is not None:
                 self._cache.move_to_end(key)
                 return body
-        body = frame_payload(self.read_arrays(relpath, PAYLOAD_ARRAYS))
+        try:
+            body = payload_from_artifact(path)
+        except FileNotFoundError:
+            raise ArtifactMissing(f"artifact {relpath} is missing") from None
+        if body is None:  # a layout the fast path does not expect: decode and re-encode
+            body = memoryview(frame_payload(self.read_arrays(relpath, PAYLOAD_ARRAYS)))
         if len(body) <= self._cache_limit:
             with self._lock:
                 if key not in self._cache:
@@ -138,19 +146,3 @@ class ArtifactStore:
             for f in folder.iterdir():
                 f.unlink(missing_ok=True)
 
-
-PAYLOAD_ARRAYS = ("points", "intensity", "segment", "track")
-
-
-def frame_payload(arrays: dict[str, np.ndarray]) -> bytes:
-    """The viewer payload: an uncompressed `.npz` of points (N,3) f32, intensity (N,) f32,
-    segment (N,) int32 and track (N,) int32 (database track id, 0 = none; int64 past 2**31)."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_STORED) as zf:
-        for name in PAYLOAD_ARRAYS:
-            arr = np.ascontiguousarray(arrays[name])
-            if name == "track" and (len(arr) == 0 or int(arr.max()) <= np.iinfo(np.int32).max):
-                arr = arr.astype(np.int32)  # 4 bytes a point while database ids fit
-            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
-                np.lib.format.write_array(fh, arr, allow_pickle=False)
-    return buf.getvalue()

@@ -17,6 +17,9 @@ Three load shapes:
     viewer (~3 requests/s per client, ~60/s offered in all). The targets are judged on this one.
   - `saturated`: no think time; latency is then mostly queueing (20 requests in flight on one
     server process), and the figure that matters is the throughput.
+
+The result's `targets` (list_p95_ms and action_p95_ms as the client sees them, frame_server_p95_ms
+from `Server-Timing`, all from the paced run) and `headline` are what `make bench` reports.
 """
 
 from __future__ import annotations
@@ -289,7 +292,23 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         "frame_server": paced["frame"]["server_p95_ms"] <= TARGETS_MS["frame"],
         "frame_client": paced["frame"]["client_p95_ms"] <= TARGETS_MS["frame"],
     }
+    # the issue's figures, judged on the paced run (bench/README.md: counted by `make bench`)
+    result["targets"] = {
+        "list_p95_ms": _target(paced["list"]["client_p95_ms"], TARGETS_MS["list"]),
+        "action_p95_ms": _target(paced["action"]["client_p95_ms"], TARGETS_MS["action"]),
+        "frame_server_p95_ms": _target(paced["frame"]["server_p95_ms"], TARGETS_MS["frame"]),
+    }
+    result["headline"] = (
+        f"paced, {clients} clients, p95: list {paced['list']['client_p95_ms']} ms, "
+        f"action {paced['action']['client_p95_ms']} ms, frame {paced['frame']['server_p95_ms']} ms server "
+        f"({paced['frame']['client_p95_ms']} ms client); saturated {result['saturated']['requests_per_second']} req/s"
+    )
     return result
+
+
+def _target(value: float, target: float) -> dict:
+    """A `targets` entry (bench/README.md); a missing figure (NaN) is not met."""
+    return {"value": value, "target": target, "met": bool(value <= target)}
 
 
 if __name__ == "__main__":

@@ -58,3 +58,51 @@ def test_auth_health_needs_no_token(client):
     r = client.get("/api/v1/health")
     assert r.status_code == 200 and r.json()["status"] == "ok"
     assert client.get("/health").status_code == 200
+
+
+def _secured_operations(client) -> list[tuple[str, str]]:
+    """(method, path) of every operation the OpenAPI schema marks as needing a token; path
+    parameters filled with 1."""
+    import re
+
+    paths = client.get("/api/v1/openapi.json").json()["paths"]
+    return [
+        (method.upper(), re.sub(r"\{[^}]+\}", "1", path))
+        for path, ops in paths.items()
+        for method, op in ops.items()
+        if op.get("security")
+    ]
+
+
+def test_auth_every_secured_route_refuses_missing_and_wrong_tokens(client, factory):
+    factory.user("admin")
+    ops = _secured_operations(client)
+    assert len(ops) >= 25
+    bad = []
+    for method, path in ops:
+        for headers in ({}, {"Authorization": "Bearer tl_not-a-token"}, {"Authorization": "Basic dTpw"}):
+            code = client.request(method, path, headers=headers, json={}).status_code
+            if code != 401:
+                bad.append(f"{method} {path} {headers}: {code}")
+    assert not bad, bad
+
+
+ADMIN_ROUTES = [
+    ("GET", "/api/v1/users"),
+    ("POST", "/api/v1/users"),
+    ("POST", "/api/v1/users/1/tokens"),
+    ("GET", "/api/v1/datasets"),
+    ("POST", "/api/v1/datasets"),
+    ("GET", "/api/v1/datasets/1"),
+    ("POST", "/api/v1/sequences/1/ingest"),
+]
+
+
+def test_auth_operator_gets_403_on_every_admin_route(client, factory):
+    factory.registered_sequence()
+    op = factory.user("operator")
+    bodies = {"/api/v1/users": {"name": "mallory", "role": "admin"}, "/api/v1/datasets": {"path": "seq"}}
+    codes = {
+        (m, p): client.request(m, p, json=bodies.get(p, {}), headers=op.headers).status_code for m, p in ADMIN_ROUTES
+    }
+    assert set(codes.values()) == {403}, codes

@@ -80,3 +80,17 @@ def test_deploy_dockerfile_env_vars_are_settings_fields():
     names = set(re.findall(r"\bTRACKLABEL_[A-Z_]+", text))
     assert names and names <= ENV_FIELDS
     assert 'CMD ["tracklabel", "serve"' in text and "/api/v1/health" in text
+
+
+def test_deploy_compose_commands_use_real_cli_options(compose):
+    import typer
+
+    from app.cli import app
+
+    commands = typer.main.get_command(app).commands  # type: ignore[attr-defined]
+    for name in ("api", "worker", "annotator"):
+        cmd = compose["services"][name]["command"]
+        assert cmd[0] == "tracklabel" and cmd[1] in commands, cmd
+        known = {o for p in commands[cmd[1]].params for o in (*p.opts, *p.secondary_opts)}
+        used = {a for a in cmd[2:] if a.startswith("--")}
+        assert used <= known, (name, used - known)

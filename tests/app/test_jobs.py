@@ -31,6 +31,13 @@ def test_jobs_operator_sees_only_own_jobs(client, factory):
     assert [j["id"] for j in client.get("/api/v1/jobs", headers=a.headers).json()] == [job["id"]]
 
 
+def test_jobs_operator_cannot_cancel_another_users_job(client, factory):
+    a, b = factory.user(), factory.user()
+    job = client.post("/api/v1/jobs", json={"type": "selftest"}, headers=a.headers).json()
+    assert client.post(f"/api/v1/jobs/{job['id']}/cancel", headers=b.headers).status_code == 403
+    assert client.get(f"/api/v1/jobs/{job['id']}", headers=a.headers).json()["status"] == "queued"
+
+
 def test_jobs_type_registry_lists_ingest(client, factory):
     names = {t["name"] for t in client.get("/api/v1/job-types", headers=factory.user().headers).json()}
     assert {"ingest", "selftest"} <= names

@@ -13,7 +13,7 @@ from sqlalchemy import func, select, update
 from app.jobs import ingest
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Track, utcnow
 from app.worker import Worker
-from tests.app.fakes import FakeBackend, expected_counts
+from tests.app.fakes import FakeBackend, expected_counts, fake_frame
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -138,6 +138,21 @@ def test_worker_sigkill_mid_job_is_completed_by_another_worker(factory, db, sett
             proc.kill()
     with db.read() as s:
         assert s.get(Job, job_id).status == "running" and s.get(Sequence, seq).status == "ingesting"
+        # what the killed worker left visible is whole batches: frames 0..k-1 (k a multiple of the
+        # batch size), each with all its segments and its artifact file
+        indices = s.scalars(select(Frame.index).where(Frame.sequence_id == seq).order_by(Frame.index)).all()
+        per_frame = dict(
+            s.execute(
+                select(Frame.index, func.count(Segment.id))
+                .outerjoin(Segment, Segment.frame_id == Frame.id)
+                .where(Frame.sequence_id == seq)
+                .group_by(Frame.index)
+            ).all()
+        )
+        artifacts = s.scalars(select(Frame.artifact).where(Frame.sequence_id == seq)).all()
+    assert indices == list(range(len(indices))) and len(indices) % 3 == 0
+    assert per_frame == {i: len(fake_frame(i, 4).segments.n_points) for i in indices}
+    assert all((settings.artifacts_path / rel).is_file() for rel in artifacts)
 
     settings.job_lease_seconds = 1.5
     previous = ingest._backend
