@@ -57,23 +57,24 @@ def create_user(session: Session, name: str, role: str, created_by_id: int | Non
     user = User(name=name, role=role, created_by_id=created_by_id, active=True)
     session.add(user)
     session.flush()
-    token = _add_token(session, user.id)
+    token = _add_token(session, user.id, created_by_id)
     session.commit()
     return user, token
 
 
-def create_token(session: Session, user_id: int) -> str:
-    """A new token for an existing user. Commits."""
+def create_token(session: Session, user_id: int, created_by_id: int | None = None) -> str:
+    """A new token for an existing user, issued by `created_by_id` (None = the CLI). Commits."""
     if session.get(User, user_id) is None:
         raise NotFound(f"user {user_id} not found")
-    token = _add_token(session, user_id)
+    token = _add_token(session, user_id, created_by_id)
     session.commit()
     return token
 
 
-def _add_token(session: Session, user_id: int) -> str:
+def _add_token(session: Session, user_id: int, created_by_id: int | None) -> str:
     token = new_token()
-    session.add(ApiToken(user_id=user_id, token_hash=hash_token(token), prefix=token_display_prefix(token)))
+    session.add(ApiToken(user_id=user_id, token_hash=hash_token(token), prefix=token_display_prefix(token),
+                         created_by_id=created_by_id))
     return token
 
 

@@ -47,6 +47,16 @@ def test_auth_admin_creates_user_with_token_shown_once(client, factory):
     assert token not in listing
 
 
+def test_auth_issued_token_records_the_issuing_admin(client, factory, db):
+    admin = factory.user("admin")
+    op = factory.user("operator")
+    r = client.post(f"/api/v1/users/{op.id}/tokens", headers=admin.headers)
+    assert r.status_code == 201, r.text
+    with db.read() as s:
+        row = s.scalars(select(ApiToken).where(ApiToken.token_hash == hash_token(r.json()["token"]))).one()
+    assert row.user_id == op.id and row.created_by_id == admin.id
+
+
 def test_auth_duplicate_user_is_409(client, factory):
     admin = factory.user("admin")
     body = {"name": "carol", "role": "operator"}

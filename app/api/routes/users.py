@@ -31,7 +31,7 @@ def create_user(body: UserCreate, admin: AdminUser, session: WriteSessionDep) ->
 
 
 @router.post("/{user_id}/tokens", status_code=status.HTTP_201_CREATED)
-def create_token(user_id: IdPath, _admin: AdminUser, session: WriteSessionDep) -> UserWithToken:
-    """Issue another token for a user (admin)."""
-    token = crud.create_token(session, user_id)
+def create_token(user_id: IdPath, admin: AdminUser, session: WriteSessionDep) -> UserWithToken:
+    """Issue another token for a user (admin); the token row records the issuing admin."""
+    token = crud.create_token(session, user_id, created_by_id=admin.id)
     return UserWithToken(user=UserPublic.model_validate(session.get(User, user_id)), token=token)
