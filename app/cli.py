@@ -64,11 +64,16 @@ def simulate(
     frames: Annotated[int, typer.Option(min=1, help="Number of frames.")] = 200,
     seed: Annotated[int, typer.Option(help="Scene seed: a different seed is a different layout.")] = 0,
     start: Annotated[int, typer.Option(min=0, help="First frame of the route to simulate.")] = 0,
+    crowd: Annotated[float, typer.Option(min=0.1, max=10.0, help="Factor on the number of people, cyclists "
+                                         "and moving cars (1 = the default campus).")] = 1.0,
+    cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="A further factor on the number of "
+                                            "cyclists.")] = 1.0,
 ) -> None:
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
     from pipeline.simulation import simulate_sequence
 
-    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True)
+    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True, crowd=crowd,
+                                 cyclists=cyclists)
     typer.echo(summary.describe())
 
 

@@ -109,6 +109,7 @@ class TrainingConfig(_Section):
     pairs_per_label: int = 5  # n = 5 m
     gamma: float = Field(default=1.0, ge=0.0, le=1.0)
     lr: float = 1e-3
+    lr_schedule: str = Field(default="constant", pattern="^(constant|cosine)$")  # cosine: lr -> 0 over the run
     weight_decay: float = 1e-4
     seed: int = 0
     loss_threshold: float = 0.5  # model selection: best val F among checkpoints with train loss below this
@@ -118,6 +119,9 @@ class TrainingConfig(_Section):
     augment: bool = False  # random horizontal flip and small shifts of the canvases
     augment_shift: float = 0.0625  # max shift as a fraction of the canvas side
     balanced_labels: bool = False  # draw each batch's labels class-uniformly (rare classes as often as common ones)
+    # Extensions to the paper's pair handling (each off by default):
+    transitive_pairs: bool = False  # must-link is transitive: pair a drawn sample with any sample of its track
+    gamma_rampup: float = Field(default=0.0, ge=0.0, le=1.0)  # fraction of the steps over which gamma ramps 0 -> gamma
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda

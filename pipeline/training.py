@@ -12,6 +12,13 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
   entropy of the batch-mean prediction keeps constraints-only training from collapsing onto one
   class (the paper reports everything becoming "trunk").
 
+- `transitive_pairs`: must-link is an equivalence, so the right side of each drawn pair is any
+  other sample of the left side's track (its component in the pair graph), not only the next
+  frame's: pairs then join near and far, whole and occluded views of one object;
+- `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
+- `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
+  among which the selection rule picks, move less than a constant rate lets them.
+
 With `balanced_labels` each batch draws its labelled samples class-uniformly (the labels of a rare
 class are seen as often as those of a common one); the default draws them uniformly, as the paper.
 
@@ -314,6 +321,48 @@ class _BalancedCycler:
         return out
 
 
+class _TrackPartners:
+    """Must-link is an equivalence: every sample of a track (a connected component of the pair
+    graph) has the same class. `draw(left)` gives each left sample a random other member of its
+    component, so a pair can join a near and a far view of one object instead of two nearly equal
+    consecutive frames."""
+
+    def __init__(self, pairs: np.ndarray, num_samples: int, rng: np.random.Generator) -> None:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        self.rng = rng
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_samples, num_samples))
+        _, comp = connected_components(graph, directed=False)
+        self.order = np.argsort(comp, kind="stable")  # (M,) samples grouped by component
+        sorted_comp = comp[self.order]
+        self.start = np.searchsorted(sorted_comp, comp)  # (M,) first position of each sample's component
+        self.size = np.searchsorted(sorted_comp, comp, side="right") - self.start  # (M,) component sizes
+        self.pos = np.empty(num_samples, np.int64)
+        self.pos[self.order] = np.arange(num_samples)  # (M,) position of each sample in `order`
+
+    def draw(self, left: np.ndarray) -> np.ndarray:
+        """(n,) a member of each left sample's component other than itself (components have >= 2)."""
+        size = self.size[left]
+        off = self.rng.integers(0, np.maximum(size - 1, 1))  # (n,) in 0..size-2
+        own = self.pos[left] - self.start[left]
+        off = off + (off >= own)  # skip the left sample itself
+        return self.order[self.start[left] + np.minimum(off, size - 1)]
+
+
+def learning_rate(config: TrainingConfig, step: int, total_steps: int) -> float:
+    """The learning rate at `step` of `total_steps`: constant, or cosine from config.lr to 0."""
+    if config.lr_schedule == "cosine":
+        return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / max(total_steps, 1)))
+    return config.lr
+
+
+def _rampup(t: float) -> float:
+    """exp(-5 (1 - t)^2) on t in [0, 1], 1 after (the usual sigmoid-shaped consistency ramp-up)."""
+    t = min(max(t, 0.0), 1.0)
+    return float(math.exp(-5.0 * (1.0 - t) ** 2))
+
+
 def _select(history: list[EpochRecord], threshold: float) -> tuple[int, str]:
     if not history:
         return -1, "none"
@@ -407,6 +456,8 @@ def _train(
     if m:
         lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
     pair_cycle = _Cycler(num_p, rng) if n else None
+    partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
+    total_steps = max(config.epochs * steps, 1)
 
     samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
     labels_t = torch.from_numpy(data.labels).to(device)  # (L,)
@@ -440,22 +491,31 @@ def _train(
                     break
                 li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
                 pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
-                idx = np.concatenate([data.labelled[li], pairs_np[pi, 0], pairs_np[pi, 1]])  # (m + 2n,)
+                left = pairs_np[pi, 0]
+                right = partners.draw(left) if partners is not None else pairs_np[pi, 1]
+                idx = np.concatenate([data.labelled[li], left, right])  # (m + 2n,)
                 x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
                 if config.augment:
                     x = augment_batch(x, max_shift, gen)
                 logits = model(x)  # (m + 2n, K)
+                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w else None  # (n,)
+                gamma = config.gamma
+                if config.gamma_rampup > 0:
+                    gamma *= _rampup((epoch * steps + step) / (config.gamma_rampup * total_steps))
                 parts = semi_supervised_loss(
                     logits[:m],
                     labels_t[torch.from_numpy(li).to(device)],
                     logits[m : m + len(pi)],
                     logits[m + len(pi) :],
-                    gamma=config.gamma,
-                    pair_weights=weights_t[torch.from_numpy(pi).to(device)] if use_w else None,
+                    gamma=gamma,
+                    pair_weights=pw,
                     balance_weight=config.balance_weight,
                 )
                 if not torch.isfinite(parts.total):
                     raise ConfigError(f"training diverged (loss {float(parts.total)}) at epoch {epoch}; lower training.lr")
+                if config.lr_schedule != "constant":
+                    for g in opt.param_groups:
+                        g["lr"] = learning_rate(config, epoch * steps + step, total_steps)
                 opt.zero_grad(set_to_none=True)
                 parts.total.backward()
                 opt.step()

@@ -1,7 +1,9 @@
 """Who moves on the campus: traffic in both lanes, cyclists, pedestrians and crossers
 (people, and cyclists coming off the sidewalk, cross at zebra crossings).
 
-Counts scale with the loop length; a few actors are always put near the ego vehicle's start
+Counts scale with the loop length, with `crowd` (1 = the default campus; the learning
+experiments use a busier one, so that a route holds many distinct people, cyclists and cars) and,
+for cyclists, with `cyclists` on top; a few actors are always put near the ego vehicle's start
 (an oncoming car, a car about to overtake, one pulling away ahead, two cyclists, walkers and
 people on the zebra crossing ahead), so that even a short run sees every moving class.
 """
@@ -27,6 +29,8 @@ def populate_actors(
     lay: Layout,
     reg: Registry,
     crossings: np.ndarray,
+    crowd: float = 1.0,
+    cyclists: float = 1.0,
 ) -> list[Actor]:
     actors: list[Actor] = []
     length = route.length
@@ -90,19 +94,19 @@ def populate_actors(
     car(s_ego + rng.uniform(35.0, 60.0), -rng.uniform(6.0, 9.0))
     car(s_ego - rng.uniform(15.0, 28.0), rng.uniform(7.5, 9.5))
     car(s_ego + rng.uniform(20.0, 35.0), rng.uniform(6.5, 8.5))
-    for _ in range(int(length / 60)):
+    for _ in range(int(length / 60 * crowd)):
         car(rng.uniform(0, length), -rng.uniform(5.5, 9.5))
-    for _ in range(int(length / 160)):
+    for _ in range(int(length / 160 * crowd)):
         car(rng.uniform(0, length), rng.uniform(6.5, 9.5))
     # 2. Cyclists by the curb, both directions.
     cyclist(s_ego + rng.uniform(30.0, 50.0), -rng.uniform(3.5, 6.0))
     cyclist(s_ego + rng.uniform(12.0, 20.0), rng.uniform(3.0, 4.0))
-    for _ in range(int(length / 90)):
+    for _ in range(int(length / 90 * crowd * cyclists)):
         cyclist(rng.uniform(0, length), rng.uniform(3.5, 6.5) * (1 if rng.random() < 0.5 else -1))
     # 3. Pedestrians on the sidewalks.
     for k in range(4):
         walker(s_ego + rng.uniform(-10.0, 45.0), 1 if k % 2 else -1)
-    for _ in range(int(length / 16)):
+    for _ in range(int(length / 16 * crowd)):
         walker(rng.uniform(0, length), 1 if rng.random() < 0.5 else -1)
     # 4. People walking close to walls and hedges (foreground / background confusion).
     for f in lay.facades:

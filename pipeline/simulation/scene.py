@@ -52,6 +52,8 @@ class Scene:
     actors: tuple[Actor, ...]
     instances: dict[int, InstanceInfo]
     crossings: np.ndarray
+    crowd: float = 1.0  # moving-actor density factor the scene was drawn with
+    cyclists: float = 1.0  # extra factor on the number of cyclists
 
     def sensor_pose(self, t: float) -> np.ndarray:
         """(4, 4) T_scene_lidar at time t: the ego in its lane, tilted with the road."""
@@ -91,8 +93,9 @@ class Scene:
         return self.static.take(np.flatnonzero(self.static.instance == instance))
 
 
-def build_scene(seed: int) -> Scene:
-    """Draw the whole campus from `seed`."""
+def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0) -> Scene:
+    """Draw the whole campus from `seed`; `crowd` scales the number of moving actors, `cyclists`
+    that of cyclists on top of it."""
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5)]
     rng_route, rng_road, rng_layout, rng_actors, rng_ego = streams
     # 1. The loop and the ego vehicle's drive along it.
@@ -136,7 +139,7 @@ def build_scene(seed: int) -> Scene:
     lay = Layout(rng_layout, route, ground, road, reg)
     populate(lay, stretches, crossings)
     static = static_primitives(lay)
-    actors = populate_actors(rng_actors, route, ground, road, ego, lay, reg, crossings)
+    actors = populate_actors(rng_actors, route, ground, road, ego, lay, reg, crossings, crowd, cyclists)
     return Scene(
         seed=int(seed),
         route=route,
@@ -149,4 +152,6 @@ def build_scene(seed: int) -> Scene:
         actors=tuple(actors),
         instances=dict(reg.infos),
         crossings=crossings,
+        crowd=float(crowd),
+        cyclists=float(cyclists),
     )

@@ -154,18 +154,31 @@ def _frames(n: int, progress: bool) -> Iterable[int]:
 
 
 def simulate_sequence(
-    out: str | Path, frames: int, seed: int, start: int = 0, progress: bool = False
+    out: str | Path,
+    frames: int,
+    seed: int,
+    start: int = 0,
+    progress: bool = False,
+    crowd: float = 1.0,
+    cyclists: float = 1.0,
 ) -> SimulationSummary:
-    """Simulate frames start .. start + frames - 1 of the campus scene of `seed` into `out`."""
+    """Simulate frames start .. start + frames - 1 of the campus scene of `seed` into `out`.
+
+    crowd: factor on the number of moving actors (pedestrians, cyclists, traffic); 1 = default.
+    cyclists: a further factor on the number of cyclists.
+    """
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
+    for name, v in (("crowd", crowd), ("cyclists", cyclists)):
+        if not (0.0 < v <= 10.0):
+            raise ConfigError(f"{name} must be in (0, 10], got {v}")
     if start < 0:
         raise ConfigError(f"start must be >= 0, got {start}")
     out = Path(out)
     _prepare(out)
     sensor = PRESETS[SENSOR]
     t0 = time.perf_counter()
-    scene = build_scene(seed)
+    scene = build_scene(seed, crowd, cyclists)
     t1 = time.perf_counter()
     dirs = ray_directions(sensor)
     poses = np.zeros((frames, 4, 4))
@@ -255,6 +268,8 @@ def _write_metadata(
         "sensor_model": PRESETS[SENSOR].to_dict(),
         "sensor_height_m": SENSOR_HEIGHT,
         "seed": int(scene.seed),
+        "crowd": scene.crowd,
+        "cyclists": scene.cyclists,
         "start": int(start),
         "frames": int(frames),
         "frame_rate_hz": PRESETS[SENSOR].frequency_hz,

@@ -210,6 +210,23 @@ def test_simulate_different_seeds_give_different_layouts(scene):
     assert len(other.static) != len(scene.static) or not np.allclose(other.static.center, scene.static.center)
 
 
+def test_simulate_crowd_scales_moving_actors_and_leaves_the_static_campus(scene):
+    def counts(sc) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for a in sc.actors:
+            out[a.kind] = out.get(a.kind, 0) + 1
+        return out
+
+    base = counts(scene)
+    busy = build_scene(SEED, crowd=3.0, cyclists=2.0)
+    more = counts(busy)
+    assert more["person"] > 2 * base["person"] and more["car"] > 2 * base["car"]
+    assert more["cyclist"] > 4 * base["cyclist"]  # crowd x cyclists on top
+    np.testing.assert_array_equal(busy.static.center, scene.static.center)  # same layout, busier
+    again = build_scene(SEED, crowd=1.0)
+    assert counts(again) == base and len(again.instances) == len(scene.instances)
+
+
 def test_simulate_refuses_a_foreign_sequence_folder(tmp_path: Path):
     (tmp_path / "velodyne").mkdir()
     (tmp_path / "velodyne/000000.bin").write_bytes(b"\0" * 16)

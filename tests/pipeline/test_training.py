@@ -14,7 +14,9 @@ from pipeline.training import (
     LabelledSamples,
     TrainingData,
     _select,
+    _TrackPartners,
     augment_batch,
+    learning_rate,
     semi_supervised_loss,
     stratified_split,
     train,
@@ -315,3 +317,41 @@ def test_train_with_balanced_labels_runs():
     x, y = blobs(120, 3)
     res = train(TrainingData.build(x, np.arange(len(y)), y), _cfg(epochs=1, balanced_labels=True), TINY, SAMPLES)
     assert len(res.history) == 1 and math.isfinite(res.history[0].loss)
+
+
+def test_learning_rate_cosine_runs_from_lr_to_zero():
+    cfg = _cfg(lr=1e-3, lr_schedule="cosine")
+    assert learning_rate(cfg, 0, 100) == pytest.approx(1e-3)
+    assert learning_rate(cfg, 50, 100) == pytest.approx(5e-4)
+    assert learning_rate(cfg, 100, 100) == pytest.approx(0.0, abs=1e-12)
+    assert learning_rate(_cfg(lr=1e-3), 70, 100) == 1e-3  # constant: the paper's
+
+
+def test_track_partners_draw_any_other_member_of_the_track():
+    # two tracks as chains of consecutive pairs: 0-1-2-3 and 5-6; sample 4 is in no pair
+    pairs = np.array([[0, 1], [1, 2], [2, 3], [5, 6]])
+    tp = _TrackPartners(pairs, 8, np.random.default_rng(0))
+    left = np.repeat([0, 3, 5, 6], 300)
+    right = tp.draw(left)
+    for a in (0, 3):
+        got = set(right[left == a].tolist())
+        assert got == {0, 1, 2, 3} - {a}  # every other member, the far end included, never itself
+    assert set(right[left == 5].tolist()) == {6} and set(right[left == 6].tolist()) == {5}
+
+
+def test_train_with_transitive_pairs_and_gamma_rampup_runs(blob_data):
+    x, y, _ = blob_data
+    labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
+    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
+    cfg = _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, gamma_rampup=0.5,
+               lr_schedule="cosine")
+    res = train(data, cfg, TINY, SAMPLES)
+    assert len(res.history) == 2 and all(math.isfinite(r.loss) for r in res.history)
+
+
+def test_gamma_rampup_rises_from_near_zero_to_one():
+    from pipeline.training import _rampup
+
+    vals = [_rampup(t) for t in np.linspace(0, 1.5, 16)]
+    assert vals[0] < 0.01 and vals[-1] == 1.0 and _rampup(1.0) == 1.0
+    assert all(a <= b for a, b in zip(vals[:-1], vals[1:], strict=True))
