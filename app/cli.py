@@ -194,23 +194,28 @@ app.add_typer(experiment_app, name="experiment")
 def experiment_paper(
     out: Annotated[Path, typer.Option("--out", help="Folder for paper.md/json/png.")] = Path("data/experiments/paper"),
     seed: Annotated[int, typer.Option(help="Seed of the training route (test scene D: seed + 1000).")] = 0,
-    frames: Annotated[int | None, typer.Option(min=20, help="Frames of the training route (default 600; --full 1400).")] = None,
-    test_frames: Annotated[int | None, typer.Option(min=10, help="Frames of test scene D (default 240; --full 465).")] = None,
+    frames: Annotated[int | None, typer.Option(min=20, help="Frames of the training route (default 1200; --full 1400).")] = None,
+    test_frames: Annotated[int | None, typer.Option(min=10, help="Frames of test scene D (default 465).")] = None,
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
     steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 800; --full 6000).")] = None,
     labels_per_class: Annotated[int | None, typer.Option(min=1, help="baseline_min labels per class (default 30; --full 350).")] = None,
     evals: Annotated[int | None, typer.Option(min=1, help="Model-selection checkpoints per setting (default 8).")] = None,
     eval_max: Annotated[int | None, typer.Option(min=0, help="Samples per evaluation set, random subsample (default 6000; 0 = all).")] = None,
-    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default; 1 is faster on a busy 2-core box).")] = 1,
+    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default; 1 is faster on a busy 2-core box).")] = 0,
+    crowd: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars (default 3).")] = None,
+    cyclists: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists (default 3).")] = None,
+    unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints", help="Also the constraints of unknown tracks (the paper has none).")] = False,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
-    """Reproduce the paper's Tables 7 and 8: five settings (+ automatic constraints) on simulated data."""
+    """Reproduce the paper's Tables 7 and 8 on simulated data: its five settings, automatic
+    constraints, the extensions' ablations and the constraints-only adaptation to D (Fig. 12)."""
     from pipeline.experiments.paper import PaperConfig, run_paper
 
-    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads}
+    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
-                       ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max)):
+                       ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
+                       ("crowd", crowd), ("cyclists", cyclists)):
         if value is not None:
             kw[key] = value
     cfg = PaperConfig.full(**kw) if full else PaperConfig(**kw)  # type: ignore[arg-type]
@@ -225,14 +230,16 @@ def experiment_paper(
 def experiment_finetune(
     out: Annotated[Path, typer.Option("--out", help="Folder for finetune.md/json/png.")] = Path("data/experiments/finetune"),
     seed: Annotated[int, typer.Option(help="Seed of the training route (new scene: seed + 1000).")] = 0,
-    frames: Annotated[int, typer.Option(min=20, help="Frames of the training route.")] = 600,
-    test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 240,
+    frames: Annotated[int, typer.Option(min=20, help="Frames of the training route.")] = 1200,
+    test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 465,
+    crowd: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars.")] = 3.0,
+    cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists.")] = 3.0,
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
     strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
     budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",
     constraints: Annotated[str, typer.Option(help="New scene's constraints: verified, automatic or none.")] = "verified",
     finetune_seeds: Annotated[str, typer.Option(help="Comma-separated seeds; each point is their mean.")] = "0",
-    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 1,
+    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 0,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
     """The paper's Table 10 on a simulated new scene: baseline_min, constraint100, constraint100 +
@@ -260,6 +267,7 @@ def experiment_finetune(
         fail(f"--constraints: expected verified, automatic or none, got {constraints!r}")
     cfg = FinetuneExperimentConfig(
         train_seed=seed, test_seed=seed + 1000, train_frames=frames, test_frames=test_frames, size=size,
+        crowd=crowd, cyclists=cyclists,
         strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads, finetune_seeds=seeds,
     )
     doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))

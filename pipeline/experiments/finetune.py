@@ -54,8 +54,10 @@ class FinetuneExperimentConfig:
 
     train_seed: int = 0
     test_seed: int = 1000  # the same new scene D as `tracklabel experiment paper`
-    train_frames: int = 600
-    test_frames: int = 240
+    train_frames: int = 1200  # the same route and new scene as `tracklabel experiment paper`
+    test_frames: int = 465
+    crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars
+    cyclists: float = 3.0  # simulator: further factor on cyclists
     size: int = 64
     min_labels: int = 30  # baseline_min labels per class (paper: 350)
     strategies: tuple[str, ...] = STRATEGIES
@@ -65,7 +67,9 @@ class FinetuneExperimentConfig:
     min_track_samples: int = 3
     pretrain_evals: int = 8  # epochs (validation points) of each pretraining run
     pretrain_label_steps: int = 1200  # steps of the labels-only runs (batch 32)
-    pretrain_pair_steps: int = 400  # steps of constraint100 (16 labels + 80 pairs per step)
+    pretrain_pair_steps: int = 800  # steps of constraint100 (16 labels + 80 pairs per step)
+    pretrain_lr_schedule: str = "cosine"  # as the paper experiment
+    transitive_pairs: bool = True  # constraint100 pretraining: any two samples of a track are a pair
     val_max: int = 2000  # validation samples per pretraining run (a random subset)
     finetune_epochs: int = 6
     finetune_steps_per_epoch: int = 20
@@ -80,8 +84,9 @@ class FinetuneExperimentConfig:
     def key(self, scene: SceneSamples | None = None) -> str:
         """Hash of what the pretrained models depend on (they are cached under this key): these
         settings and the training scene (its summary changes with the pipeline's config)."""
-        fields_ = ("train_seed", "train_frames", "size", "min_labels", "pretrain_evals", "pretrain_label_steps",
-                   "pretrain_pair_steps", "val_max", "seed")
+        fields_ = ("train_seed", "train_frames", "crowd", "cyclists", "size", "min_labels", "pretrain_evals",
+                   "pretrain_label_steps", "pretrain_pair_steps", "pretrain_lr_schedule", "transitive_pairs",
+                   "val_max", "seed")
         data = {k: getattr(self, k) for k in fields_}
         if scene is not None:
             data["scene"] = scene.summary()
@@ -156,6 +161,8 @@ def _pretrain(
             steps_per_epoch=max(1, steps // cfg.pretrain_evals),
             batch_labelled=16 if pairs else 32,
             augment=True,
+            lr_schedule=cfg.pretrain_lr_schedule,
+            transitive_pairs=cfg.transitive_pairs,
             seed=cfg.seed,
             threads=cfg.threads,
         )
@@ -250,8 +257,9 @@ def run_finetune_experiment(
     try:
         log(f"preparing the training route (seed {cfg.train_seed}, {cfg.train_frames} frames) and new scene "
             f"(seed {cfg.test_seed}, {cfg.test_frames} frames)")
-        train_scene = prepare_scene(cache, cfg.train_seed, cfg.train_frames, cfg.size, progress=progress)
-        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress)
+        sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
+        train_scene = prepare_scene(cache, cfg.train_seed, cfg.train_frames, cfg.size, progress=progress, **sim)
+        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress, **sim)
         t_data = time.perf_counter() - t_start
         paths = _pretrain(train_scene, cfg, out / "models", log, progress)
         rows: dict[str, RunResult] = {}

@@ -3,21 +3,32 @@
 1. Simulate a training route (seed S) and a test scene D (seed S + 1000: another layout), run the
    real perception pipeline and let the ground-truth-checking operator review every track
    (`pipeline.experiments.data`). Split the route by distance travelled into A (0-30 %),
-   B (30-60 %) and C (60-100 %).
+   B (30-60 %) and C (60-100 %). The campus is busier than the simulator's default (`crowd`,
+   `cyclists`): a route of the default campus holds only ~35 people and ~5 cyclists, so 30 labels
+   per class already cover nearly every object, and neither more labels nor constraints can help.
 2. Split the operator's labelled tracks 70/30 into train/validation, by track and per class
    (samples of one track are near-duplicates; a random split of samples would validate on
    copies of training samples).
 3. Train the settings, every one for the same number of steps, same seed and network:
    - baseline_min: `labels_per_class` labels per class drawn from the training split, no constraints;
    - constraint30/60/100: the same labels + the verified constraints of A / A+B / A+B+C
-     (training-split tracks; no constraints for unknown, as in the paper);
+     (training-split tracks; no constraints for unknown, as in the paper, unless
+     `unknown_constraints`);
    - baseline_max: every label of the training split;
    - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
      weighted by its association score.
+   Extensions, each measured against constraint100 (see `pipeline.training`):
+   - constraint100_paper_pairs: the paper's consecutive pairs only (the default draws any two
+     samples of a track: `transitive_pairs`);
+   - constraint100_no_mask: canvases without the foreground-mask channel (3 channels).
    Model selection is the paper's rule on the validation split.
 4. Evaluate each on the training data (train + validation, as the paper's Table 7), on the
-   validation split alone, and on test scene D (Table 8), and write `paper.md`, `paper.json` and
-   PNG bar charts.
+   validation split alone, and on test scene D (Table 8).
+5. The paper's unsupervised adaptation (its Fig. 12): constraint100 trained further on D's
+   constraints alone (M = 0), without and with the class-balance term; F on D and the share of
+   D's samples given the most predicted class (the paper reports everything becoming "trunk").
+
+Writes `paper.md`, `paper.json` and PNG bar charts.
 """
 
 from __future__ import annotations
@@ -43,7 +54,10 @@ SETTINGS: tuple[str, ...] = (
     "constraint100",
     "baseline_max",
     "constraint100_auto",
+    "constraint100_paper_pairs",
+    "constraint100_no_mask",
 )
+ADAPT_SETTINGS: tuple[str, ...] = ("adapt_constraints_only", "adapt_constraints_only_balance")
 METHOD = {"baseline_min": "sup.", "baseline_max": "sup."}
 TEST_SEED_OFFSET = 1000
 
@@ -51,31 +65,36 @@ TEST_SEED_OFFSET = 1000
 @dataclass(frozen=True)
 class PaperConfig:
     seed: int = 0
-    frames: int = 600  # training route; A/B/C by distance
-    test_frames: int = 240  # test scene D
+    frames: int = 1200  # training route; A/B/C by distance (the paper: 1373 frames, 630 m)
+    test_frames: int = 465  # test scene D (the paper: 465)
     size: int = 64
     labels_per_class: int = 30  # baseline_min (the paper: 350 of 531-10103 per class)
-    steps: int = 800  # per setting (~11 min for all six at S=64 on 2 idle cores; see README)
+    steps: int = 800  # per setting (~2 min for a constraint setting at S=64 on 2 idle cores)
     evals: int = 8  # model-selection checkpoints (epochs) over the steps
     batch_labelled: int = 16  # m; n = pairs_per_label * m pairs
     pairs_per_label: int = 5
     gamma: float = 1.0
     lr: float = 1e-3
+    lr_schedule: str = "cosine"  # constant (the paper) | cosine: steadier last epochs to select from
+    transitive_pairs: bool = True  # any two samples of a track are a pair (constraint100_paper_pairs: off)
     balance_weight: float = 0.0
     augment: bool = True
     val_fraction: float = 0.3
     select_val: int = 2100  # validation samples used for model selection (stratified subsample)
     eval_max: int = 6000  # each evaluation set is a random subsample of at most this many samples (0 = all)
     balanced_labels: bool = True  # class-uniform label draws (matters for baseline_max's imbalanced labels)
-    threads: int = 1  # torch CPU threads: on a shared 2-core box 1 thread beats 2 (0 = torch default)
-    crowd: float = 1.0  # simulator: factor on people, cyclists and moving cars
-    cyclists: float = 1.0  # simulator: further factor on cyclists
+    threads: int = 0  # torch CPU threads (0 = torch's default; 1 is faster on a busy shared 2-core box)
+    crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars (1 = the default campus)
+    cyclists: float = 3.0  # simulator: further factor on cyclists
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
+    adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
+    adapt_balance_weight: float = 1.0
     settings: tuple[str, ...] = SETTINGS
+    adapt: tuple[str, ...] = ADAPT_SETTINGS
 
     @classmethod
     def full(cls, **kw: Any) -> PaperConfig:
-        """Toward the paper's size: 1400 training frames, 465 test frames, 350 labels per class."""
+        """Toward the paper's size: 1400 training frames, 350 labels per class, 6000 steps."""
         return cls(**({"frames": 1400, "test_frames": 465, "labels_per_class": 350, "steps": 6000, "evals": 20,
                         "eval_max": 0} | kw))
 
@@ -88,12 +107,21 @@ class PaperConfig:
             pairs_per_label=self.pairs_per_label,
             gamma=self.gamma,
             lr=self.lr,
+            lr_schedule=self.lr_schedule,
+            transitive_pairs=self.transitive_pairs,
             seed=self.seed,
             balance_weight=self.balance_weight,
             augment=self.augment,
             balanced_labels=self.balanced_labels,
             threads=self.threads,
         )
+
+    def setting_training(self, name: str) -> dict[str, Any]:
+        """Training-config changes of one setting (the extensions' switches)."""
+        out: dict[str, Any] = {"weighted_pairs": name == "constraint100_auto"}
+        if name == "constraint100_paper_pairs":
+            out["transitive_pairs"] = False
+        return out
 
 
 @dataclass
@@ -145,7 +173,7 @@ def setting_data(
         pairs, weights = scene.auto_pairs, scene.auto_scores
         up_to = 2
     else:
-        up_to = {"constraint30": 0, "constraint60": 1, "constraint100": 2}[name]
+        up_to = {"constraint30": 0, "constraint60": 1}.get(name, 2)  # constraint100 and its variants: 2
         pairs = scene.verified_pairs
         if unknown_constraints:  # every link inside the kept part of an accepted track
             pairs = scene.auto_pairs[(scene.label[scene.auto_pairs[:, 0]] >= 0) & (scene.label[scene.auto_pairs[:, 1]] >= 0)]
@@ -229,9 +257,13 @@ def run_paper(
         from tqdm import tqdm
 
         bar = tqdm(total=len(names), desc="settings", unit="setting", position=0)
+    models: dict[str, Any] = {}
     for name in names:
         labelled, pairs, weights = setting_data(name, scene, split, cfg.unknown_constraints)
-        data = TrainingData.build(scene.samples, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
+        mask = name != "constraint100_no_mask"
+        channels = slice(None) if mask else slice(0, 3)  # canvases without the foreground mask
+        pool = scene.samples if mask else np.ascontiguousarray(scene.samples[:, channels])
+        data = TrainingData.build(pool, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
         pair_cls = scene.label[pairs[:, 0]] if name != "constraint100_auto" else scene.gt_class[pairs[:, 0]]
         data_table[name] = {
             "labels": np.bincount(scene.label[labelled], minlength=NUM_SAMPLE_CLASSES).tolist(),
@@ -241,25 +273,33 @@ def run_paper(
             "pairs": int(len(pairs)),
         }
         t1 = time.perf_counter()
-        res = train(data, tcfg.model_copy(update={"weighted_pairs": name == "constraint100_auto"}), model_cfg,
-                    sample_cfg, val=val_select, progress=progress)
+        vs = val_select if mask else LabelledSamples(np.ascontiguousarray(val_select.samples[:, channels]), val_select.labels)
+        res = train(data, tcfg.model_copy(update=cfg.setting_training(name)), model_cfg,
+                    sample_cfg if mask else sample_cfg.model_copy(update={"foreground_channel": False}),
+                    val=vs, progress=progress)
         t_train = time.perf_counter() - t1
+        del data, pool
         row: dict[str, Any] = {"train_seconds": round(t_train, 1), "selected_epoch": res.selected_epoch,
                                "selection": res.selection, "train_loss": [round(r.loss, 5) for r in res.history],
-                               "val_select_f": [round(r.val_f, 3) for r in res.history]}
+                               "val_select_f": [round(r.val_f, 3) for r in res.history],
+                               "training": cfg.setting_training(name) | {"foreground_channel": mask}}
         for key, idx in evals.items():
-            row[key] = _f_row(evaluate(res.model, LabelledSamples(scene.samples[idx], scene.label[idx].astype(np.int64))))
-        row["test"] = _f_row(evaluate(res.model, LabelledSamples(test.samples[test_idx], test.label[test_idx].astype(np.int64))))
+            row[key] = _f_row(evaluate(res.model, LabelledSamples(scene.samples[idx][:, channels],
+                                                                  scene.label[idx].astype(np.int64))))
+        row["test"] = _f_row(evaluate(res.model, LabelledSamples(test.samples[test_idx][:, channels],
+                                                                 test.label[test_idx].astype(np.int64))))
         steps = len(res.history) * tcfg.steps_per_epoch  # type: ignore[operator]
         row["steps"] = steps
         row["seconds_per_step"] = round(sum(r.seconds for r in res.history) / max(steps, 1), 4)
         results[name] = row
+        models[name] = res.model
         log(f"{name}: {len(labelled)} labels, {len(pairs)} pairs, {t_train:.0f} s; F train/val "
             f"{row['train_val']['mean_f']:.1f}, val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
+    adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), test, test_idx, log, progress)
 
     doc: dict[str, Any] = {
         "config": asdict(cfg) | {"settings": list(cfg.settings)},
@@ -274,6 +314,7 @@ def run_paper(
                                                       minlength=NUM_SAMPLE_CLASSES).tolist()},
         "data": data_table,
         "results": results,
+        "adaptation": adaptation,
         "targets": targets(results),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_start": load0,
                     "load_average_end": os.getloadavg() if hasattr(os, "getloadavg") else None,
@@ -284,6 +325,54 @@ def run_paper(
     (out / "paper.md").write_text(markdown(doc))
     _plots(doc, out)
     return doc
+
+
+def _adapt(
+    cfg: PaperConfig,
+    tcfg: TrainingConfig,
+    model_cfg: ModelConfig,
+    sample_cfg: Any,
+    pretrained: Any,
+    test: SceneSamples,
+    test_idx: np.ndarray,
+    log: Any,
+    progress: bool,
+) -> dict[str, Any]:
+    """Step 5: constraint100 trained further on D's verified constraints alone (M = 0), without
+    and with the class-balance term. No labels of D are used, for training or for selection (the
+    last epoch is kept)."""
+    from pipeline.model import predict
+    from pipeline.training import LabelledSamples, TrainingData, evaluate, train
+
+    if pretrained is None or not cfg.adapt or len(test.verified_pairs) == 0:
+        return {}
+    pairs = test.verified_pairs
+    if not cfg.unknown_constraints:
+        pairs = pairs[test.label[pairs[:, 0]] != NUM_SAMPLE_CLASSES - 1]
+    out: dict[str, Any] = {}
+    evals = max(1, min(4, cfg.adapt_steps))
+    for name in cfg.adapt:
+        balance = cfg.adapt_balance_weight if name.endswith("_balance") else 0.0
+        acfg = tcfg.model_copy(update={"epochs": evals, "steps_per_epoch": max(1, cfg.adapt_steps // evals),
+                                       "balance_weight": balance, "loss_threshold": float("inf")})
+        t1 = time.perf_counter()
+        res = train(TrainingData.build(test.samples, pairs=pairs), acfg, model_cfg, sample_cfg,
+                    init_model=pretrained, progress=progress)
+        rep = evaluate(res.model, LabelledSamples(test.samples[test_idx], test.label[test_idx].astype(np.int64)))
+        pred = predict(res.model, test.samples[test_idx]).argmax(1)
+        share = np.bincount(pred, minlength=NUM_SAMPLE_CLASSES) / max(len(pred), 1)
+        out[name] = {"test": _f_row(rep), "balance_weight": balance, "pairs": int(len(pairs)),
+                     "steps": len(res.history) * int(acfg.steps_per_epoch or 0),
+                     "predicted_share": [round(float(v), 4) for v in share],
+                     "largest_class": SAMPLE_CLASSES[int(np.argmax(share))],
+                     "seconds": round(time.perf_counter() - t1, 1)}
+        log(f"{name}: {len(pairs)} pairs of D; F on D {rep.mean_f:.1f}, most predicted "
+            f"{out[name]['largest_class']} ({100 * share.max():.0f} % of D's samples)")
+    before = predict(pretrained, test.samples[test_idx]).argmax(1)
+    share = np.bincount(before, minlength=NUM_SAMPLE_CLASSES) / max(len(before), 1)
+    out["constraint100_before"] = {"predicted_share": [round(float(v), 4) for v in share],
+                                   "largest_class": SAMPLE_CLASSES[int(np.argmax(share))]}
+    return out
 
 
 def targets(results: dict[str, Any]) -> dict[str, Any]:
@@ -350,6 +439,7 @@ def markdown(doc: dict[str, Any]) -> str:
         "",
         *table("test"),
         "",
+        *_adapt_table(doc),
         "Targets: " + "; ".join(
             f"{k}: {v['value']} ({'met' if v['met'] else 'NOT met'})" for k, v in tgt.items()
         ),
@@ -358,6 +448,30 @@ def markdown(doc: dict[str, Any]) -> str:
         f"start {_load(doc['machine']['load_average_start'])}, at end {_load(doc['machine']['load_average_end'])}.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _adapt_table(doc: dict[str, Any]) -> list[str]:
+    ad = doc.get("adaptation") or {}
+    if not ad:
+        return []
+    rows = ["**Constraints only on D** (the paper's unsupervised adaptation, its Fig. 12: constraint100 trained "
+            "further on D's verified constraints, no labels):", "",
+            "| Setting | " + " | ".join(c.capitalize() for c in SAMPLE_CLASSES) + " | Average | most predicted class |",
+            "|---|" + "---|" * (len(SAMPLE_CLASSES) + 2)]
+    before = ad.get("constraint100_before")
+    c100 = doc["results"].get("constraint100")
+    if before and c100:
+        f = c100["test"]
+        rows.append("| constraint100 (before) | " + " | ".join(_fmt(f["f"][c]) for c in SAMPLE_CLASSES)
+                    + f" | {_fmt(f['mean_f'])} | {before['largest_class']} "
+                    f"({100 * max(before['predicted_share']):.0f} %) |")
+    for name, r in ad.items():
+        if name == "constraint100_before":
+            continue
+        f = r["test"]
+        rows.append(f"| {name} (balance {r['balance_weight']:g}) | " + " | ".join(_fmt(f["f"][c]) for c in SAMPLE_CLASSES)
+                    + f" | {_fmt(f['mean_f'])} | {r['largest_class']} ({100 * max(r['predicted_share']):.0f} %) |")
+    return [*rows, ""]
 
 
 def _load(v: list[float] | None) -> str:
@@ -375,5 +489,5 @@ def _plots(doc: dict[str, Any], out: Path) -> None:
         plot_f_bars(f, names, SAMPLE_CLASSES, out / fname, title=title)
 
 
-__all__ = ["SETTINGS", "PaperConfig", "Split", "markdown", "run_paper", "setting_data", "split_scene", "targets"]
+__all__ = ["ADAPT_SETTINGS", "SETTINGS", "PaperConfig", "Split", "markdown", "run_paper", "setting_data", "split_scene", "targets"]
 

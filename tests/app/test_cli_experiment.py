@@ -21,13 +21,19 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
-                                    "constraint100_auto"]
+                                    "constraint100_auto", "constraint100_paper_pairs", "constraint100_no_mask"]
+    assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
+    assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
+    ad = doc["adaptation"]
+    assert set(ad) == {"adapt_constraints_only", "adapt_constraints_only_balance", "constraint100_before"}
+    assert ad["adapt_constraints_only_balance"]["balance_weight"] > 0 == ad["adapt_constraints_only"]["balance_weight"]
+    assert abs(sum(ad["adapt_constraints_only"]["predicted_share"]) - 1.0) < 1e-3
     for row in doc["results"].values():
         assert row["steps"] == 4 and len(row["train_loss"]) == 2 and {"train_val", "val", "test"} <= set(row)
     assert doc["data"]["constraint30"]["pairs"] <= doc["data"]["constraint100"]["pairs"]
     assert "test_gain_constraint100_over_baseline_min" in doc["targets"]
     md = (out / "paper.md").read_text()
-    assert "| semi-sup. | constraint100 |" in md and "test scene D" in md
+    assert "| semi-sup. | constraint100 |" in md and "test scene D" in md and "Constraints only on D" in md
     assert (out / "paper_train.png").stat().st_size > 1000 and (out / "paper_test.png").stat().st_size > 1000
 
 
