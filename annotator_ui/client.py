@@ -143,6 +143,10 @@ class ApiClient:
         r = self._request("POST", "/review/next", params=params)
         return None if r.status_code == 204 else r.json()
 
+    def lease(self, track_id: int) -> dict[str, Any]:
+        """Lease a chosen track (TrackPublic); StaleEdit (409) while another operator holds it."""
+        return self._json("POST", f"/review/{track_id}/lease")
+
     def release(self, track_id: int) -> None:
         self._request("POST", f"/review/{track_id}/release")
 

@@ -78,6 +78,7 @@ class ReviewSession:
         self.history: list[int] = []  # track ids of this tab's actions, for undo
         self.skipped: set[int] = set()
         self.done = False  # the queue had nothing left
+        self.held_by: str | None = None  # why the shown out-of-queue track could not be leased (None = leased)
         self.lock = threading.RLock()
         self.coordinator.register(self)
 
@@ -138,9 +139,20 @@ class ReviewSession:
             self.coordinator.lease_next(self)
             return self.track
 
+    def _lease(self, track_id: int) -> None:
+        """Lease a track shown out of queue order, so the queue gives it to no one else; when
+        another operator holds it, `held_by` says so (the version check still guards every edit)."""
+        try:
+            self.api.lease(track_id)
+            self.held_by = None
+        except StaleEdit as exc:
+            self.held_by = exc.detail
+
     def open(self, track_id: int, frame_index: int | None = None) -> dict[str, Any]:
-        """Show any track out of queue order (picked in the scene); the queue lease stays held."""
+        """Show any track out of queue order (picked in the scene), leased to this user while it is
+        pending; the queue lease stays held."""
         with self.lock:
+            self._lease(track_id)
             self._show(self.api.track(track_id), from_queue=False, frame_index=frame_index)
             assert self.track is not None
             return self.track
@@ -215,6 +227,7 @@ class ReviewSession:
             result = self.api.act(track_id, "undo", current["version"])
             self.history.pop()
             shown = self.track_id == track_id
+            self._lease(track_id)  # pending again: keep the queue from handing it to someone else
             # a queue track shown until now stays leased to this user: the next `next` returns it
             self._show(self.api.track(track_id), from_queue=shown and self.from_queue,
                        frame_index=self.frame_index if shown else None)

@@ -240,7 +240,10 @@ class ClientTab:
             before = self.session.track_id
             self._load(lambda: self.session.open(track_id))
             if self.session.track_id == track_id != before:
-                self.notify("Track picked", f"Reviewing track {track_id} out of queue order.", "blue")
+                if self.session.held_by:
+                    self.notify("Track held by another operator", self.session.held_by, "yellow")
+                else:
+                    self.notify("Track picked", f"Reviewing track {track_id} out of queue order.", "blue")
 
     def _open_typed(self) -> None:
         text = self.gui_goto.value.strip().lstrip("#")

@@ -68,12 +68,14 @@ def simulate(
                                          "and moving cars (1 = the default campus).")] = 1.0,
     cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="A further factor on the number of "
                                             "cyclists.")] = 1.0,
+    style: Annotated[str, typer.Option(help="Campus style: a (default) or b (other cars, trees, people: "
+                                       "another part of town).")] = "a",
 ) -> None:
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
     from pipeline.simulation import simulate_sequence
 
     summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True, crowd=crowd,
-                                 cyclists=cyclists)
+                                 cyclists=cyclists, style=style)
     typer.echo(summary.describe())
 
 
@@ -205,6 +207,7 @@ def experiment_paper(
     crowd: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars (default 3).")] = None,
     cyclists: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists (default 3).")] = None,
     unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints", help="Also the constraints of unknown tracks (the paper has none).")] = False,
+    test_style: Annotated[str, typer.Option(help="Campus style of test scene D (a or b).")] = "b",
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
@@ -212,7 +215,8 @@ def experiment_paper(
     constraints, the extensions' ablations and the constraints-only adaptation to D (Fig. 12)."""
     from pipeline.experiments.paper import PaperConfig, run_paper
 
-    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints}
+    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
+                             "test_style": test_style}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
                        ("crowd", crowd), ("cyclists", cyclists)):
@@ -234,6 +238,7 @@ def experiment_finetune(
     test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 465,
     crowd: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars.")] = 3.0,
     cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists.")] = 3.0,
+    test_style: Annotated[str, typer.Option(help="Campus style of the new scene (a or b).")] = "b",
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
     strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
     budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",
@@ -267,7 +272,7 @@ def experiment_finetune(
         fail(f"--constraints: expected verified, automatic or none, got {constraints!r}")
     cfg = FinetuneExperimentConfig(
         train_seed=seed, test_seed=seed + 1000, train_frames=frames, test_frames=test_frames, size=size,
-        crowd=crowd, cyclists=cyclists,
+        crowd=crowd, cyclists=cyclists, test_style=test_style,
         strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads, finetune_seeds=seeds,
     )
     doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))

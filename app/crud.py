@@ -502,6 +502,37 @@ def lease_next_track(
     return track
 
 
+def lease_track(session: Session, track_id: int, user: AuthUser, lease_seconds: float) -> Track:
+    """Lease one chosen track to `user` (a track opened out of queue order, or brought back by
+    undo), so that the queue does not hand it to someone else meanwhile. A reviewed track needs no
+    lease and is returned as it is. NotFound for an unknown track; Conflict while another user's
+    lease on it runs. Commits."""
+    now = utcnow()
+    track = session.get(Track, track_id)
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    if track.status != "pending":
+        return track
+    res = session.execute(
+        update(Track)
+        .where(
+            Track.id == track_id,
+            or_(Track.lease_user_id == user.id, Track.lease_expires_at.is_(None), Track.lease_expires_at < now),
+        )
+        .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
+        .execution_options(synchronize_session=False)
+    )
+    if res.rowcount != 1:
+        session.rollback()
+        holder = session.get(Track, track_id)
+        name = session.scalar(select(User.name).where(User.id == holder.lease_user_id)) if holder else None
+        until = holder.lease_expires_at.isoformat(timespec="seconds") if holder and holder.lease_expires_at else "?"
+        raise Conflict(f"track {track_id} is being reviewed by {name or 'another operator'} (lease until {until})")
+    session.commit()
+    session.refresh(track)
+    return track
+
+
 def release_lease(session: Session, track_id: int, user: AuthUser) -> None:
     """Give back the caller's lease on a track (no-op when they hold none). Commits."""
     session.execute(

@@ -363,6 +363,35 @@ def _rampup(t: float) -> float:
     return float(math.exp(-5.0 * (1.0 - t) ** 2))
 
 
+PLOT_FILES = ("learning_curve.png", "confusion.png")
+
+
+def write_training_plots(
+    out: Path,
+    history: list[EpochRecord],
+    selected: int,
+    report: ClassificationReport | None,
+    loss_threshold: float | None = None,
+) -> list[Path]:
+    """`learning_curve.png` (loss and validation F per epoch) and, with a validation report,
+    `confusion.png` (its row-normalised confusion matrix) under `out`."""
+    from pipeline.plots import plot_confusion, plot_learning_curve
+
+    written = []
+    if history:
+        vf = np.array([r.val_f for r in history])
+        written.append(plot_learning_curve(
+            np.array([r.loss for r in history]), vf if np.isfinite(vf).any() else None, out / PLOT_FILES[0],
+            selected_epoch=selected if selected >= 0 else None,
+            loss_threshold=loss_threshold if loss_threshold is not None and math.isfinite(loss_threshold) else None,
+        ))
+    if report is not None:
+        d = report.to_dict()
+        written.append(plot_confusion(np.asarray(d["confusion"]), list(d["per_class"]), out / PLOT_FILES[1],
+                                      title=f"Validation confusion (mean F {d['mean_f']:.1f})"))
+    return written
+
+
 def _select(history: list[EpochRecord], threshold: float) -> tuple[int, str]:
     if not history:
         return -1, "none"
@@ -582,4 +611,5 @@ def _train(
             last = build_model(net)
             last.load_state_dict(last_state)
         save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config)
+        write_training_plots(out, history, selected, selected_report, config.loss_threshold)
     return TrainResult(model, history, selected, how, selected_report, ckpt, cancelled, metrics)

@@ -196,11 +196,12 @@ def _code_fingerprint() -> str:
 
 
 def _cache_key(
-    seed: int, frames: int, start: int, config: PipelineConfig, crowd: float = 1.0, cyclists: float = 1.0
+    seed: int, frames: int, start: int, config: PipelineConfig, crowd: float = 1.0, cyclists: float = 1.0,
+    style: str = "a",
 ) -> str:
     # only the sections that shape the samples: a training or model setting keeps the cached scene
     shaping = config.model_dump(mode="json", exclude={"model", "training"})
-    blob = json.dumps([CACHE_VERSION, _code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists)],
+    blob = json.dumps([CACHE_VERSION, _code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style],
                       sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
@@ -264,21 +265,22 @@ def prepare_scene(
     keep_sequence: bool = False,
     crowd: float = 1.0,
     cyclists: float = 1.0,
+    style: str = "a",
 ) -> SceneSamples:
-    """Simulate (seed, frames from `start`, `crowd`, `cyclists`), process and review a scene; cached
-    under `cache`."""
+    """Simulate (seed, frames from `start`, `crowd`, `cyclists`, `style`), process and review a
+    scene; cached under `cache`."""
     from pipeline.simulation import simulate_sequence
 
     config = (config or PipelineConfig()).override({"samples": {"size": size}})
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
-    crowd_tag = "" if crowd == cyclists == 1.0 else f"_c{crowd:g}x{cyclists:g}"
-    target = cache / f"scene_s{seed}_f{frames}_o{start}{crowd_tag}_S{size}_{_cache_key(seed, frames, start, config, crowd, cyclists)}.npz"
+    crowd_tag = ("" if crowd == cyclists == 1.0 else f"_c{crowd:g}x{cyclists:g}") + ("" if style == "a" else f"_{style}")
+    target = cache / f"scene_s{seed}_f{frames}_o{start}{crowd_tag}_S{size}_{_cache_key(seed, frames, start, config, crowd, cyclists, style)}.npz"
     if target.exists():
         return SceneSamples.load(target)
     seq = cache / f"seq_s{seed}_f{frames}_o{start}{crowd_tag}"
     simulate_sequence(seq, frames=frames, seed=seed, start=start, progress=progress, crowd=crowd,
-                      cyclists=cyclists)
+                      cyclists=cyclists, style=style)
     scene = process_scene(seq, config, progress)
     scene.save(target)
     if not keep_sequence:

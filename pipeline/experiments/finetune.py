@@ -1,7 +1,7 @@
 """`tracklabel experiment finetune`: the paper's Table 10 protocol on a simulated new scene.
 
 1. Prepare a training route (seed `train_seed`) and a new scene D (seed `test_seed`: another
-   layout) with `pipeline.experiments.data` (simulation, the real perception pipeline, and a
+   layout, and campus style `test_style`: other cars, trees, shrubs and clothes) with `pipeline.experiments.data` (simulation, the real perception pipeline, and a
    ground-truth-checking operator who gives labels and verified constraints).
 2. Pretrain on the training route, 70/30 train/validation, the paper's selection rule:
    - baseline_min: `min_labels` labelled samples per class (the paper: 350; scaled to our data);
@@ -58,6 +58,7 @@ class FinetuneExperimentConfig:
     test_frames: int = 465
     crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars
     cyclists: float = 3.0  # simulator: further factor on cyclists
+    test_style: str = "b"  # campus style of the new scene (pipeline.simulation.style)
     size: int = 64
     min_labels: int = 30  # baseline_min labels per class (paper: 350)
     strategies: tuple[str, ...] = STRATEGIES
@@ -259,7 +260,8 @@ def run_finetune_experiment(
             f"(seed {cfg.test_seed}, {cfg.test_frames} frames)")
         sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
         train_scene = prepare_scene(cache, cfg.train_seed, cfg.train_frames, cfg.size, progress=progress, **sim)
-        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress, **sim)
+        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress,
+                                   style=cfg.test_style, **sim)
         t_data = time.perf_counter() - t_start
         paths = _pretrain(train_scene, cfg, out / "models", log, progress)
         rows: dict[str, RunResult] = {}

@@ -3,7 +3,8 @@
 1. Simulate a training route (seed S) and a test scene D (seed S + 1000: another layout), run the
    real perception pipeline and let the ground-truth-checking operator review every track
    (`pipeline.experiments.data`). Split the route by distance travelled into A (0-30 %),
-   B (30-60 %) and C (60-100 %). The campus is busier than the simulator's default (`crowd`,
+   B (30-60 %) and C (60-100 %). D is also of another campus style (`test_style`: other car
+   models, trees, shrubs, clothes; `pipeline.simulation.style`), as a new scene is. The campus is busier than the simulator's default (`crowd`,
    `cyclists`): a route of the default campus holds only ~35 people and ~5 cyclists, so 30 labels
    per class already cover nearly every object, and neither more labels nor constraints can help.
 2. Split the operator's labelled tracks 70/30 into train/validation, by track and per class
@@ -28,7 +29,7 @@
    constraints alone (M = 0), without and with the class-balance term; F on D and the share of
    D's samples given the most predicted class (the paper reports everything becoming "trunk").
 
-Writes `paper.md`, `paper.json` and PNG bar charts.
+Writes `paper.md`, `paper.json`, PNG bar charts and confusion matrices on D (`paper_confusion_*.png`).
 """
 
 from __future__ import annotations
@@ -86,6 +87,7 @@ class PaperConfig:
     threads: int = 0  # torch CPU threads (0 = torch's default; 1 is faster on a busy shared 2-core box)
     crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars (1 = the default campus)
     cyclists: float = 3.0  # simulator: further factor on cyclists
+    test_style: str = "b"  # campus style of D: another part of town (pipeline.simulation.style)
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
@@ -233,7 +235,8 @@ def run_paper(
     t0 = time.perf_counter()
     sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
     scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, **sim)
-    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress, **sim)
+    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
+                         style=cfg.test_style, **sim)
     t_data = time.perf_counter() - t0
     split = split_scene(scene, cfg)
     n_select = min(cfg.select_val, cfg.eval_max) if cfg.eval_max > 0 else cfg.select_val
@@ -418,7 +421,8 @@ def markdown(doc: dict[str, Any]) -> str:
         f"Simulated training route: seed {cfg['seed']}, {cfg['frames']} frames, {tr['samples']} samples, "
         f"{tr['labels']} operator labels, {tr['verified_pairs']} verified / {tr['auto_pairs']} automatic constraints "
         f"(automatic link precision {_fmt(100 * tr['auto_pair_precision'] if tr['auto_pair_precision'] else None)} %). "
-        f"Test scene D: seed {cfg['seed'] + TEST_SEED_OFFSET}, {cfg['test_frames']} frames, {te['labels']} labelled samples. "
+        f"Test scene D: seed {cfg['seed'] + TEST_SEED_OFFSET}, campus style {cfg.get('test_style', 'a')}, "
+        f"{cfg['test_frames']} frames, {te['labels']} labelled samples. "
         f"S={cfg['size']}, {cfg['steps']} steps per setting (m={cfg['batch_labelled']} labels + "
         f"{cfg['pairs_per_label'] * cfg['batch_labelled']} pairs per step), gamma={cfg['gamma']}, "
         f"70/30 train/validation split by track.",
@@ -487,6 +491,13 @@ def _plots(doc: dict[str, Any], out: Path) -> None:
         f = np.array([[np.nan if doc["results"][n][key]["f"][c] is None else doc["results"][n][key]["f"][c]
                        for c in SAMPLE_CLASSES] for n in names])
         plot_f_bars(f, names, SAMPLE_CLASSES, out / fname, title=title)
+    from pipeline.plots import plot_confusion
+
+    for name in ("baseline_min", "constraint100", "baseline_max"):
+        if name in doc["results"]:
+            t = doc["results"][name]["test"]
+            plot_confusion(np.asarray(t["confusion"]), SAMPLE_CLASSES, out / f"paper_confusion_{name}.png",
+                           title=f"{name} on test scene D (mean F {t['mean_f']:.1f})")
 
 
 __all__ = ["ADAPT_SETTINGS", "SETTINGS", "PaperConfig", "Split", "markdown", "run_paper", "setting_data", "split_scene", "targets"]

@@ -27,6 +27,7 @@ from pipeline.simulation.actors import ground_frame
 from pipeline.simulation.ground import GRID_CELL, GroundModel
 from pipeline.simulation.route import SAMPLE_STEP, Route
 from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_z
+from pipeline.simulation.style import STYLES, CampusStyle
 
 STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
 STRETCH_P = (0.2, 0.17, 0.15, 0.26, 0.12, 0.10)
@@ -150,9 +151,11 @@ class Layout:
     """Places static objects; collects their primitives and instance records."""
 
     def __init__(
-        self, rng: np.random.Generator, route: Route, ground: GroundModel, road: RoadSpec, reg: Registry
+        self, rng: np.random.Generator, route: Route, ground: GroundModel, road: RoadSpec, reg: Registry,
+        style: CampusStyle | None = None,
     ):
         self.rng = rng
+        self.style = style or STYLES["a"]
         self.route = route
         self.ground = ground
         self.road = road
@@ -230,7 +233,7 @@ class Layout:
 
     def tree(self, xy: np.ndarray, style: str | None = None) -> bool:
         rng = self.rng
-        style = style or str(rng.choice(["young", "mature", "mature", "conifer", "wide"]))
+        style = style or str(rng.choice(list(self.style.tree_styles)))
         if style == "young":
             radius, height, base, rt = (
                 rng.uniform(0.9, 1.6),
@@ -308,7 +311,7 @@ class Layout:
         self.mark(self.disc(xy, 0.55 * size))
         iid = self.reg.new("bush", (m.VEGETATION,), position=(xy[0], xy[1], self.z(xy)))
         b = PrimitiveBuilder()
-        m.add_bush(b, self.rng, size, iid)
+        m.add_bush(b, self.rng, size, iid, self.style.bush_p)
         self.put(b, xy, self.rng.uniform(0, 2 * np.pi))
         self.bushes.append((np.asarray(xy, float), 0.5 * size))
         return True
@@ -360,7 +363,7 @@ class Layout:
         z0 = self.z(xy)
         bottom = float(ground_z.min()) - z0 - 0.6
         iid = self.reg.new("building", (m.BUILDING,), position=(xy[0], xy[1], z0))
-        glass = rng.random() < 0.25
+        glass = rng.random() < self.style.glass_share
         if glass:
             wall = Material(refl=rng.uniform(0.06, 0.14), drop=0.25, spec=0.45)
         else:
@@ -426,7 +429,7 @@ class Layout:
         return True
 
     def parked_car(self, xy: np.ndarray, yaw: float, kind: str | None = None) -> bool:
-        car = m.draw_car(self.rng, kind=kind)
+        car = m.draw_car(self.rng, self.style.dark_share, kind=kind, kind_p=self.style.car_kind_p)
         pts = self.rect(xy, yaw, car.length / 2 + 0.2, car.width / 2 + 0.15)
         if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
             return False
@@ -478,7 +481,8 @@ class Layout:
         else:
             iid = self.reg.new("person", (m.PERSON,), position=pos)
             m.add_person(
-                b, m.draw_person(rng), m.PERSON, iid, rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.12)
+                b, m.draw_person(rng, self.style.child_share, self.style.cloth_refl, self.style.carry_p), m.PERSON,
+                iid, rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.12)
             )
         self.put(b, xy, yaw)
         return True
@@ -558,7 +562,7 @@ def _trees_in_row(
 ) -> None:
     rng = lay.rng
     s = st.s0 + rng.uniform(2.0, 6.0)
-    style = str(rng.choice(["young", "mature", "wide"]))
+    style = str(rng.choice(list(lay.style.row_tree_styles)))
     while s < st.s1 - 2.0:
         if rng.random() < p:
             lat = st.side * (lay.edge(s, st.side) + rng.uniform(*offset))

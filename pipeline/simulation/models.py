@@ -60,10 +60,13 @@ CAR_KINDS = {
 }
 
 
-def draw_car(rng: np.random.Generator, dark_share: float = 0.3, kind: str | None = None) -> CarShape:
-    """A random car: small, sedan, SUV or van; `dark_share` of them have dark paint."""
+def draw_car(
+    rng: np.random.Generator, dark_share: float = 0.3, kind: str | None = None,
+    kind_p: tuple[float, ...] = (0.25, 0.4, 0.2, 0.15),
+) -> CarShape:
+    """A random car: small, sedan, SUV or van (`kind_p`); `dark_share` of them have dark paint."""
     if kind is None:
-        kind = str(rng.choice(list(CAR_KINDS), p=[0.25, 0.4, 0.2, 0.15]))
+        kind = str(rng.choice(list(CAR_KINDS), p=list(kind_p)))
     lo_hi = CAR_KINDS[kind]
     length, width, height, body_h, cab_share, cab_off = (rng.uniform(*r) for r in lo_hi)
     dark = bool(rng.random() < dark_share)
@@ -148,22 +151,25 @@ class PersonShape:
     carry: str = ""  # "" | "bag" (shoulder bag / suitcase at the side) | "umbrella" | "coat" (long coat)
 
 
-def draw_person(rng: np.random.Generator) -> PersonShape:
-    """Adults and teenagers of 1.45-1.98 m and children of 1.0-1.45 m (12 %), slim to broad
-    builds; clothes from dark to bright; some carry a backpack, a bag or an umbrella, or wear a
-    long coat that hides the legs."""
-    if rng.random() < 0.12:
+def draw_person(
+    rng: np.random.Generator, child_share: float = 0.12, cloth_refl: tuple[float, float] = (0.06, 0.6),
+    carry_p: tuple[float, ...] = (0.62, 0.16, 0.08, 0.14),
+) -> PersonShape:
+    """Adults and teenagers of 1.45-1.98 m and children of 1.0-1.45 m (`child_share`), slim to
+    broad builds; clothes from dark to bright (`cloth_refl`); some carry a backpack, a bag or an
+    umbrella, or wear a long coat that hides the legs (`carry_p`)."""
+    if rng.random() < child_share:
         height = float(rng.uniform(1.0, 1.45))
     else:
         height = float(np.clip(rng.normal(1.72, 0.1), 1.45, 1.98))
 
     def cloth() -> Material:
-        refl = rng.uniform(0.06, 0.6)
+        refl = rng.uniform(*cloth_refl)
         return Material(refl=refl, drop=0.03, spec=0.5 if refl < 0.1 else 0.1)
 
     build = float(rng.uniform(0.8, 1.35))
     top, bottom, backpack = cloth(), cloth(), bool(rng.random() < 0.25)
-    carry = str(rng.choice(["", "bag", "umbrella", "coat"], p=[0.62, 0.16, 0.08, 0.14]))
+    carry = str(rng.choice(["", "bag", "umbrella", "coat"], p=list(carry_p)))
     return PersonShape(height, build, top, bottom, backpack, carry)
 
 
@@ -303,7 +309,9 @@ BUSH_KINDS = ("round", "columnar", "spreading", "sparse")
 BUSH_P = (0.5, 0.18, 0.17, 0.15)
 
 
-def add_bush(b: PrimitiveBuilder, rng: np.random.Generator, size: float, instance: int) -> None:
+def add_bush(
+    b: PrimitiveBuilder, rng: np.random.Generator, size: float, instance: int, kind_p: tuple[float, ...] = BUSH_P
+) -> None:
     """A shrub about `size` metres across, sunk a little into the ground; one of BUSH_KINDS:
 
     round      1-3 overlapping dense ellipsoids (the common garden shrub);
@@ -312,7 +320,7 @@ def add_bush(b: PrimitiveBuilder, rng: np.random.Generator, size: float, instanc
     spreading  2-4 low wide lobes, 0.4-0.9 m high (ground cover, low hedging plants);
     sparse     round but open foliage (few leaves, winter): fewer, scattered returns.
     """
-    kind = str(rng.choice(BUSH_KINDS, p=BUSH_P))
+    kind = str(rng.choice(BUSH_KINDS, p=list(kind_p)))
     if kind == "columnar":
         leaves = foliage(rng, dense=True)
         h = rng.uniform(1.3, 3.0)

@@ -18,6 +18,7 @@ from pipeline.simulation.ground import GroundModel
 from pipeline.simulation.layout import Layout, Registry, RoadSpec
 from pipeline.simulation.route import EgoProfile, Route
 from pipeline.simulation.shapes import PrimitiveBuilder
+from pipeline.simulation.style import STYLES, CampusStyle
 
 
 def populate_actors(
@@ -31,13 +32,19 @@ def populate_actors(
     crossings: np.ndarray,
     crowd: float = 1.0,
     cyclists: float = 1.0,
+    style: CampusStyle | None = None,
 ) -> list[Actor]:
+    style = style or STYLES["a"]
     actors: list[Actor] = []
+
+    def person() -> m.PersonShape:
+        return m.draw_person(rng, style.child_share, style.cloth_refl, style.carry_p)
+
     length = route.length
     s_ego = ego.s0
 
     def car(s0: float, v: float) -> None:
-        shape = m.draw_car(rng)
+        shape = m.draw_car(rng, style.dark_share, kind_p=style.car_kind_p)
         iid = reg.new("car", (m.MOVING_CAR,), moving=True, dark=shape.dark)
         if v < 0:
             path = LanePath(route, s0, v, road.lane)
@@ -57,7 +64,7 @@ def populate_actors(
                 "cyclist",
                 m.MOVING_BICYCLIST,
                 path,
-                m.draw_person(rng),
+                person(),
                 abs(v),
                 rng.uniform(0, 2 * np.pi),
                 rng.uniform(0.15, 0.6),
@@ -72,7 +79,7 @@ def populate_actors(
         iid = reg.new("person", (m.MOVING_PERSON,), moving=True)
         path = LanePath(route, s0, v, side * off, follow=follow[side])
         actors.append(
-            Actor(iid, "person", m.MOVING_PERSON, path, m.draw_person(rng), abs(v), rng.uniform(0, 2 * np.pi))
+            Actor(iid, "person", m.MOVING_PERSON, path, person(), abs(v), rng.uniform(0, 2 * np.pi))
         )
 
     def polyline_walker(points: np.ndarray, t0: float, v: float | None = None) -> None:
@@ -84,7 +91,7 @@ def populate_actors(
                 "person",
                 m.MOVING_PERSON,
                 PolylinePath(points, v, t0),
-                m.draw_person(rng),
+                person(),
                 v,
                 rng.uniform(0, 2 * np.pi),
             )
@@ -164,7 +171,7 @@ def populate_actors(
                     "cyclist",
                     m.MOVING_BICYCLIST,
                     path,
-                    m.draw_person(rng),
+                    person(),
                     v,
                     rng.uniform(0, 2 * np.pi),
                     rng.uniform(0.15, 0.6),

@@ -28,6 +28,7 @@ from pipeline.simulation.layout import (
 from pipeline.simulation.population import populate_actors
 from pipeline.simulation.route import EgoProfile, Route, make_ego_profile, make_route
 from pipeline.simulation.shapes import PrimitiveSet, concat
+from pipeline.simulation.style import get_style
 
 SENSOR_HEIGHT = 1.8  # metres above the road, on the ego vehicle's roof
 
@@ -54,6 +55,7 @@ class Scene:
     crossings: np.ndarray
     crowd: float = 1.0  # moving-actor density factor the scene was drawn with
     cyclists: float = 1.0  # extra factor on the number of cyclists
+    style: str = "a"  # campus style (pipeline.simulation.style)
 
     def sensor_pose(self, t: float) -> np.ndarray:
         """(4, 4) T_scene_lidar at time t: the ego in its lane, tilted with the road."""
@@ -93,9 +95,11 @@ class Scene:
         return self.static.take(np.flatnonzero(self.static.instance == instance))
 
 
-def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0) -> Scene:
+def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0, style: str = "a") -> Scene:
     """Draw the whole campus from `seed`; `crowd` scales the number of moving actors, `cyclists`
-    that of cyclists on top of it."""
+    that of cyclists on top of it; `style` names the distributions objects are drawn from
+    (`pipeline.simulation.style`)."""
+    campus = get_style(style)
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5)]
     rng_route, rng_road, rng_layout, rng_actors, rng_ego = streams
     # 1. The loop and the ego vehicle's drive along it.
@@ -136,10 +140,10 @@ def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0) -> Scene:
     )
     # 3. Static objects, then 4. everything that moves.
     reg = Registry()
-    lay = Layout(rng_layout, route, ground, road, reg)
+    lay = Layout(rng_layout, route, ground, road, reg, campus)
     populate(lay, stretches, crossings)
     static = static_primitives(lay)
-    actors = populate_actors(rng_actors, route, ground, road, ego, lay, reg, crossings, crowd, cyclists)
+    actors = populate_actors(rng_actors, route, ground, road, ego, lay, reg, crossings, crowd, cyclists, campus)
     return Scene(
         seed=int(seed),
         route=route,
@@ -154,4 +158,5 @@ def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0) -> Scene:
         crossings=crossings,
         crowd=float(crowd),
         cyclists=float(cyclists),
+        style=campus.name,
     )

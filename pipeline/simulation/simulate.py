@@ -38,6 +38,7 @@ from pipeline.sensors import PRESETS
 from pipeline.simulation.raycast import cast, ray_directions, ray_windows
 from pipeline.simulation.returns import Returns, make_returns
 from pipeline.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
+from pipeline.simulation.style import get_style
 
 SENSOR = "hdl32e"
 GENERATOR = "tracklabel simulate"
@@ -161,24 +162,31 @@ def simulate_sequence(
     progress: bool = False,
     crowd: float = 1.0,
     cyclists: float = 1.0,
+    style: str = "a",
 ) -> SimulationSummary:
     """Simulate frames start .. start + frames - 1 of the campus scene of `seed` into `out`.
 
     crowd: factor on the number of moving actors (pedestrians, cyclists, traffic); 1 = default.
     cyclists: a further factor on the number of cyclists.
+    style: the campus style, the distributions objects are drawn from ("a" = default; "b" =
+    another part of town, see `pipeline.simulation.style`).
     """
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
     for name, v in (("crowd", crowd), ("cyclists", cyclists)):
         if not (0.0 < v <= 10.0):
             raise ConfigError(f"{name} must be in (0, 10], got {v}")
+    try:
+        get_style(style)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     if start < 0:
         raise ConfigError(f"start must be >= 0, got {start}")
     out = Path(out)
     _prepare(out)
     sensor = PRESETS[SENSOR]
     t0 = time.perf_counter()
-    scene = build_scene(seed, crowd, cyclists)
+    scene = build_scene(seed, crowd, cyclists, style)
     t1 = time.perf_counter()
     dirs = ray_directions(sensor)
     poses = np.zeros((frames, 4, 4))
@@ -270,6 +278,7 @@ def _write_metadata(
         "seed": int(scene.seed),
         "crowd": scene.crowd,
         "cyclists": scene.cyclists,
+        "style": scene.style,
         "start": int(start),
         "frames": int(frames),
         "frame_rate_hz": PRESETS[SENSOR].frequency_hz,

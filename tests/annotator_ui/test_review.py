@@ -152,3 +152,18 @@ def test_review_two_tabs_of_one_token_never_get_the_same_track(live_api):
     assert len({t.track_id for t in tabs}) == 3
     for tab in tabs:
         tab.close()
+
+
+def test_review_picked_track_is_leased_so_another_operator_gets_others(live_api):
+    a = ReviewSession(ApiClient(live_api.url, live_api.new_operator()))
+    b = ReviewSession(ApiClient(live_api.url, live_api.new_operator()))
+    probe = ApiClient(live_api.url, live_api.new_operator())
+    head = probe.next_track()["id"]  # the track the queue hands out next
+    probe.release(head)
+    a.open(head)  # a picks exactly that track out of queue order
+    assert a.track_id == head and a.held_by is None
+    b.next()
+    assert b.track_id not in (None, head)  # without a's lease the queue would have given b `head`
+    b.open(head)  # b may look at it, but is told who holds it
+    assert b.track_id == head and b.held_by is not None
+    a.close(), b.close(), probe.close()

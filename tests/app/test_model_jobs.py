@@ -60,6 +60,12 @@ def test_train_job_registers_model_listed_by_the_api(client, factory, settings, 
     assert len(detail["metrics"]["train_loss"]) == 2 and detail["metrics"]["data"]["labelled_val"] > 0
     assert client.get("/api/v1/models/999", headers=admin.headers).status_code == 404
     assert client.get("/api/v1/models", params={"kind": "finetune"}, headers=admin.headers).json() == []
+    for name in ("learning_curve.png", "confusion.png"):  # the PNGs written beside the checkpoint
+        png = client.get(f"/api/v1/models/{m['id']}/plots/{name}", headers=admin.headers)
+        assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+        assert png.content[:8] == b"\x89PNG\r\n\x1a\n" and len(png.content) > 2000
+    assert client.get(f"/api/v1/models/{m['id']}/plots/other.png", headers=admin.headers).status_code == 422
+    assert client.get("/api/v1/models/999/plots/confusion.png", headers=admin.headers).status_code == 404
 
 
 def test_training_set_verified_vs_automatic_constraints(client, factory, settings, db):

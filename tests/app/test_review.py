@@ -75,3 +75,25 @@ def test_review_next_passes_over_excluded_tracks(client, factory):
     third = _next(client, a, exclude=[first["id"], second["id"]]).json()
     assert len({first["id"], second["id"], third["id"]}) == 3
     assert _next(client, a, exclude=[first["id"], second["id"], third["id"]]).status_code == 204
+
+
+def test_review_lease_of_a_chosen_track_keeps_the_queue_off_it(client, factory):
+    seq = factory.ingested_sequence(n_objects=1)
+    a, b = factory.user(name="ann"), factory.user()
+    tid = factory.track_ids(seq)[0]
+    r = client.post(f"/api/v1/review/{tid}/lease", headers=a.headers)
+    assert r.status_code == 200 and r.json()["id"] == tid
+    assert client.post(f"/api/v1/review/{tid}/lease", headers=a.headers).status_code == 200  # own: renewed
+    held = client.post(f"/api/v1/review/{tid}/lease", headers=b.headers)
+    assert held.status_code == 409 and "ann" in held.json()["detail"]
+    assert _next(client, b).status_code == 204  # the only track is held: the queue has nothing for b
+    assert client.post("/api/v1/review/999999/lease", headers=a.headers).status_code == 404
+
+
+def test_review_lease_of_a_reviewed_track_is_not_needed(client, factory):
+    factory.ingested_sequence(n_objects=1)
+    a, b = factory.user(), factory.user()
+    t = _next(client, a).json()
+    client.post(f"/api/v1/tracks/{t['id']}/accept", json={"version": t["version"]}, headers=a.headers)
+    r = client.post(f"/api/v1/review/{t['id']}/lease", headers=b.headers)
+    assert r.status_code == 200 and r.json()["status"] == "accepted"

@@ -227,6 +227,30 @@ def test_simulate_crowd_scales_moving_actors_and_leaves_the_static_campus(scene)
     assert counts(again) == base and len(again.instances) == len(scene.instances)
 
 
+def test_simulate_style_b_shifts_what_objects_are_drawn_from(scene):
+    from pipeline.simulation.style import STYLES
+
+    other = build_scene(SEED, crowd=3.0, style="b")
+    base = build_scene(SEED, crowd=3.0)
+    assert other.style == "b" and base.style == "a" and scene.style == "a"
+
+    def dark_share(sc) -> float:
+        cars = [i for i in sc.instances.values() if i.cls == "car"]
+        return sum(i.dark for i in cars) / len(cars)
+
+    assert dark_share(other) > dark_share(base) + 0.1  # style b: 50 % dark paint against 30 %
+    assert STYLES["b"].tree_styles != STYLES["a"].tree_styles
+    with pytest.raises(ValueError, match="unknown campus style"):
+        build_scene(SEED, style="z")
+
+
+def test_simulate_sequence_unknown_style_is_a_config_error(tmp_path: Path):
+    from pipeline.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="style"):
+        simulate_sequence(tmp_path / "x", frames=1, seed=0, style="z")
+
+
 def test_simulate_refuses_a_foreign_sequence_folder(tmp_path: Path):
     (tmp_path / "velodyne").mkdir()
     (tmp_path / "velodyne/000000.bin").write_bytes(b"\0" * 16)

@@ -1,12 +1,15 @@
-"""Trained models: `GET /models` (newest first, with a metrics summary) and `GET /models/{id}`
-(all stored metrics and the config). Models are registered by the `train` / `finetune` jobs."""
+"""Trained models: `GET /models` (newest first, with a metrics summary), `GET /models/{id}` (all
+stored metrics and the config) and `GET /models/{id}/plots/{name}` (the learning curve and the
+validation confusion matrix as PNG). Models are registered by the `train` / `finetune` jobs."""
 
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Any
+from pathlib import Path
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
+from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict
 from sqlalchemy import select
 
@@ -80,3 +83,19 @@ def get_model(model_id: IdPath, _user: CurrentUser, session: SessionDep) -> Mode
     if mv is None:
         raise NotFound(f"model {model_id} not found")
     return ModelDetail.model_validate(mv).model_copy(update=_summary_fields(mv))
+
+
+@router.get("/models/{model_id}/plots/{name}", response_class=FileResponse,
+            responses={200: {"content": {"image/png": {}}}, 404: {"description": "unknown model or no such plot"}})
+def get_model_plot(
+    model_id: IdPath, name: Literal["learning_curve.png", "confusion.png"], _user: CurrentUser, session: SessionDep
+) -> FileResponse:
+    """A PNG written beside the model's checkpoint when it was trained: `learning_curve.png` (loss
+    and validation F per epoch) or `confusion.png` (validation confusion of the selected epoch)."""
+    mv = session.get(ModelVersion, model_id)
+    if mv is None:
+        raise NotFound(f"model {model_id} not found")
+    path = Path(mv.path).parent / name
+    if not path.is_file():
+        raise NotFound(f"model {model_id} has no {name}")
+    return FileResponse(path, media_type="image/png")

@@ -38,6 +38,16 @@ def next_track(
     return TrackPublic.model_validate(track)
 
 
+@router.post("/{track_id}/lease", response_model=TrackPublic,
+             responses={404: {"description": "unknown track"},
+                        409: {"description": "another operator's lease on the track is running"}})
+def lease(track_id: BigIdPath, user: CurrentUser, session: WriteSessionDep, settings: SettingsDep) -> TrackPublic:
+    """Lease a chosen pending track to the caller for `review_lease_seconds` (a track opened out
+    of queue order), so that `next` hands it to no one else; a reviewed track is returned as it
+    is. 409 while another operator holds it."""
+    return TrackPublic.model_validate(crud.lease_track(session, track_id, user, settings.review_lease_seconds))
+
+
 @router.post("/{track_id}/release", status_code=status.HTTP_204_NO_CONTENT)
 def release(track_id: BigIdPath, user: CurrentUser, session: WriteSessionDep) -> None:
     """Give back the caller's lease on a track."""
