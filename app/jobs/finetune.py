@@ -30,11 +30,14 @@ class FinetuneParams(BaseModel):
     model_id: int = Field(ge=1, le=2**31 - 1, description="The pretrained model (a model version id).")
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0, description="automatic: drop pairs scored below this.")
-    epochs: int = Field(default=6, ge=1, le=1000)
-    steps_per_epoch: int | None = Field(default=20, ge=1, le=100_000)
+    # Defaults: pipeline.finetune.FINETUNE_DEFAULTS (tests/app checks they agree).
+    epochs: int = Field(default=8, ge=1, le=1000)
+    steps_per_epoch: int | None = Field(default=100, ge=1, le=100_000)
     batch_labelled: int = Field(default=16, ge=1, le=4096, description="Anchors per step.")
     pairs_per_label: int = Field(default=2, ge=0, le=100, description="Constraint pairs per anchor in a step.")
-    lr: float = Field(default=3e-4, gt=0.0, le=1.0)
+    lr: float = Field(default=1e-3, gt=0.0, le=1.0)
+    lr_schedule: Literal["constant", "cosine"] = "cosine"
+    transitive_pairs: bool = Field(default=True, description="Pair a drawn sample with any sample of its track.")
     balance: bool = Field(default=True, description="Draw the anchors' classes evenly (see pipeline/finetune.py).")
     gamma: float = Field(default=1.0, ge=0.0, le=1.0)
     augment: bool = True
@@ -131,6 +134,8 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
             "batch_labelled": params.batch_labelled,
             "pairs_per_label": params.pairs_per_label,
             "lr": params.lr,
+            "lr_schedule": params.lr_schedule,
+            "transitive_pairs": params.transitive_pairs,
             "gamma": params.gamma,
             "augment": params.augment,
             "seed": params.seed,

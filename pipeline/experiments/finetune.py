@@ -1,7 +1,8 @@
 """`tracklabel experiment finetune`: the paper's Table 10 protocol on a simulated new scene.
 
 1. Prepare a training route (seed `train_seed`) and a new scene D (seed `test_seed`: another
-   layout, and campus style `test_style`: other cars, trees, shrubs and clothes) with `pipeline.experiments.data` (simulation, the real perception pipeline, and a
+   layout, and campus style `test_style`: other cars, trees, shrubs and clothes) with
+   `pipeline.experiments.data` (simulation, the real perception pipeline, and a
    ground-truth-checking operator who gives labels and verified constraints).
 2. Pretrain on the training route, 70/30 train/validation, the paper's selection rule:
    - baseline_min: `min_labels` labelled samples per class (the paper: 350; scaled to our data);
@@ -72,11 +73,13 @@ class FinetuneExperimentConfig:
     pretrain_lr_schedule: str = "cosine"  # as the paper experiment
     transitive_pairs: bool = True  # constraint100 pretraining: any two samples of a track are a pair
     val_max: int = 2000  # validation samples per pretraining run (a random subset)
-    finetune_epochs: int = 6
-    finetune_steps_per_epoch: int = 20
+    finetune_epochs: int = 8
+    finetune_steps_per_epoch: int = 100
     finetune_batch: int = 16  # labelled anchors per step
     finetune_pairs_per_label: int = 2  # constraint pairs per anchor in a step
-    finetune_lr: float = 3e-4
+    finetune_lr: float = 1e-3
+    finetune_lr_schedule: str = "cosine"
+    finetune_transitive_pairs: bool = True  # any two samples of one of D's tracks are a pair
     balance: bool = True  # draw the anchors' classes evenly (pipeline.finetune.balance_classes)
     finetune_seeds: tuple[int, ...] = (0,)  # each point is the mean over fine-tuning runs of these seeds
     seed: int = 0
@@ -304,6 +307,8 @@ def run_finetune_experiment(
                 batch_labelled=cfg.finetune_batch,
                 pairs_per_label=cfg.finetune_pairs_per_label,
                 lr=cfg.finetune_lr,
+                lr_schedule=cfg.finetune_lr_schedule,
+                transitive_pairs=cfg.finetune_transitive_pairs,
             )
             res = finetune((pre_model, pre_meta), data, tc)
             p_new = predict(res.model, test_scene.samples)

@@ -230,3 +230,13 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
     model, meta = load_checkpoint(mv.path)
     assert meta.metrics["parent"] and meta.metrics["kind"] == "finetune"
     assert np.isfinite(meta.metrics["train_loss"]).all()
+
+
+def test_finetune_job_defaults_follow_the_library():
+    """The REST job's defaults are the library's fine-tuning defaults (chosen by the experiment)."""
+    from app.jobs.finetune import FinetuneParams
+    from pipeline.finetune import FINETUNE_DEFAULTS
+
+    params = FinetuneParams(sequence_id=1, model_id=1)
+    for key, value in FINETUNE_DEFAULTS.items():
+        assert getattr(params, key) == value, key
