@@ -7,7 +7,7 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import timedelta
+from datetime import datetime, timedelta
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -442,6 +442,11 @@ def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes
 # ----------------------------------------------------------------------------- review queue
 
 
+def _unleased(now: datetime) -> Any:
+    """SQL condition: the track has no lease running at `now` (none, or an expired one)."""
+    return or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now)
+
+
 def lease_next_track(
     session: Session,
     user: AuthUser,
@@ -472,7 +477,7 @@ def lease_next_track(
             break
         cand = session.scalars(
             select(Track)
-            .where(*base, or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now))
+            .where(*base, _unleased(now))
             .order_by(Track.n_samples.desc(), Track.id)
             .limit(1)
             .with_for_update(skip_locked=True)
@@ -486,7 +491,7 @@ def lease_next_track(
             .where(
                 Track.id == cand.id,
                 Track.status == "pending",
-                or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now),
+                _unleased(now),
             )
             .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
             .execution_options(synchronize_session=False)
@@ -517,7 +522,7 @@ def lease_track(session: Session, track_id: int, user: AuthUser, lease_seconds: 
         update(Track)
         .where(
             Track.id == track_id,
-            or_(Track.lease_user_id == user.id, Track.lease_expires_at.is_(None), Track.lease_expires_at < now),
+            or_(Track.lease_user_id == user.id, _unleased(now)),
         )
         .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
         .execution_options(synchronize_session=False)

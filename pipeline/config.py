@@ -7,6 +7,7 @@ YAML files hold overrides only (`load_config`); every run writes the config it u
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -125,6 +126,21 @@ class TrainingConfig(_Section):
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda
+
+
+# Fine-tuning defaults over TrainingConfig's (chosen on a simulated development scene for
+# `tracklabel experiment finetune`, see README "Fine-tuning on a new scene"); used by
+# pipeline.finetune.finetune_config and the REST finetune job.
+FINETUNE_DEFAULTS: dict[str, Any] = {
+    "epochs": 8,
+    "steps_per_epoch": 100,
+    "batch_labelled": 16,
+    "pairs_per_label": 2,
+    "lr": 1e-3,
+    "lr_schedule": "cosine",
+    "transitive_pairs": True,
+    "augment": True,
+}
 
 
 class PipelineConfig(_Section):

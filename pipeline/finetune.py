@@ -28,7 +28,7 @@ from typing import Any, Literal
 import numpy as np
 
 from pipeline.classes import SAMPLE_CLASSES
-from pipeline.config import TrainingConfig
+from pipeline.config import FINETUNE_DEFAULTS, TrainingConfig
 from pipeline.errors import ConfigError, DataError
 from pipeline.metrics import ClassificationReport
 from pipeline.model import CheckpointMeta, SampleCNN, load_checkpoint, save_checkpoint
@@ -37,18 +37,6 @@ from pipeline.training import LabelledSamples, TrainingData, TrainProgress, eval
 ConstraintMode = Literal["verified", "automatic", "none"]
 CONSTRAINT_MODES: tuple[str, ...] = ("verified", "automatic", "none")
 
-# Fine-tuning defaults over TrainingConfig's (chosen on the simulated new scene of
-# `tracklabel experiment finetune`, see README "Fine-tuning on a new scene").
-FINETUNE_DEFAULTS: dict[str, Any] = {
-    "epochs": 8,
-    "steps_per_epoch": 100,
-    "batch_labelled": 16,
-    "pairs_per_label": 2,
-    "lr": 1e-3,
-    "lr_schedule": "cosine",
-    "transitive_pairs": True,
-    "augment": True,
-}
 
 
 def finetune_config(base: TrainingConfig | None = None, **overrides: Any) -> TrainingConfig:

@@ -22,6 +22,7 @@ from app.jobs import models_util
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, get_job_type, register
 from app.models import Sequence
+from pipeline.config import FINETUNE_DEFAULTS
 
 
 class FinetuneParams(BaseModel):
@@ -30,17 +31,20 @@ class FinetuneParams(BaseModel):
     model_id: int = Field(ge=1, le=2**31 - 1, description="The pretrained model (a model version id).")
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0, description="automatic: drop pairs scored below this.")
-    # Defaults: pipeline.finetune.FINETUNE_DEFAULTS (tests/app checks they agree).
-    epochs: int = Field(default=8, ge=1, le=1000)
-    steps_per_epoch: int | None = Field(default=100, ge=1, le=100_000)
-    batch_labelled: int = Field(default=16, ge=1, le=4096, description="Anchors per step.")
-    pairs_per_label: int = Field(default=2, ge=0, le=100, description="Constraint pairs per anchor in a step.")
-    lr: float = Field(default=1e-3, gt=0.0, le=1.0)
-    lr_schedule: Literal["constant", "cosine"] = "cosine"
-    transitive_pairs: bool = Field(default=True, description="Pair a drawn sample with any sample of its track.")
+    # Training defaults: the library's fine-tuning defaults (pipeline.config.FINETUNE_DEFAULTS).
+    epochs: int = Field(default=FINETUNE_DEFAULTS["epochs"], ge=1, le=1000)
+    steps_per_epoch: int | None = Field(default=FINETUNE_DEFAULTS["steps_per_epoch"], ge=1, le=100_000)
+    batch_labelled: int = Field(default=FINETUNE_DEFAULTS["batch_labelled"], ge=1, le=4096,
+                                description="Anchors per step.")
+    pairs_per_label: int = Field(default=FINETUNE_DEFAULTS["pairs_per_label"], ge=0, le=100,
+                                 description="Constraint pairs per anchor in a step.")
+    lr: float = Field(default=FINETUNE_DEFAULTS["lr"], gt=0.0, le=1.0)
+    lr_schedule: Literal["constant", "cosine"] = FINETUNE_DEFAULTS["lr_schedule"]
+    transitive_pairs: bool = Field(default=FINETUNE_DEFAULTS["transitive_pairs"],
+                                   description="Pair a drawn sample with any sample of its track.")
     balance: bool = Field(default=True, description="Draw the anchors' classes evenly (see pipeline/finetune.py).")
     gamma: float = Field(default=1.0, ge=0.0, le=1.0)
-    augment: bool = True
+    augment: bool = FINETUNE_DEFAULTS["augment"]
     seed: int = 0
     threads: int = Field(default=0, ge=0, le=256, description="torch CPU threads, 0 = torch's default.")
     name: str | None = Field(default=None, max_length=128)

@@ -302,7 +302,9 @@ def run_paper(
             bar.update(1)
     if bar is not None:
         bar.close()
-    adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), test, test_idx, log, progress)
+    c100_test = results.get("constraint100", {}).get("test", {})
+    adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), c100_test.get("confusion"),
+                        test, test_idx, log, progress)
 
     doc: dict[str, Any] = {
         "config": asdict(cfg) | {"settings": list(cfg.settings)},
@@ -336,6 +338,7 @@ def _adapt(
     model_cfg: ModelConfig,
     sample_cfg: Any,
     pretrained: Any,
+    before_confusion: Any,
     test: SceneSamples,
     test_idx: np.ndarray,
     log: Any,
@@ -343,9 +346,12 @@ def _adapt(
 ) -> dict[str, Any]:
     """Step 5: constraint100 trained further on D's verified constraints alone (M = 0), without
     and with the class-balance term. No labels of D are used, for training or for selection (the
-    last epoch is kept)."""
-    from pipeline.model import predict
+    last epoch is kept). `before_confusion`: constraint100's confusion on D (its predicted shares)."""
     from pipeline.training import LabelledSamples, TrainingData, evaluate, train
+
+    def shares(confusion: Any) -> np.ndarray:  # (K,) share of D's samples predicted as each class
+        cols = np.asarray(confusion, np.float64).sum(0)
+        return cols / max(cols.sum(), 1.0)
 
     if pretrained is None or not cfg.adapt or len(test.verified_pairs) == 0:
         return {}
@@ -362,8 +368,7 @@ def _adapt(
         res = train(TrainingData.build(test.samples, pairs=pairs), acfg, model_cfg, sample_cfg,
                     init_model=pretrained, progress=progress)
         rep = evaluate(res.model, LabelledSamples(test.samples[test_idx], test.label[test_idx].astype(np.int64)))
-        pred = predict(res.model, test.samples[test_idx]).argmax(1)
-        share = np.bincount(pred, minlength=NUM_SAMPLE_CLASSES) / max(len(pred), 1)
+        share = shares(rep.confusion)
         out[name] = {"test": _f_row(rep), "balance_weight": balance, "pairs": int(len(pairs)),
                      "steps": len(res.history) * int(acfg.steps_per_epoch or 0),
                      "predicted_share": [round(float(v), 4) for v in share],
@@ -371,8 +376,7 @@ def _adapt(
                      "seconds": round(time.perf_counter() - t1, 1)}
         log(f"{name}: {len(pairs)} pairs of D; F on D {rep.mean_f:.1f}, most predicted "
             f"{out[name]['largest_class']} ({100 * share.max():.0f} % of D's samples)")
-    before = predict(pretrained, test.samples[test_idx]).argmax(1)
-    share = np.bincount(before, minlength=NUM_SAMPLE_CLASSES) / max(len(before), 1)
+    share = shares(before_confusion)
     out["constraint100_before"] = {"predicted_share": [round(float(v), 4) for v in share],
                                    "largest_class": SAMPLE_CLASSES[int(np.argmax(share))]}
     return out

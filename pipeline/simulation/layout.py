@@ -429,7 +429,7 @@ class Layout:
         return True
 
     def parked_car(self, xy: np.ndarray, yaw: float, kind: str | None = None) -> bool:
-        car = m.draw_car(self.rng, self.style.dark_share, kind=kind, kind_p=self.style.car_kind_p)
+        car = self.style.draw_car(self.rng, kind=kind)
         pts = self.rect(xy, yaw, car.length / 2 + 0.2, car.width / 2 + 0.15)
         if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
             return False
@@ -481,7 +481,7 @@ class Layout:
         else:
             iid = self.reg.new("person", (m.PERSON,), position=pos)
             m.add_person(
-                b, m.draw_person(rng, self.style.child_share, self.style.cloth_refl, self.style.carry_p), m.PERSON,
+                b, self.style.draw_person(rng), m.PERSON,
                 iid, rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.12)
             )
         self.put(b, xy, yaw)

@@ -60,9 +60,13 @@ CAR_KINDS = {
 }
 
 
+CAR_KIND_P = (0.25, 0.4, 0.2, 0.15)  # small, sedan, suv, van
+DARK_SHARE = 0.3  # cars with dark paint (they lose oblique returns and break up)
+
+
 def draw_car(
-    rng: np.random.Generator, dark_share: float = 0.3, kind: str | None = None,
-    kind_p: tuple[float, ...] = (0.25, 0.4, 0.2, 0.15),
+    rng: np.random.Generator, dark_share: float = DARK_SHARE, kind: str | None = None,
+    kind_p: tuple[float, ...] = CAR_KIND_P,
 ) -> CarShape:
     """A random car: small, sedan, SUV or van (`kind_p`); `dark_share` of them have dark paint."""
     if kind is None:
@@ -151,9 +155,14 @@ class PersonShape:
     carry: str = ""  # "" | "bag" (shoulder bag / suitcase at the side) | "umbrella" | "coat" (long coat)
 
 
+CHILD_SHARE = 0.12
+CLOTH_REFL = (0.06, 0.6)  # remission range of clothes
+CARRY_P = (0.62, 0.16, 0.08, 0.14)  # nothing, bag, umbrella, coat
+
+
 def draw_person(
-    rng: np.random.Generator, child_share: float = 0.12, cloth_refl: tuple[float, float] = (0.06, 0.6),
-    carry_p: tuple[float, ...] = (0.62, 0.16, 0.08, 0.14),
+    rng: np.random.Generator, child_share: float = CHILD_SHARE, cloth_refl: tuple[float, float] = CLOTH_REFL,
+    carry_p: tuple[float, ...] = CARRY_P,
 ) -> PersonShape:
     """Adults and teenagers of 1.45-1.98 m and children of 1.0-1.45 m (`child_share`), slim to
     broad builds; clothes from dark to bright (`cloth_refl`); some carry a backpack, a bag or an

@@ -37,14 +37,11 @@ def populate_actors(
     style = style or STYLES["a"]
     actors: list[Actor] = []
 
-    def person() -> m.PersonShape:
-        return m.draw_person(rng, style.child_share, style.cloth_refl, style.carry_p)
-
     length = route.length
     s_ego = ego.s0
 
     def car(s0: float, v: float) -> None:
-        shape = m.draw_car(rng, style.dark_share, kind_p=style.car_kind_p)
+        shape = style.draw_car(rng)
         iid = reg.new("car", (m.MOVING_CAR,), moving=True, dark=shape.dark)
         if v < 0:
             path = LanePath(route, s0, v, road.lane)
@@ -64,7 +61,7 @@ def populate_actors(
                 "cyclist",
                 m.MOVING_BICYCLIST,
                 path,
-                person(),
+                style.draw_person(rng),
                 abs(v),
                 rng.uniform(0, 2 * np.pi),
                 rng.uniform(0.15, 0.6),
@@ -79,7 +76,7 @@ def populate_actors(
         iid = reg.new("person", (m.MOVING_PERSON,), moving=True)
         path = LanePath(route, s0, v, side * off, follow=follow[side])
         actors.append(
-            Actor(iid, "person", m.MOVING_PERSON, path, person(), abs(v), rng.uniform(0, 2 * np.pi))
+            Actor(iid, "person", m.MOVING_PERSON, path, style.draw_person(rng), abs(v), rng.uniform(0, 2 * np.pi))
         )
 
     def polyline_walker(points: np.ndarray, t0: float, v: float | None = None) -> None:
@@ -91,7 +88,7 @@ def populate_actors(
                 "person",
                 m.MOVING_PERSON,
                 PolylinePath(points, v, t0),
-                person(),
+                style.draw_person(rng),
                 v,
                 rng.uniform(0, 2 * np.pi),
             )
@@ -171,7 +168,7 @@ def populate_actors(
                     "cyclist",
                     m.MOVING_BICYCLIST,
                     path,
-                    person(),
+                    style.draw_person(rng),
                     v,
                     rng.uniform(0, 2 * np.pi),
                     rng.uniform(0.15, 0.6),

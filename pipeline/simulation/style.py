@@ -13,19 +13,31 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+from pipeline.simulation import models as m
+
 
 @dataclass(frozen=True)
 class CampusStyle:
+    """Defaults: the simulator's own draws (style a)."""
+
     name: str
-    car_kind_p: tuple[float, float, float, float] = (0.25, 0.4, 0.2, 0.15)  # small, sedan, suv, van
-    dark_share: float = 0.3  # cars with dark paint (they lose oblique returns and break up)
-    child_share: float = 0.12
-    cloth_refl: tuple[float, float] = (0.06, 0.6)  # remission range of clothes
-    carry_p: tuple[float, float, float, float] = (0.62, 0.16, 0.08, 0.14)  # nothing, bag, umbrella, coat
-    bush_p: tuple[float, float, float, float] = (0.5, 0.18, 0.17, 0.15)  # round, columnar, spreading, sparse
+    car_kind_p: tuple[float, ...] = m.CAR_KIND_P  # small, sedan, suv, van
+    dark_share: float = m.DARK_SHARE  # cars with dark paint
+    child_share: float = m.CHILD_SHARE
+    cloth_refl: tuple[float, float] = m.CLOTH_REFL  # remission range of clothes
+    carry_p: tuple[float, ...] = m.CARRY_P  # nothing, bag, umbrella, coat
+    bush_p: tuple[float, ...] = m.BUSH_P  # round, columnar, spreading, sparse
     tree_styles: tuple[str, ...] = ("young", "mature", "mature", "conifer", "wide")  # drawn uniformly
     row_tree_styles: tuple[str, ...] = ("young", "mature", "wide")  # avenue rows
     glass_share: float = 0.25  # buildings with glass fronts
+
+    def draw_car(self, rng: np.random.Generator, kind: str | None = None) -> m.CarShape:
+        return m.draw_car(rng, self.dark_share, kind=kind, kind_p=self.car_kind_p)
+
+    def draw_person(self, rng: np.random.Generator) -> m.PersonShape:
+        return m.draw_person(rng, self.child_share, self.cloth_refl, self.carry_p)
 
 
 STYLES: dict[str, CampusStyle] = {
