@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pipeline.config import GroundConfig
 from pipeline.range_image import RangeImage
@@ -30,11 +30,11 @@ class GroundResult:
     sensor_height: float
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _column_walk(index, points, tan_slope, tan_start, tol, sensor_height, max_run):  # pragma: no cover - numba
     h, w = index.shape
     out = np.zeros(points.shape[0], dtype=np.bool_)
-    for c in range(w):
+    for c in prange(w):  # columns in parallel; each point owns at most one pixel
         last_xy = 0.0
         last_z = -sensor_height
         first = True
@@ -103,20 +103,19 @@ def estimate_ground(scan: Scan, image: RangeImage, config: GroundConfig | None =
     return GroundResult(ground=ground, height=height, sensor_height=float(sensor_h))
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no cover - numba
     """Ground surface on a `cell` grid (trimmed mean z of the walk's ground points per cell, empty
     cells filled from the nearest filled cell, bilinear lookup): (N,) ground mask with the band
     added and (N,) float32 height above the surface."""
     n = points.shape[0]
-    n_ground = 0
-    for i in range(n):
-        if walk[i]:
-            n_ground += 1
     height = np.empty(n, dtype=np.float32)
     ground = np.empty(n, dtype=np.bool_)
+    n_ground = 0
+    for i in prange(n):
+        n_ground += 1 if walk[i] else 0
     if n_ground < 3:
-        for i in range(n):
+        for i in prange(n):
             height[i] = points[i, 2] + sensor_h
             ground[i] = (walk[i] or abs(height[i]) <= band) and kept[i]
         return ground, height
@@ -124,37 +123,41 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
     lo1 = np.inf
     hi0 = -np.inf
     hi1 = -np.inf
-    for i in range(n):
+    for i in prange(n):
         lo0 = min(lo0, points[i, 0])
         lo1 = min(lo1, points[i, 1])
         hi0 = max(hi0, points[i, 0])
         hi1 = max(hi1, points[i, 1])
-    lo0 -= cell
-    lo1 -= cell
-    g0 = int((hi0 - lo0) / cell) + 3
-    g1 = int((hi1 - lo1) / cell) + 3
-    sums = np.zeros((g0, g1))
-    counts = np.zeros((g0, g1), dtype=np.int32)
+    lo0 = lo0 - cell
+    lo1 = lo1 - cell
+    inv = 1.0 / cell
+    g0 = int((hi0 - lo0) * inv) + 3
+    g1 = int((hi1 - lo1) * inv) + 3
+    # the walk's ground points with their cell (computed once)
+    gi = np.empty(n_ground, dtype=np.int32)
+    gz = np.empty(n_ground, dtype=np.float32)
+    k = 0
     for i in range(n):
         if walk[i]:
-            a = int((points[i, 0] - lo0) / cell)
-            b = int((points[i, 1] - lo1) / cell)
-            sums[a, b] += points[i, 2]
-            counts[a, b] += 1
+            gi[k] = int((points[i, 0] - lo0) * inv) * g1 + int((points[i, 1] - lo1) * inv)
+            gz[k] = points[i, 2]
+            k += 1
+    sums = np.zeros(g0 * g1)
+    counts = np.zeros(g0 * g1, dtype=np.int32)
+    for k in range(n_ground):
+        sums[gi[k]] += gz[k]
+        counts[gi[k]] += 1
     # second pass: trimmed mean without points well above the first mean (feet of objects)
-    for a in range(g0):
-        for b in range(g1):
-            if counts[a, b] > 0:
-                sums[a, b] /= counts[a, b]
-    sums2 = np.zeros((g0, g1))
-    counts2 = np.zeros((g0, g1), dtype=np.int32)
-    for i in range(n):
-        if walk[i]:
-            a = int((points[i, 0] - lo0) / cell)
-            b = int((points[i, 1] - lo1) / cell)
-            if points[i, 2] <= sums[a, b] + 0.05:
-                sums2[a, b] += points[i, 2]
-                counts2[a, b] += 1
+    for q in range(g0 * g1):
+        if counts[q] > 0:
+            sums[q] /= counts[q]
+    sums2 = np.zeros(g0 * g1)
+    counts2 = np.zeros(g0 * g1, dtype=np.int32)
+    for k in range(n_ground):
+        q = gi[k]
+        if gz[k] <= sums[q] + 0.05:
+            sums2[q] += gz[k]
+            counts2[q] += 1
     # fill empty cells from the nearest filled one (breadth-first over 8-neighbours)
     grid = np.zeros((g0, g1))
     queue = np.empty(g0 * g1, dtype=np.int64)
@@ -163,10 +166,11 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
     filled = np.zeros((g0, g1), dtype=np.bool_)
     for a in range(g0):
         for b in range(g1):
-            if counts2[a, b] > 0:
-                grid[a, b] = sums2[a, b] / counts2[a, b]
+            q = a * g1 + b
+            if counts2[q] > 0:
+                grid[a, b] = sums2[q] / counts2[q]
                 filled[a, b] = True
-                queue[tail] = a * g1 + b
+                queue[tail] = q
                 tail += 1
     while head < tail:
         q = queue[head]
@@ -182,20 +186,17 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
                     grid[na, nb] = grid[a, b]
                     queue[tail] = na * g1 + nb
                     tail += 1
-    for i in range(n):
-        u = (points[i, 0] - lo0) / cell - 0.5
-        v = (points[i, 1] - lo1) / cell - 0.5
-        a = min(max(int(np.floor(u)), 0), g0 - 2)
-        b = min(max(int(np.floor(v)), 0), g1 - 2)
-        fu = min(max(u - a, 0.0), 1.0)
-        fv = min(max(v - b, 0.0), 1.0)
-        z = (
-            grid[a, b] * (1 - fu) * (1 - fv)
-            + grid[a + 1, b] * fu * (1 - fv)
-            + grid[a, b + 1] * (1 - fu) * fv
-            + grid[a + 1, b + 1] * fu * fv
-        )
-        hgt = np.float32(points[i, 2] - z)
+    for i in prange(n):
+        # u, v >= 0.5: every point lies at least one cell inside the grid, so int() is floor()
+        u = (points[i, 0] - lo0) * inv - 0.5
+        v = (points[i, 1] - lo1) * inv - 0.5
+        a = min(int(u), g0 - 2)
+        b = min(int(v), g1 - 2)
+        fu = min(u - a, 1.0)
+        fv = min(v - b, 1.0)
+        z0 = grid[a, b] + (grid[a, b + 1] - grid[a, b]) * fv
+        z1 = grid[a + 1, b] + (grid[a + 1, b + 1] - grid[a + 1, b]) * fv
+        hgt = np.float32(points[i, 2] - (z0 + (z1 - z0) * fu))
         height[i] = hgt
         ground[i] = (walk[i] or abs(hgt) <= band) and kept[i]
     return ground, height

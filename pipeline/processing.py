@@ -13,6 +13,7 @@ Then, in frame order:
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -100,6 +101,14 @@ def _only_valid(ids: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return lut[ids]  # id -1 picks the appended -1
 
 
+def _one_thread_per_worker() -> None:
+    """Pool initializer: the workers already use every core, so each one's numba kernels run on
+    one thread (more would only oversubscribe the cores)."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
 def process_scan(
     scan: Scan, sensor: SensorModel, config: PipelineConfig, index: int = 0, name: str = "", samples: bool = True
 ) -> _FrameCore:
@@ -180,7 +189,13 @@ class SequenceProcessor:
 
             bar = tqdm(total=len(jobs), unit="frame", desc="process")
         if workers > 1:
-            pool = ProcessPoolExecutor(max_workers=workers)
+            # forkserver, not fork: the stages' numba kernels run on a thread pool (OpenMP where
+            # numba finds it), and a child forked from a process that has started GNU OpenMP
+            # aborts when it runs a parallel kernel. As with any spawned pool, a script that calls
+            # this needs the `if __name__ == "__main__":` guard.
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload([__name__])  # the server imports the stages once, workers inherit them
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_one_thread_per_worker)
             results = pool.map(_load_and_process, jobs, chunksize=4)
         else:
             pool = None

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pipeline.config import RangeImageConfig
 from pipeline.scan import Scan
@@ -98,7 +98,7 @@ def fast_atan2(y, x):  # pragma: no cover - numba
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _project_kernel(points, ring, height, width, min_range, max_range):  # pragma: no cover - numba
     n = points.shape[0]
     index = np.full((height, width), -1, dtype=np.int32)
@@ -109,7 +109,8 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
     inv_two_pi = np.float32(0.5 / np.pi)
     half = np.float32(0.5)
     fw = np.float32(width)
-    for i in range(n):
+    # 1. range, column and validity per point (points in parallel)
+    for i in prange(n):
         x = points[i, 0]
         y = points[i, 1]
         z = points[i, 2]
@@ -119,13 +120,17 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
         c = int(np.floor((half - fast_atan2(y, x) * inv_two_pi) * fw)) % width
         col[i] = c
         row = ring[i]
-        if r < min_range or r > max_range or row < 0 or row >= height:
+        kept[i] = r >= min_range and r <= max_range and row >= 0 and row < height
+    # 2. each pixel keeps its nearest point (serial: points compete for pixels)
+    for i in range(n):
+        if not kept[i]:
             continue
-        kept[i] = True
+        row = ring[i]
+        c = col[i]
         j = index[row, c]
-        if j < 0 or r < rimg[row, c]:
+        if j < 0 or rng[i] < rimg[row, c]:
             index[row, c] = i
-            rimg[row, c] = r
+            rimg[row, c] = rng[i]
     return index, rimg, col, rng, kept
 
 

@@ -4,7 +4,8 @@ Two neighbours join when their range difference is under a threshold that grows 
 (separate vertical and horizontal thresholds); optionally they must also pass depth_clustering's
 angle criterion. Columns wrap around at W-1 -> 0. With `bridge_empty`, a neighbour that holds no
 return at all (a dropout on glass or dark paint) is stepped over to the next pixel in the same
-direction; ground and other objects are never stepped over. The flood fill runs in numba.
+direction; ground and other objects are never stepped over. Joins are decided
+once per pixel pair (rows in parallel), then a depth-first fill labels the components; all in numba.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from pipeline.config import SegmentationConfig
 from pipeline.range_image import RangeImage
@@ -29,17 +30,93 @@ class Segmentation:
     count: int
 
 
-@njit(cache=True)
-def _thin_meets_wide(run_w, thin_below, tr, tc, wr, wc, thin_w, thin_h, wide_w, wide_ratio):  # pragma: no cover
-    """Pixel (tr, tc) lies on a thin vertical structure and pixel (wr, wc) on a wide row run."""
-    wt = run_w[tr, tc]
-    return wt < thin_w and thin_below[tr, tc] >= thin_h and run_w[wr, wc] >= max(wide_w, wide_ratio * wt)
-
-
-@njit(cache=True)
-def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio, use_angle,
-          tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover
+@njit(cache=True, parallel=True)
+def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio,
+                use_angle, tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover - numba
+    """Which neighbours join, decided once per pixel pair: right[r, c] and down[r, c] are 0 (no
+    join) or the distance (1, or 2 when `bridge` stepped over an empty pixel) to the right-hand
+    (column wraps at W-1 -> 0) and the lower neighbour that (r, c) joins. Every rule is symmetric,
+    so these two (H, W) uint8 maps are the whole undirected 4-neighbour graph."""
     h, w = rng.shape
+    right = np.zeros((h, w), dtype=np.uint8)
+    down = np.zeros((h, w), dtype=np.uint8)
+    thin = thin_w > 0.0
+    over = os_ > 0.0
+    sin_h = np.sin(h_alpha)
+    cos_h = np.cos(h_alpha)
+    for r in prange(h):
+        for c in range(w):
+            if not ok[r, c]:
+                continue
+            d1 = rng[r, c]
+            # right-hand neighbour
+            c1 = c + 1
+            if c1 == w:
+                c1 = 0
+            step = 1
+            if bridge and empty[r, c1]:
+                # no return at all here (glass, dark paint): look one pixel further
+                c1 += 1
+                if c1 == w:
+                    c1 = 0
+                step = 2
+            if ok[r, c1]:
+                d2 = rng[r, c1]
+                dmin = min(d1, d2)
+                dmax = max(d1, d2)
+                join = dmax - dmin <= hb + hs * dmin
+                if join and thin:
+                    # a trunk seen through the holes of its crown: a thin pixel beside a wide run
+                    wa = run_w[r, c]
+                    wb = run_w[r, c1]
+                    if wa < thin_w and thin_below[r, c] >= thin_h and wb >= max(wide_w, wide_ratio * wa):
+                        join = False
+                    elif wb < thin_w and thin_below[r, c1] >= thin_h and wa >= max(wide_w, wide_ratio * wb):
+                        join = False
+                if join and use_angle:
+                    # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
+                    den = dmax - dmin * cos_h
+                    if den > 0.0 and dmin * sin_h < tan_beta * den:
+                        join = False
+                if join:
+                    right[r, c] = step
+            # lower neighbour: (r, c) is the upper pixel
+            r1 = r + 1
+            if r1 >= h:
+                continue
+            step = 1
+            if bridge and empty[r1, c]:
+                r1 += 1
+                if r1 >= h:
+                    continue
+                step = 2
+            if ok[r1, c]:
+                d2 = rng[r1, c]
+                dmin = min(d1, d2)
+                dmax = max(d1, d2)
+                join = dmax - dmin <= vb + vs * dmin
+                if join and thin and d1 <= d2 + 0.1:
+                    # a crown over a trunk: the lower pixel thin, the upper one wide and not behind
+                    wl = run_w[r1, c]
+                    if wl < thin_w and thin_below[r1, c] >= thin_h and run_w[r, c] >= max(wide_w, wide_ratio * wl):
+                        join = False
+                if join and over and d2 - d1 > ob + os_ * dmax:
+                    join = False  # the upper pixel nearer by more than the overhang allows
+                if join and use_angle:
+                    a = v_alpha[r] if r < h - 1 else v_alpha[h - 2]
+                    den = dmax - dmin * np.cos(a)
+                    if den > 0.0 and dmin * np.sin(a) < tan_beta * den:
+                        join = False
+                if join:
+                    down[r, c] = step
+    return right, down
+
+
+@njit(cache=True)
+def _label_components(ok, right, down):  # pragma: no cover - numba
+    """Connected components of the join graph by depth-first fill: (H, W) int32 ids numbered in
+    raster order of each component's first pixel, (count,) int32 pixel counts, count."""
+    h, w = ok.shape
     labels = np.full((h, w), -1, dtype=np.int32)
     sizes = np.zeros(h * w, dtype=np.int32)
     stack_r = np.empty(h * w, dtype=np.int32)
@@ -50,7 +127,6 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, th
             if not ok[r0, c0] or labels[r0, c0] >= 0:
                 continue
             labels[r0, c0] = nxt
-            top = 0
             stack_r[0] = r0
             stack_c[0] = c0
             top = 1
@@ -59,74 +135,58 @@ def _grow(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, th
                 top -= 1
                 r = stack_r[top]
                 c = stack_c[top]
-                d1 = rng[r, c]
-                for k in range(4):
-                    if k == 0:
-                        dr, dc, vert = -1, 0, True
-                    elif k == 1:
-                        dr, dc, vert = 1, 0, True
-                    elif k == 2:
-                        dr, dc, vert = 0, -1, False
-                    else:
-                        dr, dc, vert = 0, 1, False
-                    nr = r + dr
-                    nc = (c + dc) % w
-                    if nr < 0 or nr >= h:
-                        continue
-                    if bridge and empty[nr, nc]:
-                        # no return at all here (glass, dark paint): look one pixel further
-                        nr = nr + dr
-                        nc = (nc + dc) % w
-                        if nr < 0 or nr >= h:
-                            continue
-                    if not ok[nr, nc] or labels[nr, nc] >= 0:
-                        continue
-                    d2 = rng[nr, nc]
-                    dmin = min(d1, d2)
-                    dmax = max(d1, d2)
-                    if vert:
-                        thr = vb + vs * dmin
-                    else:
-                        thr = hb + hs * dmin
-                    if dmax - dmin > thr:
-                        continue
-                    if thin_w > 0.0:
-                        if vert:
-                            # a crown over a trunk: the lower pixel thin, the upper one wide and not behind
-                            lr, lc, ur, uc = (nr, nc, r, c) if nr > r else (r, c, nr, nc)
-                            cut = rng[ur, uc] <= rng[lr, lc] + 0.1 and _thin_meets_wide(
-                                run_w, thin_below, lr, lc, ur, uc, thin_w, thin_h, wide_w, wide_ratio
-                            )
-                        else:
-                            # a trunk seen through the holes of its crown: a thin pixel beside a wide run
-                            cut = _thin_meets_wide(
-                                run_w, thin_below, r, c, nr, nc, thin_w, thin_h, wide_w, wide_ratio
-                            ) or _thin_meets_wide(run_w, thin_below, nr, nc, r, c, thin_w, thin_h, wide_w, wide_ratio)
-                        if cut:
-                            continue
-                    if vert and os_ > 0.0:
-                        # range of the upper pixel minus that of the lower one
-                        up_minus_low = (d1 - d2) if nr > r else (d2 - d1)
-                        if up_minus_low < 0.0 and -up_minus_low > ob + os_ * dmax:
-                            continue
-                    if use_angle:
-                        a = v_alpha[min(min(r, nr), h - 2)] if vert else h_alpha
-                        # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
-                        num = dmin * np.sin(a)
-                        den = dmax - dmin * np.cos(a)
-                        if den > 0.0 and num < tan_beta * den:
-                            continue
-                    labels[nr, nc] = nxt
-                    size += 1
+                # up: the pixel above (or two above) joins down to (r, c)
+                nr = -1
+                if r >= 1 and down[r - 1, c] == 1:
+                    nr = r - 1
+                elif r >= 2 and down[r - 2, c] == 2:
+                    nr = r - 2
+                if nr >= 0 and labels[nr, c] < 0:
+                    labels[nr, c] = nxt
                     stack_r[top] = nr
+                    stack_c[top] = c
+                    top += 1
+                    size += 1
+                d = down[r, c]
+                if d > 0:
+                    nr = r + d
+                    if labels[nr, c] < 0:
+                        labels[nr, c] = nxt
+                        stack_r[top] = nr
+                        stack_c[top] = c
+                        top += 1
+                        size += 1
+                # left: the pixel one (or two) to the left joins right to (r, c)
+                c1 = c - 1 if c >= 1 else c - 1 + w
+                c2 = c - 2 if c >= 2 else c - 2 + w
+                nc = -1
+                if right[r, c1] == 1:
+                    nc = c1
+                elif right[r, c2] == 2:
+                    nc = c2
+                if nc >= 0 and labels[r, nc] < 0:
+                    labels[r, nc] = nxt
+                    stack_r[top] = r
                     stack_c[top] = nc
                     top += 1
+                    size += 1
+                d = right[r, c]
+                if d > 0:
+                    nc = c + d
+                    if nc >= w:
+                        nc -= w
+                    if labels[r, nc] < 0:
+                        labels[r, nc] = nxt
+                        stack_r[top] = r
+                        stack_c[top] = nc
+                        top += 1
+                        size += 1
             sizes[nxt] = size
             nxt += 1
     return labels, sizes[:nxt], nxt
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
     """(H, W) float32 width in metres of the row run each ok pixel belongs to (0 elsewhere).
 
@@ -138,9 +198,9 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
     """
     h, w = rng.shape
     run_w = np.zeros((h, w), dtype=np.float32)
-    members = np.empty(w, dtype=np.int32)
-    done = np.zeros(w, dtype=np.bool_)
-    for r in range(h):
+    for r in prange(h):
+        members = np.empty(w, dtype=np.int32)
+        done = np.zeros(w, dtype=np.bool_)
         # start right after a stretch of more than max_gap non-ok pixels
         start = 0
         gap = 0
@@ -161,7 +221,6 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
             if gap > w:
                 continue  # no ok pixel in the row
             start = 0  # no long gap anywhere: the row is nearly full, the seam is as good as any
-        done[:] = False
         for k in range(w):
             c0 = (start + k) % w
             if not ok[r, c0] or done[c0]:
@@ -192,13 +251,13 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
     return run_w
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover - numba
     """(H, W) float32 metres of the thin vertical structure from each pixel down (a pixel is thin
     when its row run is narrower than `thin_w`; the chain follows the vertical criterion)."""
     h, w = rng.shape
     below = np.zeros((h, w), dtype=np.float32)
-    for c in range(w):
+    for c in prange(w):
         for r in range(h - 1, -1, -1):
             if not ok[r, c] or run_w[r, c] >= thin_w:
                 continue
@@ -212,7 +271,7 @@ def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover 
     return below
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, kept, ground, hb, hs):  # pragma: no cover
     """Drop segments under `min_points` pixels, renumber densely, and label every point whose
     range agrees with its pixel's nearest point (within the horizontal threshold)."""
@@ -224,13 +283,13 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
             remap[k] = nxt
             nxt += 1
     pixel = labels  # relabelled in place
-    for r in range(h):
+    for r in prange(h):
         for c in range(w):
             if labels[r, c] >= 0:
                 pixel[r, c] = remap[labels[r, c]]
     n = row.shape[0]
     point = np.full(n, -1, dtype=np.int32)
-    for i in range(n):
+    for i in prange(n):
         if not kept[i] or ground[i]:
             continue
         seg = pixel[row[i], col[i]]
@@ -242,7 +301,7 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
     return pixel, point, nxt
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _segment_kernel(
     index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_, thin_w, thin_h, wide_w, wide_ratio,
     use_angle, tan_beta, v_alpha, col_angle, bridge, min_points,
@@ -251,7 +310,7 @@ def _segment_kernel(
     h, w = index.shape
     ok = np.zeros((h, w), dtype=np.bool_)
     empty = np.zeros((h, w), dtype=np.bool_)
-    for r in range(h):
+    for r in prange(h):
         for c in range(w):
             i = index[r, c]
             if i < 0:
@@ -264,10 +323,11 @@ def _segment_kernel(
     else:
         run_w = np.zeros((1, 1), dtype=np.float32)
         thin_below = run_w
-    labels, sizes, count = _grow(
+    right, down = _join_edges(
         rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio, use_angle,
         tan_beta, v_alpha, col_angle, bridge,
     )
+    labels, sizes, count = _label_components(ok, right, down)
     return _finish(labels, sizes, count, min_points, row, col, point_range, rng, kept, ground, hb, hs)
 
 

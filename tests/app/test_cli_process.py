@@ -46,6 +46,18 @@ def test_cli_process_writes_track_labels_json_and_summary(sim, tmp_path):
     assert len(npz["track_id"]) == len(npz["samples"])
 
 
+def test_cli_process_two_workers_match_one_worker_after_kernels_ran_here(sim, tmp_path):
+    # the parallel numba kernels have run in this process already (the tests above); a worker pool
+    # started from it must still run them (GNU OpenMP aborts a forked child that does) and must
+    # give the same track labels as the single-process run
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert runner.invoke(app, ["process", str(sim), "--out", str(one)]).exit_code == 0
+    res = runner.invoke(app, ["process", str(sim), "--out", str(two), "--workers", "2"])
+    assert res.exit_code == 0, res.output
+    for a in sorted((one / "tracks").glob("*.label")):
+        assert np.array_equal(np.fromfile(a, np.uint32), np.fromfile(two / "tracks" / a.name, np.uint32))
+
+
 def test_cli_evaluate_reports_purity_and_association(sim, tmp_path):
     out = tmp_path / "out"
     assert runner.invoke(app, ["process", str(sim), "--out", str(out)]).exit_code == 0

@@ -94,8 +94,9 @@ def test_count_scan_rings_vlp16() -> None:
 def test_elevation_rings_nearest_beam(beam: int, azimuth: float, rng: float, frac: float) -> None:
     sensor = get_sensor("hdl64e")
     el = sensor.elevations_rad()
-    gap = el[beam] - el[beam + 1] if beam < 63 else el[beam - 1] - el[beam]
-    e = el[beam] + frac * gap  # within half a gap of the beam
+    # the beams are not evenly spaced: stay within half the nearer neighbour's gap
+    gaps = [el[beam - 1] - el[beam]] * (beam > 0) + [el[beam] - el[beam + 1]] * (beam < 63)
+    e = el[beam] + frac * min(gaps)
     p = np.array([[rng * np.cos(e) * np.cos(azimuth), rng * np.cos(e) * np.sin(azimuth), rng * np.sin(e)]])
     assert elevation_rings(p, sensor)[0] == beam
 
