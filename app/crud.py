@@ -251,7 +251,9 @@ def list_tracks(
     clauses = flt.clauses()
     # NULLs last either way, identically on both databases (and still served by the column's index)
     order = [(col.desc() if desc else col.asc()).nulls_last(), Track.id.desc() if desc else Track.id.asc()]
-    rows = session.scalars(select(Track).where(*clauses).order_by(*order).limit(limit).offset(offset)).all()
+    # the page's ids first (sorting narrow index entries, not whole rows), then those 50 rows
+    page = select(Track.id).where(*clauses).order_by(*order).limit(limit).offset(offset)
+    rows = session.scalars(select(Track).where(Track.id.in_(page)).order_by(*order)).all()
     total = session.scalar(select(func.count()).select_from(Track).where(*clauses)) or 0
     return list(rows), int(total)
 

@@ -139,6 +139,12 @@ class Track(Base):
         Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
         Index("ix_tracks_status_n_samples", "status", "n_samples"),
         Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
+        # predicted class + confidence, then every sort key of GET /tracks but updated_at (which each
+        # action changes): a filtered, sorted page is found in the index alone (crud.list_tracks)
+        Index(
+            "ix_tracks_predicted_sorts", "predicted_class", "predicted_confidence", "length", "n_samples",
+            "mean_range", "n_points", "first_frame",
+        ),
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
@@ -154,7 +160,7 @@ class Track(Base):
     n_points: Mapped[int] = mapped_column(Integer, default=0, index=True)
     mean_range: Mapped[float] = mapped_column(Float, default=0.0, index=True)
     label: Mapped[str | None] = mapped_column(String(16), index=True)
-    predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted
+    predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted(_sorts)
     predicted_confidence: Mapped[float | None] = mapped_column(Float, index=True)
     version: Mapped[int] = mapped_column(Integer, default=1)
     updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow, index=True)
