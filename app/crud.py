@@ -11,7 +11,20 @@ from datetime import datetime, timedelta
 from pathlib import Path, PurePath
 from typing import Any
 
-from sqlalchemy import Integer, delete, func, insert, literal, or_, select, text, update
+from sqlalchemy import (
+    DateTime,
+    Integer,
+    String,
+    bindparam,
+    delete,
+    func,
+    insert,
+    literal,
+    or_,
+    select,
+    text,
+    update,
+)
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
@@ -244,18 +257,20 @@ class TrackFilter:
 
 def list_tracks(
     session: Session, flt: TrackFilter, sort: str, limit: int, offset: int
-) -> tuple[list[Track], int]:
-    """A page of tracks and the total matching `flt`. `sort` is a key of TRACK_SORTS, '-' = descending."""
+) -> tuple[list[dict[str, Any]], int]:
+    """A page of tracks (column dicts, no ORM objects: a page is read, never changed) and the total
+    matching `flt`. `sort` is a key of TRACK_SORTS, '-' = descending."""
     desc = sort.startswith("-")
     col = TRACK_SORTS[sort.lstrip("-")]
     clauses = flt.clauses()
     # NULLs last either way, identically on both databases (and still served by the column's index)
     order = [(col.desc() if desc else col.asc()).nulls_last(), Track.id.desc() if desc else Track.id.asc()]
-    # the page's ids first (sorting narrow index entries, not whole rows), then those 50 rows
+    # the page's ids first (sorting narrow index entries, not whole rows), then those rows
     page = select(Track.id).where(*clauses).order_by(*order).limit(limit).offset(offset)
-    rows = session.scalars(select(Track).where(Track.id.in_(page)).order_by(*order)).all()
+    table = Track.__table__
+    rows = session.connection().execute(select(table).where(table.c.id.in_(page)).order_by(*order)).mappings().all()
     total = session.scalar(select(func.count()).select_from(Track).where(*clauses)) or 0
-    return list(rows), int(total)
+    return [dict(r) for r in rows], int(total)
 
 
 def get_track(session: Session, track_id: int) -> Track:
@@ -318,10 +333,10 @@ def apply_action(
 
     Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid.
     """
-    track = session.scalars(select(Track).where(Track.id == track_id).with_for_update()).first()
+    track = session.get(Track, track_id, with_for_update=True)
     if track is None:
         raise NotFound(f"track {track_id} not found")
-    seq_status = session.scalar(select(Sequence.status).where(Sequence.id == track.sequence_id))
+    seq_status = session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": track.sequence_id})
     if seq_status != "ready":
         raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
     if track.version != version:
@@ -375,20 +390,15 @@ def apply_action(
     track.reviewed_by_id = user.id
     if after["status"] != "pending":
         track.lease_user_id, track.lease_expires_at = None, None
-    session.add(
-        AnnotationEvent(
-            track_id=track_id,
-            user_id=user.id,
-            action=action,
-            created_at=now,
-            version_before=version,
-            version_after=version + 1,
-            before=before,
-            after=after,
-            reverts_event_id=None if reverts is None else reverts.id,
-        )
+    session.flush()  # the track's UPDATE
+    session.connection().execute(
+        _INSERT_EVENT,
+        {
+            "track_id": track_id, "user_id": user.id, "action": action, "created_at": now,
+            "version_before": version, "version_after": version + 1, "before": before, "after": after,
+            "reverts_event_id": None if reverts is None else reverts.id,
+        },
     )
-    session.flush()
     _refresh_labels(session, track, user.id, sample_classes)
     session.commit()
     return track
@@ -412,32 +422,43 @@ def _last_undoable_event(session: Session, track_id: int, user_id: int) -> Annot
     ).first()
 
 
-def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
-    """Materialise the labelled samples of a track: its valid segments in the kept range when it is
-    accepted with a class; none otherwise."""
-    session.execute(delete(Label).where(Label.track_id == track.id))
-    if track.status != "accepted" or track.label is None:
-        return
-    cls_index = sample_classes.index(track.label)
-    src = select(
+# built once: an action runs these per call, and building a statement costs more than running it
+_SEQUENCE_STATUS = select(Sequence.__table__.c.status).where(Sequence.__table__.c.id == bindparam("sequence_id"))
+_INSERT_EVENT = insert(AnnotationEvent.__table__)
+_DELETE_LABELS = delete(Label.__table__).where(Label.__table__.c.track_id == bindparam("track_id"))
+_INSERT_LABELS = insert(Label.__table__).from_select(
+    ["sequence_id", "segment_id", "track_id", "class_name", "class_index", "source", "user_id", "created_at"],
+    select(
         Segment.sequence_id,
         Segment.id,
         Segment.track_id,
-        literal(track.label),
-        literal(cls_index),
+        bindparam("class_name", type_=String),
+        bindparam("class_index", type_=Integer),
         literal("track"),
-        literal(user_id),
-        literal(utcnow()),
+        bindparam("user_id", type_=Integer),
+        bindparam("created_at", type_=DateTime),
     ).where(
-        Segment.track_id == track.id,
+        Segment.track_id == bindparam("track_id"),
         Segment.valid.is_(True),
-        Segment.frame_index.between(track.keep_start, track.keep_end),
-    )
-    session.execute(
-        insert(Label).from_select(
-            ["sequence_id", "segment_id", "track_id", "class_name", "class_index", "source", "user_id", "created_at"],
-            src,
-        )
+        Segment.frame_index.between(bindparam("keep_start"), bindparam("keep_end")),
+    ),
+)
+
+
+def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
+    """Materialise the labelled samples of a track: its valid segments in the kept range when it is
+    accepted with a class; none otherwise. (Core statements on the session's connection: no
+    Label object is loaded in an action's session, so the ORM has nothing to synchronise.)"""
+    conn = session.connection()
+    conn.execute(_DELETE_LABELS, {"track_id": track.id})
+    if track.status != "accepted" or track.label is None:
+        return
+    conn.execute(
+        _INSERT_LABELS,
+        {
+            "track_id": track.id, "class_name": track.label, "class_index": sample_classes.index(track.label),
+            "user_id": user_id, "created_at": utcnow(), "keep_start": track.keep_start, "keep_end": track.keep_end,
+        },
     )
 
 
