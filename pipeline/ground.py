@@ -158,34 +158,35 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
         if gz[k] <= sums[q] + 0.05:
             sums2[q] += gz[k]
             counts2[q] += 1
-    # fill empty cells from the nearest filled one (breadth-first over 8-neighbours)
-    grid = np.zeros((g0, g1))
+    # fill empty cells from the nearest filled one (breadth-first over 8-neighbours), on a grid
+    # padded by one cell that counts as filled, so the neighbours need no bounds checks
+    p1 = g1 + 2
+    padded = np.zeros((g0 + 2) * p1)
+    filled = np.ones((g0 + 2) * p1, dtype=np.bool_)
     queue = np.empty(g0 * g1, dtype=np.int64)
     head = 0
     tail = 0
-    filled = np.zeros((g0, g1), dtype=np.bool_)
     for a in range(g0):
         for b in range(g1):
-            q = a * g1 + b
-            if counts2[q] > 0:
-                grid[a, b] = sums2[q] / counts2[q]
-                filled[a, b] = True
+            q = (a + 1) * p1 + b + 1
+            filled[q] = False
+            if counts2[a * g1 + b] > 0:
+                padded[q] = sums2[a * g1 + b] / counts2[a * g1 + b]
+                filled[q] = True
                 queue[tail] = q
                 tail += 1
+    offsets = np.array([-p1 - 1, -p1, -p1 + 1, -1, 1, p1 - 1, p1, p1 + 1], dtype=np.int64)
     while head < tail:
         q = queue[head]
         head += 1
-        a = q // g1
-        b = q % g1
-        for da in range(-1, 2):
-            for db in range(-1, 2):
-                na = a + da
-                nb = b + db
-                if 0 <= na < g0 and 0 <= nb < g1 and not filled[na, nb]:
-                    filled[na, nb] = True
-                    grid[na, nb] = grid[a, b]
-                    queue[tail] = na * g1 + nb
-                    tail += 1
+        for k in range(8):
+            nq = q + offsets[k]
+            if not filled[nq]:
+                filled[nq] = True
+                padded[nq] = padded[q]
+                queue[tail] = nq
+                tail += 1
+    grid = padded.reshape(g0 + 2, p1)[1 : g0 + 1, 1 : g1 + 1]
     for i in prange(n):
         # u, v >= 0.5: every point lies at least one cell inside the grid, so int() is floor()
         u = (points[i, 0] - lo0) * inv - 0.5

@@ -5,7 +5,7 @@ Two neighbours join when their range difference is under a threshold that grows 
 angle criterion. Columns wrap around at W-1 -> 0. With `bridge_empty`, a neighbour that holds no
 return at all (a dropout on glass or dark paint) is stepped over to the next pixel in the same
 direction; ground and other objects are never stepped over. Joins are decided
-once per pixel pair (rows in parallel), then a depth-first fill labels the components; all in numba.
+once per pixel pair (columns in parallel), then union-find over row runs labels the components; all in numba.
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
     over = os_ > 0.0
     sin_h = np.sin(h_alpha)
     cos_h = np.cos(h_alpha)
-    for r in prange(h):
-        for c in range(w):
+    for c in prange(w):  # columns in parallel: objects crowd some rows, azimuth halves are balanced
+        for r in range(h):
             if not ok[r, c]:
                 continue
             d1 = rng[r, c]
@@ -112,77 +112,84 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
     return right, down
 
 
+@njit(cache=True, inline="always")
+def _find(parent, p):  # pragma: no cover - numba
+    """Root of `p` in the union-find forest `parent` (path halving)."""
+    while parent[p] != p:
+        parent[p] = parent[parent[p]]
+        p = parent[p]
+    return p
+
+
+@njit(cache=True, inline="always")
+def _union(parent, a, b):  # pragma: no cover - numba
+    ra = _find(parent, a)
+    rb = _find(parent, b)
+    if ra < rb:
+        parent[rb] = ra
+    elif rb < ra:
+        parent[ra] = rb
+
+
 @njit(cache=True)
 def _label_components(ok, right, down):  # pragma: no cover - numba
-    """Connected components of the join graph by depth-first fill: (H, W) int32 ids numbered in
-    raster order of each component's first pixel, (count,) int32 pixel counts, count."""
+    """Connected components of the join graph: (H, W) int32 ids numbered in raster order of each
+    component's first pixel (-1 = not ok), (count,) int32 pixel counts, count.
+
+    1. Each row is cut into runs of right-joined pixels (a run stops at the seam W-1 -> 0).
+    2. Vertical joins, and right joins across the seam, merge runs in a union-find forest.
+    3. Runs are numbered in raster order of their first pixel, so components are too.
+    """
     h, w = ok.shape
-    labels = np.full((h, w), -1, dtype=np.int32)
-    sizes = np.zeros(h * w, dtype=np.int32)
-    stack_r = np.empty(h * w, dtype=np.int32)
-    stack_c = np.empty(h * w, dtype=np.int32)
-    nxt = 0
-    for r0 in range(h):
-        for c0 in range(w):
-            if not ok[r0, c0] or labels[r0, c0] >= 0:
+    run_of = np.empty((h, w), dtype=np.int32)
+    parent = np.empty(h * w, dtype=np.int32)
+    length = np.empty(h * w, dtype=np.int32)
+    n = 0
+    for r in range(h):
+        c = 0
+        while c < w:
+            if not ok[r, c]:
+                c += 1
                 continue
-            labels[r0, c0] = nxt
-            stack_r[0] = r0
-            stack_c[0] = c0
-            top = 1
+            parent[n] = n
             size = 1
-            while top > 0:
-                top -= 1
-                r = stack_r[top]
-                c = stack_c[top]
-                # up: the pixel above (or two above) joins down to (r, c)
-                nr = -1
-                if r >= 1 and down[r - 1, c] == 1:
-                    nr = r - 1
-                elif r >= 2 and down[r - 2, c] == 2:
-                    nr = r - 2
-                if nr >= 0 and labels[nr, c] < 0:
-                    labels[nr, c] = nxt
-                    stack_r[top] = nr
-                    stack_c[top] = c
-                    top += 1
-                    size += 1
-                d = down[r, c]
-                if d > 0:
-                    nr = r + d
-                    if labels[nr, c] < 0:
-                        labels[nr, c] = nxt
-                        stack_r[top] = nr
-                        stack_c[top] = c
-                        top += 1
-                        size += 1
-                # left: the pixel one (or two) to the left joins right to (r, c)
-                c1 = c - 1 if c >= 1 else c - 1 + w
-                c2 = c - 2 if c >= 2 else c - 2 + w
-                nc = -1
-                if right[r, c1] == 1:
-                    nc = c1
-                elif right[r, c2] == 2:
-                    nc = c2
-                if nc >= 0 and labels[r, nc] < 0:
-                    labels[r, nc] = nxt
-                    stack_r[top] = r
-                    stack_c[top] = nc
-                    top += 1
-                    size += 1
+            run_of[r, c] = n
+            while True:
                 d = right[r, c]
-                if d > 0:
-                    nc = c + d
-                    if nc >= w:
-                        nc -= w
-                    if labels[r, nc] < 0:
-                        labels[r, nc] = nxt
-                        stack_r[top] = r
-                        stack_c[top] = nc
-                        top += 1
-                        size += 1
-            sizes[nxt] = size
+                if d == 0 or c + d >= w:
+                    break
+                c += d  # a bridged step skips an empty pixel, which belongs to no run
+                run_of[r, c] = n
+                size += 1
+            length[n] = size
+            n += 1
+            c += 1
+    for r in range(h - 1):
+        for c in range(w):
+            d = down[r, c]
+            if d > 0:
+                _union(parent, run_of[r, c], run_of[r + d, c])
+    for r in range(h):
+        d = right[r, w - 1]
+        if d > 0:
+            _union(parent, run_of[r, w - 1], run_of[r, d - 1])
+        if w >= 2 and right[r, w - 2] == 2:
+            _union(parent, run_of[r, w - 2], run_of[r, 0])
+    lab = np.full(n, -1, dtype=np.int32)
+    sizes = np.zeros(n, dtype=np.int32)
+    nxt = 0
+    for k in range(n):
+        root = _find(parent, k)
+        if lab[root] < 0:
+            lab[root] = nxt
             nxt += 1
+        lab[k] = lab[root]
+        sizes[lab[k]] += length[k]
+    labels = np.full((h, w), -1, dtype=np.int32)
+    for r in range(h):
+        for c in range(w):
+            if ok[r, c]:
+                labels[r, c] = lab[run_of[r, c]]
     return labels, sizes[:nxt], nxt
 
 

@@ -149,3 +149,56 @@ def test_segmentation_cuts_an_overhang():
     # a wall stepping back above (upper pixel farther) is not an overhang
     scan, trunk, crown = _tree(12.4)
     assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    h=st.integers(1, 8),
+    w=st.integers(3, 24),
+    seed=st.integers(0, 2**31 - 1),
+    ok_share=st.floats(0.2, 1.0),
+    join_share=st.floats(0.0, 1.0),
+)
+def test_label_components_match_graph_components(h, w, seed, ok_share, join_share):
+    """The union-find over row runs gives the connected components of the join maps (one- and
+    two-pixel joins, across the seam), numbered in raster order of their first pixel."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from pipeline.segmentation import _label_components
+
+    rng = np.random.default_rng(seed)
+    ok = rng.random((h, w)) < ok_share
+    empty = ~ok & (rng.random((h, w)) < 0.5)
+    right = np.zeros((h, w), np.uint8)
+    down = np.zeros((h, w), np.uint8)
+    edges = []
+    for r in range(h):
+        for c in range(w):
+            if not ok[r, c]:
+                continue
+            c1, step = (c + 1) % w, 1
+            if empty[r, c1]:
+                c1, step = (c + 2) % w, 2
+            if ok[r, c1] and c1 != c and rng.random() < join_share:
+                right[r, c] = step
+                edges.append((r * w + c, r * w + c1))
+            r1, step = r + 1, 1
+            if r1 < h and empty[r1, c]:
+                r1, step = r + 2, 2
+            if r1 < h and ok[r1, c] and rng.random() < join_share:
+                down[r, c] = step
+                edges.append((r * w + c, r1 * w + c))
+    labels, sizes, count = _label_components(ok, right, down)
+    e = np.array(edges, dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(h * w, h * w))
+    _, comp = connected_components(graph, directed=False)
+    flat_ok = ok.ravel()
+    # renumber the reference components in raster order of their first ok pixel
+    order = {}
+    ref = np.full(h * w, -1)
+    for p in np.flatnonzero(flat_ok):
+        ref[p] = order.setdefault(comp[p], len(order))
+    assert count == len(order)
+    assert np.array_equal(labels.ravel(), ref)
+    assert np.array_equal(sizes, np.bincount(ref[flat_ok], minlength=count))
