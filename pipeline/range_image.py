@@ -117,7 +117,12 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
         r = np.sqrt(x * x + y * y + z * z)
         rng[i] = r
         # float32 throughout: a column is 0.17 deg (2.9e-3 rad) wide
-        c = int(np.floor((half - fast_atan2(y, x) * inv_two_pi) * fw)) % width
+        c = int(np.floor((half - fast_atan2(y, x) * inv_two_pi) * fw))
+        # the angle term lies in [0, 1] up to float32 rounding: wrap without an integer division
+        if c >= width:
+            c -= width
+        elif c < 0:
+            c += width
         col[i] = c
         row = ring[i]
         kept[i] = r >= min_range and r <= max_range and row >= 0 and row < height

@@ -205,7 +205,11 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
     """
     h, w = rng.shape
     run_w = np.zeros((h, w), dtype=np.float32)
-    for r in prange(h):
+    half = (h + 1) // 2
+    for kk in prange(h):
+        # even rows first, then odd ones: each thread gets rows from top to bottom (objects crowd
+        # some rows, so contiguous blocks of rows would leave one thread idle)
+        r = 2 * kk if kk < half else 2 * (kk - half) + 1
         members = np.empty(w, dtype=np.int32)
         done = np.zeros(w, dtype=np.bool_)
         # start right after a stretch of more than max_gap non-ok pixels
@@ -213,7 +217,7 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
         gap = 0
         found = False
         for k in range(2 * w):
-            c = k % w
+            c = k if k < w else k - w  # (k mod w without an integer division)
             if ok[r, c]:
                 if gap > max_gap:
                     start = c
@@ -229,7 +233,9 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
                 continue  # no ok pixel in the row
             start = 0  # no long gap anywhere: the row is nearly full, the seam is as good as any
         for k in range(w):
-            c0 = (start + k) % w
+            c0 = start + k
+            if c0 >= w:
+                c0 -= w
             if not ok[r, c0] or done[c0]:
                 continue
             n = 0
@@ -241,7 +247,9 @@ def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
             last_d = rng[r, c0]
             j = k + 1
             while j < w and j - last_k - 1 <= max_gap:
-                cj = (start + j) % w
+                cj = start + j
+                if cj >= w:
+                    cj -= w
                 if ok[r, cj] and not done[cj]:
                     d = rng[r, cj]
                     if abs(d - last_d) <= hb + hs * min(d, last_d):
