@@ -131,27 +131,27 @@ def _union(parent, a, b):  # pragma: no cover - numba
         parent[ra] = rb
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _label_components(ok, right, down):  # pragma: no cover - numba
     """Connected components of the join graph: (H, W) int32 ids numbered in raster order of each
     component's first pixel (-1 = not ok), (count,) int32 pixel counts, count.
 
-    1. Each row is cut into runs of right-joined pixels (a run stops at the seam W-1 -> 0).
+    1. Each row is cut into runs of right-joined pixels (a run stops at the seam W-1 -> 0); rows
+       in parallel, then each row's runs get consecutive ids in raster order.
     2. Vertical joins, and right joins across the seam, merge runs in a union-find forest.
     3. Runs are numbered in raster order of their first pixel, so components are too.
     """
     h, w = ok.shape
-    run_of = np.empty((h, w), dtype=np.int32)
-    parent = np.empty(h * w, dtype=np.int32)
-    length = np.empty(h * w, dtype=np.int32)
-    n = 0
-    for r in range(h):
+    run_of = np.empty((h, w), dtype=np.int32)  # the run of each ok pixel, first as an id in its row
+    row_len = np.empty((h, w), dtype=np.int32)  # pixel count of each row's k-th run
+    row_runs = np.zeros(h, dtype=np.int32)
+    for r in prange(h):
+        n = 0
         c = 0
         while c < w:
             if not ok[r, c]:
                 c += 1
                 continue
-            parent[n] = n
             size = 1
             run_of[r, c] = n
             while True:
@@ -161,14 +161,34 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
                 c += d  # a bridged step skips an empty pixel, which belongs to no run
                 run_of[r, c] = n
                 size += 1
-            length[n] = size
+            row_len[r, n] = size
             n += 1
             c += 1
+        row_runs[r] = n
+    first = np.zeros(h + 1, dtype=np.int32)  # id of each row's first run
+    for r in range(h):
+        first[r + 1] = first[r] + row_runs[r]
+    n = first[h]
+    parent = np.arange(n, dtype=np.int32)
+    length = np.empty(n, dtype=np.int32)
+    for r in prange(h):
+        for c in range(w):
+            if ok[r, c]:
+                run_of[r, c] += first[r]
+        for k in range(row_runs[r]):
+            length[first[r] + k] = row_len[r, k]
     for r in range(h - 1):
+        last_a = -1
+        last_b = -1
         for c in range(w):
             d = down[r, c]
             if d > 0:
-                _union(parent, run_of[r, c], run_of[r + d, c])
+                a = run_of[r, c]
+                b = run_of[r + d, c]
+                if a != last_a or b != last_b:  # neighbouring columns mostly join the same two runs
+                    _union(parent, a, b)
+                    last_a = a
+                    last_b = b
     for r in range(h):
         d = right[r, w - 1]
         if d > 0:
@@ -186,7 +206,7 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
         lab[k] = lab[root]
         sizes[lab[k]] += length[k]
     labels = np.full((h, w), -1, dtype=np.int32)
-    for r in range(h):
+    for r in prange(h):
         for c in range(w):
             if ok[r, c]:
                 labels[r, c] = lab[run_of[r, c]]
