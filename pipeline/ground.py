@@ -169,10 +169,10 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
     for a in range(g0):
         for b in range(g1):
             q = (a + 1) * p1 + b + 1
-            filled[q] = False
-            if counts2[a * g1 + b] > 0:
-                padded[q] = sums2[a * g1 + b] / counts2[a * g1 + b]
-                filled[q] = True
+            cell_q = a * g1 + b
+            filled[q] = counts2[cell_q] > 0
+            if filled[q]:
+                padded[q] = sums2[cell_q] / counts2[cell_q]
                 queue[tail] = q
                 tail += 1
     offsets = np.array([-p1 - 1, -p1, -p1 + 1, -1, 1, p1 - 1, p1, p1 + 1], dtype=np.int64)

@@ -30,6 +30,20 @@ class Segmentation:
     count: int
 
 
+@njit(cache=True, inline="always")
+def _thin_meets_wide(run_w, thin_below, tr, tc, wr, wc, thin_w, thin_h, wide_w, wide_ratio):  # pragma: no cover
+    """Pixel (tr, tc) lies on a thin vertical structure and pixel (wr, wc) on a wide row run."""
+    wt = run_w[tr, tc]
+    return wt < thin_w and thin_below[tr, tc] >= thin_h and run_w[wr, wc] >= max(wide_w, wide_ratio * wt)
+
+
+@njit(cache=True, inline="always")
+def _angle_cuts(dmin, dmax, sin_a, cos_a, tan_beta):  # pragma: no cover - numba
+    """depth_clustering's criterion fails: beta = atan2(d2 sin a, d1 - d2 cos a) under the threshold."""
+    den = dmax - dmin * cos_a
+    return den > 0.0 and dmin * sin_a < tan_beta * den
+
+
 @njit(cache=True, parallel=True)
 def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio,
                 use_angle, tan_beta, v_alpha, h_alpha, bridge):  # pragma: no cover - numba
@@ -67,17 +81,12 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
                 join = dmax - dmin <= hb + hs * dmin
                 if join and thin:
                     # a trunk seen through the holes of its crown: a thin pixel beside a wide run
-                    wa = run_w[r, c]
-                    wb = run_w[r, c1]
-                    if wa < thin_w and thin_below[r, c] >= thin_h and wb >= max(wide_w, wide_ratio * wa):
-                        join = False
-                    elif wb < thin_w and thin_below[r, c1] >= thin_h and wa >= max(wide_w, wide_ratio * wb):
-                        join = False
-                if join and use_angle:
-                    # depth_clustering: beta = atan2(d2 sin a, d1 - d2 cos a) > threshold
-                    den = dmax - dmin * cos_h
-                    if den > 0.0 and dmin * sin_h < tan_beta * den:
-                        join = False
+                    join = not (
+                        _thin_meets_wide(run_w, thin_below, r, c, r, c1, thin_w, thin_h, wide_w, wide_ratio)
+                        or _thin_meets_wide(run_w, thin_below, r, c1, r, c, thin_w, thin_h, wide_w, wide_ratio)
+                    )
+                if join and use_angle and _angle_cuts(dmin, dmax, sin_h, cos_h, tan_beta):
+                    join = False
                 if join:
                     right[r, c] = step
             # lower neighbour: (r, c) is the upper pixel
@@ -97,16 +106,12 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
                 join = dmax - dmin <= vb + vs * dmin
                 if join and thin and d1 <= d2 + 0.1:
                     # a crown over a trunk: the lower pixel thin, the upper one wide and not behind
-                    wl = run_w[r1, c]
-                    if wl < thin_w and thin_below[r1, c] >= thin_h and run_w[r, c] >= max(wide_w, wide_ratio * wl):
-                        join = False
+                    join = not _thin_meets_wide(run_w, thin_below, r1, c, r, c, thin_w, thin_h, wide_w, wide_ratio)
                 if join and over and d2 - d1 > ob + os_ * dmax:
                     join = False  # the upper pixel nearer by more than the overhang allows
                 if join and use_angle:
                     a = v_alpha[r] if r < h - 1 else v_alpha[h - 2]
-                    den = dmax - dmin * np.cos(a)
-                    if den > 0.0 and dmin * np.sin(a) < tan_beta * den:
-                        join = False
+                    join = not _angle_cuts(dmin, dmax, np.sin(a), np.cos(a), tan_beta)
                 if join:
                     down[r, c] = step
     return right, down
