@@ -12,8 +12,13 @@ Then, in frame order:
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import dataclasses
+import itertools
 import multiprocessing
+import os
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -141,13 +146,70 @@ def process_scan(
     )
 
 
+@dataclass(frozen=True)
+class _Spilled:
+    """A worker's canvases left in a file for the main process (`path`, read once and deleted)."""
+
+    path: str
+
+
 def _load_and_process(args: tuple) -> _FrameCore | DataError:
-    source, index, sensor, config, samples = args
+    source, index, sensor, config, samples, spill_dir = args
     try:
         scan = source.frame(index)
     except DataError as exc:
         return exc
-    return process_scan(scan, sensor, config, index, source.frame_name(index), samples)
+    core = process_scan(scan, sensor, config, index, source.frame_name(index), samples)
+    if spill_dir is not None and core.samples.size:
+        # a frame's 256x256 canvases are tens of MB: pickled through the pool's pipe they cost the
+        # main process more than rendering them cost the worker, so they go through a file
+        # (in memory where /dev/shm exists) instead
+        path = os.path.join(spill_dir, f"{index}.npy")
+        try:
+            np.save(path, core.samples)
+        except OSError:  # the file system is full: send them through the pipe after all
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            return core
+        core = dataclasses.replace(core, samples=_Spilled(path))  # type: ignore[arg-type]
+    return core
+
+
+def _ordered(pool: ProcessPoolExecutor, jobs: list[tuple], ahead: int) -> Iterator[_FrameCore | DataError]:
+    """`_load_and_process` over `jobs` on `pool`, results in job order, at most `ahead` frames in
+    flight or waiting (the workers may not run arbitrarily far ahead of the association, each
+    finished frame holds its scan and canvases)."""
+    pending: collections.deque = collections.deque()
+    it = iter(jobs)
+    try:
+        for job in itertools.islice(it, ahead):
+            pending.append(pool.submit(_load_and_process, job))
+        while pending:
+            result = pending.popleft().result()
+            job = next(it, None)
+            if job is not None:
+                pending.append(pool.submit(_load_and_process, job))
+            yield result
+    finally:
+        for fut in pending:
+            fut.cancel()
+
+
+def _unspill(core: _FrameCore) -> _FrameCore:
+    if not isinstance(core.samples, _Spilled):
+        return core
+    path = core.samples.path
+    # mapped, not read: no copy here; copy-on-write, so the array is writable like any other, and
+    # the unlinked file's memory is freed with the array
+    canvases = np.load(path, mmap_mode="c")
+    os.unlink(path)
+    return dataclasses.replace(core, samples=canvases)
+
+
+def _spill_root() -> str | None:
+    """/dev/shm where it exists and is writable (a RAM file system), else the default temp folder."""
+    shm = "/dev/shm"
+    return shm if os.path.isdir(shm) and os.access(shm, os.W_OK) else None
 
 
 class SequenceProcessor:
@@ -179,7 +241,9 @@ class SequenceProcessor:
         self.linked = poses is not None
         stop = len(source) if stop is None else min(stop, len(source))
         times = source.times
-        jobs = [(source, i, self.sensor, self.config, samples) for i in range(start, stop)]
+        spill = tempfile.TemporaryDirectory(prefix="tracklabel-", dir=_spill_root()) if workers > 1 else None
+        jobs = [(source, i, self.sensor, self.config, samples, spill.name if spill else None)
+                for i in range(start, stop)]
         prev: AssociationFrame | None = None
         prev_tracks = np.zeros(0, np.int64)
         prev_vel = np.zeros((0, 3))
@@ -196,7 +260,7 @@ class SequenceProcessor:
             ctx = multiprocessing.get_context("forkserver")
             ctx.set_forkserver_preload([__name__])  # the server imports the stages once, workers inherit them
             pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_one_thread_per_worker)
-            results = pool.map(_load_and_process, jobs, chunksize=4)
+            results = _ordered(pool, jobs, ahead=4 * workers)
         else:
             pool = None
             results = map(_load_and_process, jobs)
@@ -210,6 +274,7 @@ class SequenceProcessor:
                         on_skip(i, core)
                     prev = None  # do not link across a missing frame
                     continue
+                core = _unspill(core)
                 T = None if poses is None else np.asarray(poses[i], dtype=np.float64)
                 t_s = float(times[i]) if times is not None else i / self.sensor.frequency_hz
                 t0 = time.perf_counter()
@@ -221,6 +286,8 @@ class SequenceProcessor:
                 bar.close()
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
+            if spill is not None:
+                spill.cleanup()
 
     def _track(
         self,

@@ -49,13 +49,24 @@ def test_cli_process_writes_track_labels_json_and_summary(sim, tmp_path):
 def test_cli_process_two_workers_match_one_worker_after_kernels_ran_here(sim, tmp_path):
     # the parallel numba kernels have run in this process already (the tests above); a worker pool
     # started from it must still run them (GNU OpenMP aborts a forked child that does) and must
-    # give the same track labels as the single-process run
+    # give the same track labels and samples as the single-process run (the workers hand their
+    # canvases over through files, which are gone afterwards)
+    import tempfile
+
+    from pipeline.processing import _spill_root
+
+    root = Path(_spill_root() or tempfile.gettempdir())
+    before = set(root.glob("tracklabel-*"))
     one, two = tmp_path / "one", tmp_path / "two"
-    assert runner.invoke(app, ["process", str(sim), "--out", str(one)]).exit_code == 0
-    res = runner.invoke(app, ["process", str(sim), "--out", str(two), "--workers", "2"])
+    assert runner.invoke(app, ["process", str(sim), "--out", str(one), "--samples"]).exit_code == 0
+    res = runner.invoke(app, ["process", str(sim), "--out", str(two), "--workers", "2", "--samples"])
     assert res.exit_code == 0, res.output
     for a in sorted((one / "tracks").glob("*.label")):
         assert np.array_equal(np.fromfile(a, np.uint32), np.fromfile(two / "tracks" / a.name, np.uint32))
+    for a in sorted((one / "samples").glob("*.npz")):
+        with np.load(a) as x, np.load(two / "samples" / a.name) as y:
+            assert len(x["samples"]) and np.array_equal(x["samples"], y["samples"])
+    assert set(root.glob("tracklabel-*")) == before
 
 
 def test_cli_evaluate_reports_purity_and_association(sim, tmp_path):
