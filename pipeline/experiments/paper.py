@@ -22,6 +22,10 @@
    - constraint100_paper_pairs: the paper's consecutive pairs only (the default draws any two
      samples of a track: `transitive_pairs`);
    - constraint100_no_mask: canvases without the foreground-mask channel (3 channels).
+   A diagnostic, not a method: oracle_objects20 labels up to 20 training samples of every object
+   that baseline_min's labels show (ground-truth identity, spread over the object's frames): every
+   view of the labelled objects, as perfect constraints joining each object's tracks would give.
+   It bounds what constraints can carry from the labelled objects to their other views.
    Model selection is the paper's rule on the validation split.
 4. Evaluate each on the training data (train + validation, as the paper's Table 7), on the
    validation split alone, and on test scene D (Table 8).
@@ -57,9 +61,11 @@ SETTINGS: tuple[str, ...] = (
     "constraint100_auto",
     "constraint100_paper_pairs",
     "constraint100_no_mask",
+    "oracle_objects20",
 )
 ADAPT_SETTINGS: tuple[str, ...] = ("adapt_constraints_only", "adapt_constraints_only_balance")
-METHOD = {"baseline_min": "sup.", "baseline_max": "sup."}
+METHOD = {"baseline_min": "sup.", "baseline_max": "sup.", "oracle_objects20": "sup. (oracle)"}
+ORACLE_PER_OBJECT = 20  # oracle_objects20: labels per object, spread over the object's frames
 TEST_SEED_OFFSET = 1000
 
 
@@ -171,6 +177,8 @@ def setting_data(
         return split.min_labelled, *none
     if name == "baseline_max":
         return split.train_labelled, *none
+    if name == "oracle_objects20":
+        return oracle_object_labels(scene, split, ORACLE_PER_OBJECT), *none
     if name == "constraint100_auto":
         pairs, weights = scene.auto_pairs, scene.auto_scores
         up_to = 2
@@ -183,6 +191,20 @@ def setting_data(
     part = route_part(scene.progress)
     keep = (part[pairs[:, 0]] <= up_to) & ~np.isin(scene.track[pairs[:, 0]], split.val_tracks)
     return split.min_labelled, pairs[keep], weights[keep]
+
+
+def oracle_object_labels(scene: SceneSamples, split: Split, per_object: int) -> np.ndarray:
+    """Up to `per_object` training-split samples of each ground-truth object that baseline_min's
+    labels show, evenly spaced over the object's samples in frame order (a diagnostic)."""
+    objects = np.unique(scene.gt_object[split.min_labelled])
+    cand = split.train_labelled[np.isin(scene.gt_object[split.train_labelled], objects)]
+    cand = cand[np.lexsort((scene.frame[cand], scene.gt_object[cand]))]  # by object, then frame
+    obj = scene.gt_object[cand]
+    start = np.flatnonzero(np.r_[True, obj[1:] != obj[:-1]])
+    count = np.diff(np.r_[start, len(cand)])
+    keep = [cand[s + np.unique(np.linspace(0, c - 1, min(per_object, c)).round().astype(np.int64))]
+            for s, c in zip(start, count, strict=True)]
+    return np.sort(np.concatenate(keep)) if keep else np.zeros(0, np.int64)
 
 
 def _stratified_subsample(idx: np.ndarray, labels: np.ndarray, n: int, seed: int) -> np.ndarray:
@@ -504,5 +526,6 @@ def _plots(doc: dict[str, Any], out: Path) -> None:
                            title=f"{name} on test scene D (mean F {t['mean_f']:.1f})")
 
 
-__all__ = ["ADAPT_SETTINGS", "SETTINGS", "PaperConfig", "Split", "markdown", "run_paper", "setting_data", "split_scene", "targets"]
+__all__ = ["ADAPT_SETTINGS", "SETTINGS", "PaperConfig", "Split", "markdown", "oracle_object_labels", "run_paper",
+           "setting_data", "split_scene", "targets"]
 

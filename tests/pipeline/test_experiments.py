@@ -100,3 +100,22 @@ def test_paper_split_by_track_and_settings_grow_constraints():
     assert len(pairs) >= sizes[2] and np.allclose(w, 0.8)
     lab, pairs, _ = setting_data("baseline_max", scene, split)
     assert np.array_equal(lab, split.train_labelled) and len(pairs) == 0
+
+
+def test_oracle_objects_label_every_view_of_the_labelled_objects_only():
+    from pipeline.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
+
+    scene = _toy_scene(n_tracks=40, length=9)
+    scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
+    split = split_scene(scene, PaperConfig(labels_per_class=1))
+    lab = oracle_object_labels(scene, split, per_object=4)
+    assert set(lab) <= set(split.train_labelled)
+    assert set(scene.gt_object[lab]) == set(scene.gt_object[split.min_labelled])
+    counts = np.unique(scene.gt_object[lab], return_counts=True)[1]
+    assert counts.max() == 4  # capped per object
+    for obj in set(scene.gt_object[lab]):  # spread over the object's frames: its first and last view
+        views = split.train_labelled[scene.gt_object[split.train_labelled] == obj]
+        mine = lab[scene.gt_object[lab] == obj]
+        assert scene.frame[mine].min() == scene.frame[views].min() and scene.frame[mine].max() == scene.frame[views].max()
+    got, pairs, _ = setting_data("oracle_objects20", scene, split)
+    assert len(pairs) == 0 and len(got) > len(split.min_labelled)
