@@ -21,7 +21,8 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
-                                    "constraint100_auto", "constraint100_paper_pairs", "constraint100_no_mask"]
+                                    "constraint100_auto", "constraint100_paper_pairs", "constraint100_no_mask",
+                                    "oracle_objects20"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
     ad = doc["adaptation"]
@@ -33,6 +34,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert doc["data"]["constraint30"]["pairs"] <= doc["data"]["constraint100"]["pairs"]
     assert "test_gain_constraint100_over_baseline_min" in doc["targets"]
     md = (out / "paper.md").read_text()
+    assert "| sup. (oracle) | oracle_objects20 |" in md
     assert "| semi-sup. | constraint100 |" in md and "test scene D" in md and "Constraints only on D" in md
     assert (out / "paper_train.png").stat().st_size > 1000 and (out / "paper_test.png").stat().st_size > 1000
 
