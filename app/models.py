@@ -129,6 +129,9 @@ class Frame(Base):
     pose: Mapped[list[float] | None] = mapped_column(JSON)  # T_world_lidar, 16 floats row-major
 
 
+TRACK_SORT_COLUMNS = ("first_frame", "length", "n_samples", "n_points", "mean_range", "predicted_confidence", "updated_at")
+
+
 class Track(Base):
     """A chain of segments. `keep_start..keep_end` is the kept frame range after truncation."""
 
@@ -145,25 +148,29 @@ class Track(Base):
             "ix_tracks_predicted_sorts", "predicted_class", "predicted_confidence", "length", "n_samples",
             "mean_range", "n_points", "first_frame",
         ),
+        # one index per sort key of GET /tracks, with the id that breaks ties: a page is read off
+        # the index in either direction (SQLite's indexes hold the rowid anyway; PostgreSQL's
+        # don't, and sorted every row of a long run of equal lengths without it)
+        *(Index(f"ix_tracks_sort_{c}", c, "id") for c in TRACK_SORT_COLUMNS),
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
     sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
     key: Mapped[int] = mapped_column(BigInteger)  # the pipeline's track id (>= 1, per sequence)
     status: Mapped[str] = mapped_column(String(16), default="pending")
-    first_frame: Mapped[int] = mapped_column(Integer, index=True)
+    first_frame: Mapped[int] = mapped_column(Integer)
     last_frame: Mapped[int] = mapped_column(Integer)
     keep_start: Mapped[int] = mapped_column(Integer)
     keep_end: Mapped[int] = mapped_column(Integer)
-    length: Mapped[int] = mapped_column(Integer, index=True)  # frames with a segment in the kept range
-    n_samples: Mapped[int] = mapped_column(Integer, default=0, index=True)  # valid samples in the kept range
-    n_points: Mapped[int] = mapped_column(Integer, default=0, index=True)
-    mean_range: Mapped[float] = mapped_column(Float, default=0.0, index=True)
+    length: Mapped[int] = mapped_column(Integer)  # frames with a segment in the kept range
+    n_samples: Mapped[int] = mapped_column(Integer, default=0)  # valid samples in the kept range
+    n_points: Mapped[int] = mapped_column(Integer, default=0)
+    mean_range: Mapped[float] = mapped_column(Float, default=0.0)
     label: Mapped[str | None] = mapped_column(String(16), index=True)
     predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted(_sorts)
-    predicted_confidence: Mapped[float | None] = mapped_column(Float, index=True)
+    predicted_confidence: Mapped[float | None] = mapped_column(Float)
     version: Mapped[int] = mapped_column(Integer, default=1)
-    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow, index=True)
+    updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)

@@ -141,6 +141,7 @@ def load_database(url: str, artifact_dir: Path, n_tracks: int, n_frames: int, po
             "segments": len(seg_rows),
             "constraints": len(pair_rows),
         }
+    crud.vacuum_after_bulk_load(db.engine)  # as ingest does
     db.dispose()
     info["load_seconds"] = round(time.perf_counter() - t0, 1)
     return info

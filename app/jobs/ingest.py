@@ -152,6 +152,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         )
         crud.analyze_tables(s)
         s.commit()
+    crud.vacuum_after_bulk_load(ctx.db.engine)
     return {
         "sequence_id": params.sequence_id,
         "frames": state.frames,

@@ -39,6 +39,26 @@ def test_tracks_list_sorts_descending(client, factory):
     assert lengths == sorted(lengths, reverse=True)
 
 
+def test_tracks_list_pages_follow_key_then_id_with_nulls_last_both_ways(client, factory, db):
+    # lengths tie (6, 5, 4, 6, 5, 4): pages must follow (key, id) exactly, in both directions, and
+    # tracks without a confidence come last either way
+    seq, op, ids = _setup(factory, n_objects=6)
+    with db.write() as s:
+        for i, conf in enumerate([0.5, None, 0.2, 0.5, None, 0.9]):
+            s.get(Track, ids[i]).predicted_confidence = conf
+        s.commit()
+    with db.read() as s:
+        rows = {t.id: (t.length, t.predicted_confidence) for t in s.scalars(select(Track).where(Track.id.in_(ids)))}
+    for sort, key in (("length", 0), ("confidence", 1)):
+        for desc in (False, True):
+            have = [t["id"] for off in (0, 2, 4) for t in client.get(
+                "/api/v1/tracks", params={"sort": ("-" if desc else "") + sort, "limit": 2, "offset": off},
+                headers=op.headers).json()["items"]]
+            known = sorted((i for i in ids if rows[i][key] is not None), key=lambda i: (rows[i][key], i), reverse=desc)
+            nulls = sorted((i for i in ids if rows[i][key] is None), reverse=desc)
+            assert have == known + nulls, (sort, desc)
+
+
 def test_tracks_list_filters_status_and_label(client, factory):
     seq, op, ids = _setup(factory)
     _act(client, op, ids[0], "label", 1, label="car")
