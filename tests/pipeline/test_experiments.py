@@ -119,3 +119,25 @@ def test_oracle_objects_label_every_view_of_the_labelled_objects_only():
         assert scene.frame[mine].min() == scene.frame[views].min() and scene.frame[mine].max() == scene.frame[views].max()
     got, pairs, _ = setting_data("oracle_objects20", scene, split)
     assert len(pairs) == 0 and len(got) > len(split.min_labelled)
+
+
+def test_oracle_object_pairs_make_each_labelled_object_one_component():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from pipeline.experiments.paper import PaperConfig, oracle_object_pairs, setting_data, split_scene
+
+    scene = _toy_scene(n_tracks=40, length=6)
+    scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
+    split = split_scene(scene, PaperConfig(labels_per_class=1))
+    pairs = oracle_object_pairs(scene, split)
+    assert set(pairs.ravel()) <= set(split.train_labelled)
+    assert (scene.gt_object[pairs[:, 0]] == scene.gt_object[pairs[:, 1]]).all()  # never across objects
+    assert not (scene.label[pairs.ravel()] == 6).any()  # no unknown, as for the verified constraints
+    _, comp = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(scene),) * 2))
+    members = np.unique(pairs)
+    for obj in np.unique(scene.gt_object[members]):  # one component per object, across its tracks
+        assert len(np.unique(comp[members[scene.gt_object[members] == obj]])) == 1
+    assert len(np.unique(scene.track[pairs.ravel()])) > len(np.unique(scene.gt_object[pairs.ravel()]))
+    lab, got, w = setting_data("oracle_object_constraints", scene, split)
+    assert np.array_equal(lab, split.min_labelled) and np.array_equal(got, pairs) and (w == 1).all()
