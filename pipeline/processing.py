@@ -148,7 +148,7 @@ def process_scan(
 
 @dataclass(frozen=True)
 class _Spilled:
-    """A worker's canvases left in a file for the main process (`path`, read once and deleted)."""
+    """A worker's canvases left in a file for the main process (`path`, mapped once and unlinked)."""
 
     path: str
 

@@ -201,12 +201,16 @@ def setting_data(
     return split.min_labelled, pairs[keep], weights[keep]
 
 
+def _by_object_then_frame(scene: SceneSamples, idx: np.ndarray) -> np.ndarray:
+    """`idx` (sample indices) ordered by ground-truth object, then frame (stable)."""
+    return idx[np.lexsort((scene.frame[idx], scene.gt_object[idx]))]
+
+
 def oracle_object_labels(scene: SceneSamples, split: Split, per_object: int) -> np.ndarray:
     """Up to `per_object` training-split samples of each ground-truth object that baseline_min's
     labels show, evenly spaced over the object's samples in frame order (a diagnostic)."""
     objects = np.unique(scene.gt_object[split.min_labelled])
-    cand = split.train_labelled[np.isin(scene.gt_object[split.train_labelled], objects)]
-    cand = cand[np.lexsort((scene.frame[cand], scene.gt_object[cand]))]  # by object, then frame
+    cand = _by_object_then_frame(scene, split.train_labelled[np.isin(scene.gt_object[split.train_labelled], objects)])
     obj = scene.gt_object[cand]
     start = np.flatnonzero(np.r_[True, obj[1:] != obj[:-1]])
     count = np.diff(np.r_[start, len(cand)])
@@ -222,7 +226,7 @@ def oracle_object_pairs(scene: SceneSamples, split: Split, unknown: bool = False
     cand = split.train_labelled
     if not unknown:
         cand = cand[scene.label[cand] != NUM_SAMPLE_CLASSES - 1]
-    cand = cand[np.lexsort((scene.frame[cand], scene.gt_object[cand]))]
+    cand = _by_object_then_frame(scene, cand)
     same = scene.gt_object[cand[1:]] == scene.gt_object[cand[:-1]]
     return np.stack([cand[:-1][same], cand[1:][same]], axis=1).astype(np.int64)
 
