@@ -60,7 +60,8 @@ class SegmentationConfig(_Section):
     use_angle_criterion: bool = False
     angle_threshold_deg: float = 10.0  # depth_clustering's beta criterion when enabled
     min_points: int = 3  # segments smaller than this are dropped (label 0)
-    bridge_empty: bool = True  # step over one pixel without any return (see segmentation.py)
+    bridge_empty: bool = True  # step over pixels without any return (see segmentation.py)
+    bridge_pixels: int = Field(default=1, ge=1, le=32)  # at most this many empty pixels in a row are stepped over
 
 
 class SampleConfig(_Section):

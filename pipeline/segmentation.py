@@ -68,12 +68,12 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
             if c1 == w:
                 c1 = 0
             step = 1
-            if bridge and empty[r, c1]:
+            while step <= bridge and empty[r, c1]:
                 # no return at all here (glass, dark paint): look one pixel further
                 c1 += 1
                 if c1 == w:
                     c1 = 0
-                step = 2
+                step += 1
             if ok[r, c1]:
                 d2 = rng[r, c1]
                 dmin = min(d1, d2)
@@ -94,11 +94,9 @@ def _join_edges(rng, ok, empty, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin
             if r1 >= h:
                 continue
             step = 1
-            if bridge and empty[r1, c]:
+            while step <= bridge and r1 < h - 1 and empty[r1, c]:
                 r1 += 1
-                if r1 >= h:
-                    continue
-                step = 2
+                step += 1
             if ok[r1, c]:
                 d2 = rng[r1, c]
                 dmin = min(d1, d2)
@@ -387,7 +385,7 @@ def segment(
         np.float32(config.thin_width), np.float32(config.thin_min_height), np.float32(config.wide_width),
         np.float32(config.wide_ratio), bool(config.use_angle_criterion),
         float(np.tan(np.deg2rad(config.angle_threshold_deg))), _beam_steps(sensor, h),
-        np.float32(2.0 * np.pi / w), bool(config.bridge_empty), max(1, config.min_points),
+        np.float32(2.0 * np.pi / w), int(config.bridge_pixels) if config.bridge_empty else 0, max(1, config.min_points),
     )
     return Segmentation(pixel=pixel, point=point, count=int(count))
 

@@ -100,6 +100,7 @@ class PaperConfig:
     cyclists: float = 3.0  # simulator: further factor on cyclists
     test_style: str = "b"  # campus style of D: another part of town (pipeline.simulation.style)
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
+    bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
     settings: tuple[str, ...] = SETTINGS
@@ -279,7 +280,8 @@ def run_paper(
     log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames) and test scene D "
         f"(seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames) at S={cfg.size}")
     t0 = time.perf_counter()
-    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
+    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists,
+           "config": PipelineConfig().override({"segmentation": {"bridge_pixels": cfg.bridge_pixels}})}
     scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, **sim)
     test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
                          style=cfg.test_style, **sim)

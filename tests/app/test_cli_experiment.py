@@ -42,3 +42,5 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
 def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--frames", "5"])
     assert r.exit_code == 2
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--bridge-pixels", "0"])
+    assert r.exit_code == 2

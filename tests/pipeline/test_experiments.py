@@ -64,6 +64,17 @@ def test_prepare_scene_runs_the_pipeline_and_caches(tmp_path):
     assert np.array_equal(again.samples, scene.samples) and not list(tmp_path.glob("seq_*"))
 
 
+def test_prepare_scene_caches_each_segmentation_apart(tmp_path):
+    from pipeline.config import PipelineConfig
+
+    plain = prepare_scene(tmp_path, seed=2, frames=3, size=32)
+    bridged = prepare_scene(tmp_path, seed=2, frames=3, size=32,
+                            config=PipelineConfig().override({"segmentation": {"bridge_pixels": 8}}))
+    assert len(list(tmp_path.glob("scene_*.npz"))) == 2  # the bridged scene did not reuse the cached one
+    # wider bridges join fragments (dark cars): fewer samples and tracks in the same frames
+    assert len(bridged) < len(plain) and len(np.unique(bridged.track)) < len(np.unique(plain.track))
+
+
 def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:
     rng = np.random.default_rng(0)
     m = n_tracks * length

@@ -117,6 +117,31 @@ def test_segmentation_bridges_one_empty_column_but_not_a_return():
     assert len(np.unique(seg.point[obj])) == 2
 
 
+def _two_boxes_with_gap(gap: int, vertical: bool) -> tuple[Scan, np.ndarray]:
+    """Two boxes at 12 m separated by `gap` empty columns (or rows when `vertical`)."""
+    rimg = flat_ground(SENSOR, W)
+    if vertical:
+        add_box(rimg, slice(2, 6), slice(100, 110), 12.0)
+        add_box(rimg, slice(6 + gap, 12 + gap), slice(100, 110), 12.0)
+        rimg[6 : 6 + gap, 100:110] = 0.0
+    else:
+        add_box(rimg, slice(8, 14), slice(100, 106), 12.0)
+        add_box(rimg, slice(8, 14), slice(106 + gap, 112 + gap), 12.0)
+        rimg[:14, 106 : 106 + gap] = 0.0
+    scan = scan_from_range_image(rimg, SENSOR)
+    obj = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & (scan.points[:, 2] > -1.8 + 0.25)
+    return scan, obj
+
+
+def test_segmentation_bridges_up_to_bridge_pixels_empty_pixels():
+    for vertical in (False, True):
+        for gap in (2, 4):
+            scan, obj = _two_boxes_with_gap(gap, vertical)
+            for limit in (1, 2, 4, 6):
+                _, _, seg = _segment(scan, SegmentationConfig(bridge_pixels=limit))
+                assert (len(np.unique(seg.point[obj])) == 1) == (gap <= limit), (vertical, gap, limit)
+
+
 def _tree(crown_range: float) -> tuple[Scan, np.ndarray, np.ndarray]:
     """A thin trunk (3 columns, ~0.6 m wide, ~1.7 m tall at 12 m) under a wide crown (31 columns)."""
     rimg = flat_ground(SENSOR, W)
