@@ -12,7 +12,7 @@ left unlinked.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -44,10 +44,18 @@ class AssociationFrame:
 
 @dataclass(frozen=True)
 class Links:
-    """prev: (S,) int32 matched t-1 segment per t segment, -1 = none; score: (S,) float32, NaN = none."""
+    """prev: (S,) int32 matched t-1 segment per t segment, -1 = none; score: (S,) float32, NaN = none.
+
+    fragments: (E, 2) int32 (t segment, t-1 segment) pairs that share points but are not each
+    other's link: the pieces of an object that split, merge or reshuffle between frames (foliage,
+    a wall cut by a pillar). fragment_share: (E,) float32 the larger of the two segments' shares
+    of those points. Empty unless `AssociationConfig.fragment_min_share` is in (0, 1].
+    """
 
     prev: np.ndarray
     score: np.ndarray
+    fragments: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
+    fragment_share: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
 
 @njit(cache=True, inline="always")
@@ -181,6 +189,8 @@ def associate(
     n_a = np.maximum(curr.n_points[va], 1).astype(np.float64)
     n_b = np.maximum(prev.n_points[vb], 1).astype(np.float64)
     share = votes / n_a[:, None]  # (A, B) share of a's points voting for b
+    # fragments: either segment's share of the points they have in common (before any gate)
+    mutual = np.maximum(share, votes / n_b[None, :])  # (A, B)
     # link score: votes over the larger of the two segments, so that the pieces of a split do not
     # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
     overlap = votes / np.maximum(n_a[:, None], n_b[None, :])
@@ -259,4 +269,15 @@ def associate(
                     continue  # another candidate is nearly as close: ambiguous
                 links.prev[va[free_a[i]]] = vb[free_b[j]]
                 links.score[va[free_a[i]]] = float(1.0 - dij / config.max_centroid_distance) * 0.5
-    return links
+    return _with_fragments(links, mutual, va, vb, config.fragment_min_share)
+
+
+def _with_fragments(links: Links, mutual: np.ndarray, va: np.ndarray, vb: np.ndarray, min_share: float) -> Links:
+    """`links` plus the (t, t-1) pairs whose mutual share is >= min_share and that are not links."""
+    if not 0.0 < min_share <= 1.0:
+        return links
+    ia, jb = np.nonzero(mutual >= min_share)
+    a, b = va[ia], vb[jb]
+    keep = links.prev[a] != b
+    return replace(links, fragments=np.stack([a[keep], b[keep]], axis=1).astype(np.int32),
+                   fragment_share=mutual[ia[keep], jb[keep]].astype(np.float32))

@@ -94,6 +94,10 @@ class AssociationConfig(_Section):
     max_height_change: float = 0.4  # metres of centroid height a predicted-centroid match may change
     ambiguity_ratio: float = 0.5  # votes split as second >= this x top between two t-1 segments = merge
     strong_share: float = 0.6  # share of votes above which the centroid jump gate is waived (>1 = never)
+    # fragment links (not track links): a t and a t-1 segment that are not linked but one of which
+    # has at least this share of its points on the other are pieces of one object that split,
+    # merged or reshuffled; they join tracks into stitch candidates. 0 = none.
+    fragment_min_share: float = Field(default=0.3, ge=0.0, le=1.0)
 
 
 class ModelConfig(_Section):

@@ -59,6 +59,8 @@ class FrameResult:
     ground: (N,) bool; height: (N,) float32 metres above ground.
     seg_pixel: (H, W) int32 segment id per range-image pixel, -1 = none.
     samples: (V, C, S, S) uint8 of the valid segments; sample_segment: (V,) int32 their segment ids.
+    fragments: (E, 2) int32 (segment of this frame, segment of the previous frame) pairs of
+    fragments of one object that are not track links (see `association.Links`); fragment_share: (E,).
     """
 
     index: int
@@ -75,6 +77,8 @@ class FrameResult:
     T_world_lidar: np.ndarray | None
     time: float
     timings_ms: dict[str, float]
+    fragments: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2), np.int32))
+    fragment_share: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
 
     def track_labels(self) -> np.ndarray:
         """(N,) uint32 track id per point: 0 for ground, unsegmented points and invalid segments."""
@@ -308,6 +312,7 @@ class SequenceProcessor:
         score = np.full(n, np.nan, np.float32)
         vel = np.zeros((n, 3))
         matched = np.full(n, -1, np.int32)
+        fragments, fragment_share = np.zeros((0, 2), np.int32), np.zeros(0, np.float32)
         if prev is not None and T is not None:
             valid_point = _only_valid(core.segment, table.valid)
             links = associate(
@@ -315,6 +320,7 @@ class SequenceProcessor:
             )
             matched = links.prev
             score = links.score
+            fragments, fragment_share = links.fragments, links.fragment_share
         has = matched >= 0
         track_id[has] = prev_tracks[matched[has]]
         dt = max(t_s - (prev.time if prev is not None else t_s - 0.1), 1e-3)
@@ -332,5 +338,6 @@ class SequenceProcessor:
         fr = FrameResult(
             core.index, core.name, core.scan, core.segment, core.ground, core.height, core.seg_pixel,
             core.range_pixels, segs, core.samples, core.sample_segment, T, t_s, dict(core.timings_ms),
+            fragments, fragment_share,
         )
         return fr, curr, track_id, vel

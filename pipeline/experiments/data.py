@@ -14,6 +14,10 @@ its points, and that object's share of them), the fraction of the route travelle
   for tracks labelled unknown (the paper makes no constraints for unknown).
 - **automatic constraints**: every link the association made (consecutive samples of a track),
   with its association score, whether right or wrong.
+- **stitches**: the association's fragment links (pieces of one object that split, merge or
+  reshuffle between frames; `association.Links.fragments`) join two tracks; the operator confirms
+  a stitch when both tracks are accepted and show the same object (one yes/no per stitched pair
+  of tracks), and the confirmed fragment links become constraints too (none for unknown).
 
 Results are cached as one `.npz` per (seed, frames, start, size, config, source code of the
 simulator and perception modules) under `cache`, so
@@ -25,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +37,7 @@ import numpy as np
 from pipeline.classes import GROUND, NUM_SAMPLE_CLASSES, UNLABELLED, to_ours
 from pipeline.config import PipelineConfig
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 UNKNOWN = NUM_SAMPLE_CLASSES - 1
 
 
@@ -51,6 +55,9 @@ class SceneSamples:
     progress:   (M,) float32 fraction of the scene's travelled distance at the frame, in [0, 1].
     label:      (M,) int16 the operator's class, -1 = not labelled.
     verified_pairs: (Q, 2) int64 sample indices; auto_pairs: (P, 2) int64; auto_scores: (P,) float32.
+    fragment_pairs: (F, 2) int64 sample indices of the fragment links (frame t, frame t-1);
+    fragment_scores: (F,) float32 their shared-point share; stitched_pairs: (G, 2) int64 the
+    fragment links the operator confirmed (both samples kept, one object, not unknown).
     """
 
     samples: np.ndarray
@@ -66,6 +73,9 @@ class SceneSamples:
     verified_pairs: np.ndarray
     auto_pairs: np.ndarray
     auto_scores: np.ndarray
+    fragment_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    fragment_scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    stitched_pairs: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
     def __len__(self) -> int:
         return len(self.samples)
@@ -102,6 +112,12 @@ class SceneSamples:
             "verified_pairs": int(len(self.verified_pairs)),
             "auto_pairs": int(len(self.auto_pairs)),
             "auto_pair_precision": float(np.mean(right)) if len(self.auto_pairs) else None,
+            "fragment_pairs": int(len(self.fragment_pairs)),
+            "fragment_pair_precision": float(np.mean(self.gt_object[self.fragment_pairs[:, 0]]
+                                                     == self.gt_object[self.fragment_pairs[:, 1]]))
+            if len(self.fragment_pairs) else None,
+            "stitched_pairs": int(len(self.stitched_pairs)),
+            "stitched_tracks": int(len(np.unique(self.track[self.stitched_pairs]))) if len(self.stitched_pairs) else 0,
         }
 
 
@@ -178,6 +194,15 @@ def operator_review(
     return label, pairs[keep_pair]
 
 
+def confirm_stitches(pairs: np.ndarray, label: np.ndarray, gt_object: np.ndarray) -> np.ndarray:
+    """The careful operator's answer to each stitch: (G, 2) the fragment `pairs` (sample indices)
+    whose two samples lie in the kept parts of accepted tracks and show one object; none for
+    unknown, as for the verified constraints."""
+    a, b = pairs[:, 0], pairs[:, 1]
+    ok = (label[a] >= 0) & (label[b] >= 0) & (gt_object[a] == gt_object[b]) & (label[a] != UNKNOWN)
+    return pairs[ok].astype(np.int64)
+
+
 # Code that shapes the samples: a change to any of these files invalidates cached scenes.
 _SOURCES = ("simulation", "range_image.py", "ground.py", "segmentation.py", "samples.py", "association.py",
             "processing.py", "sensors.py", "classes.py", "experiments/data.py")
@@ -225,8 +250,11 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = Fals
     assert poses is not None, "simulated sequences carry poses"
     route = _route_progress(np.asarray(poses))
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("samples", "frame", "segment", "track", "link_score",
-                                                           "gt_class", "gt_object", "gt_purity")}
+                                                           "gt_class", "gt_object", "gt_purity", "fragments",
+                                                           "fragment_scores")}
     proc = SequenceProcessor(config, sensor)
+    n_done = 0
+    prev_lut = np.zeros(0, np.int64)  # previous frame: segment id -> sample index, -1 = none
     for fr in proc.iter_frames(source, progress=progress, samples=True):
         if fr.scan.semantic is None or fr.scan.instance is None:
             raise ValueError(f"{seq}: frame {fr.name} has no labels")
@@ -241,6 +269,16 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = Fals
         parts["gt_class"].append(cls[s])
         parts["gt_object"].append(key[s])
         parts["gt_purity"].append(pur[s])
+        lut = np.full(n_seg, -1, np.int64)
+        lut[s] = n_done + np.arange(len(s))
+        if len(fr.fragments) and len(prev_lut):
+            fa, fb = lut[fr.fragments[:, 0]], prev_lut[fr.fragments[:, 1]]
+            ok = (fa >= 0) & (fb >= 0)
+            parts["fragments"].append(np.stack([fa[ok], fb[ok]], 1))
+            parts["fragment_scores"].append(np.asarray(fr.fragment_share, np.float32)[ok])
+        prev_lut, n_done = lut, n_done + len(s)
+    parts["fragments"].append(np.zeros((0, 2), np.int64))
+    parts["fragment_scores"].append(np.zeros(0, np.float32))
     arr = {k: np.concatenate(v) for k, v in parts.items()}
     label, verified = operator_review(arr["track"], arr["frame"], arr["gt_class"], arr["gt_object"], arr["gt_purity"])
     auto = track_pairs(arr["track"], arr["frame"])
@@ -250,7 +288,9 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = Fals
         samples=arr["samples"], frame=arr["frame"], segment=arr["segment"], track=arr["track"],
         link_score=arr["link_score"], gt_class=arr["gt_class"], gt_object=arr["gt_object"],
         gt_purity=arr["gt_purity"], progress=route[arr["frame"]], label=label, verified_pairs=verified,
-        auto_pairs=auto, auto_scores=scores,
+        auto_pairs=auto, auto_scores=scores, fragment_pairs=arr["fragments"].astype(np.int64),
+        fragment_scores=arr["fragment_scores"],
+        stitched_pairs=confirm_stitches(arr["fragments"].astype(np.int64), label, arr["gt_object"]),
     )
 
 

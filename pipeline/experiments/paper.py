@@ -18,6 +18,10 @@
    - baseline_max: every label of the training split;
    - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
      weighted by its association score.
+   - constraint100_tracks_only: the paper's constraints, track links alone. The verified
+     constraints of constraint30/60/100 also hold the fragment links of the stitches the operator
+     confirmed (`pipeline.experiments.data`: pieces of one object in other tracks), so that an
+     object's parallel and broken tracks become one component of the must-link graph.
    Extensions, each measured against constraint100 (see `pipeline.training`):
    - constraint100_paper_pairs: the paper's consecutive pairs only (the default draws any two
      samples of a track: `transitive_pairs`);
@@ -62,6 +66,7 @@ SETTINGS: tuple[str, ...] = (
     "constraint100",
     "baseline_max",
     "constraint100_auto",
+    "constraint100_tracks_only",
     "constraint100_paper_pairs",
     "constraint100_no_mask",
     "oracle_objects20",
@@ -189,16 +194,21 @@ def setting_data(
         pairs = oracle_object_pairs(scene, split, unknown_constraints)
         return split.min_labelled, pairs, np.ones(len(pairs), np.float32)
     if name == "constraint100_auto":
-        pairs, weights = scene.auto_pairs, scene.auto_scores
+        # every link and fragment link the association made, unverified, weighted by its score
+        pairs = np.concatenate([scene.auto_pairs, scene.fragment_pairs]).astype(np.int64)
+        weights = np.concatenate([scene.auto_scores, scene.fragment_scores]).astype(np.float32)
         up_to = 2
     else:
         up_to = {"constraint30": 0, "constraint60": 1}.get(name, 2)  # constraint100 and its variants: 2
         pairs = scene.verified_pairs
         if unknown_constraints:  # every link inside the kept part of an accepted track
             pairs = scene.auto_pairs[(scene.label[scene.auto_pairs[:, 0]] >= 0) & (scene.label[scene.auto_pairs[:, 1]] >= 0)]
+        if name != "constraint100_tracks_only":  # the paper's constraints are track links alone
+            pairs = np.concatenate([pairs, scene.stitched_pairs]).astype(np.int64)
         weights = np.ones(len(pairs), np.float32)
     part = route_part(scene.progress)
-    keep = (part[pairs[:, 0]] <= up_to) & ~np.isin(scene.track[pairs[:, 0]], split.val_tracks)
+    # a pair belongs to the part of its earlier sample; both samples must be on training-split tracks
+    keep = (part[pairs].min(axis=1) <= up_to) & ~np.isin(scene.track[pairs], split.val_tracks).any(axis=1)
     return split.min_labelled, pairs[keep], weights[keep]
 
 
@@ -403,7 +413,7 @@ def _adapt(
 
     if pretrained is None or not cfg.adapt or len(test.verified_pairs) == 0:
         return {}
-    pairs = test.verified_pairs
+    pairs = np.concatenate([test.verified_pairs, test.stitched_pairs]).astype(np.int64)
     if not cfg.unknown_constraints:
         pairs = pairs[test.label[pairs[:, 0]] != NUM_SAMPLE_CLASSES - 1]
     out: dict[str, Any] = {}

@@ -21,7 +21,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
-                                    "constraint100_auto", "constraint100_paper_pairs", "constraint100_no_mask",
+                                    "constraint100_auto", "constraint100_tracks_only", "constraint100_paper_pairs", "constraint100_no_mask",
                                     "oracle_objects20", "oracle_object_constraints"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False

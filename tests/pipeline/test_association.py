@@ -204,3 +204,25 @@ def test_association_static_scene_with_exact_poses_links_every_object(data, n_ob
         big = {o for o in range(1, n_objects + 1) if (ga == o).sum() >= 30 and (gb == o).sum() >= 30}
         linked = {db[t] for t in db if t in da and da[t] == db[t]}
         assert big <= linked, (big, linked)
+
+
+def test_association_fragment_links_join_the_pieces_of_a_split():
+    # one box in frame 0; in frame 1 the same surface in two pieces (a dropout gap too wide to
+    # bridge) plus an unrelated box: the unlinked piece gets a fragment link to the whole, the
+    # unrelated box none
+    results, _ = _run([[(100, 124, 12.0), (200, 206, 20.0)],
+                       [(100, 111, 12.0), (117, 124, 12.0), (200, 206, 20.0)]])
+    prev, curr = results
+    assert int(curr.segments.valid.sum()) == 3
+    frag = {(int(a), int(b)) for a, b in curr.fragments}
+    whole = int(prev.segment[np.argmin(np.abs(np.linalg.norm(prev.scan.points, axis=1) - 12.0))])
+    pieces = {int(s) for s in np.flatnonzero(curr.segments.valid)
+              if abs(curr.segments.range[s] - 12.0) < 0.5}
+    linked = {int(s) for s in pieces if curr.segments.track_id[s] == prev.segments.track_id[whole]}
+    assert len(pieces) == 2 and len(linked) == 1
+    assert frag == {(p, whole) for p in pieces - linked}
+    assert np.all(curr.fragment_share >= 0.3)
+    off = PipelineConfig().override({"ground": {"sensor_height": 1.8}, "association": {"fragment_min_share": 0.0}})
+    built = [_frame(f) for f in ([(100, 124, 12.0)], [(100, 111, 12.0), (117, 124, 12.0)])]
+    src = MemorySource([b[0] for b in built], SENSOR, np.tile(np.eye(4), (2, 1, 1)))
+    assert all(len(fr.fragments) == 0 for fr in SequenceProcessor(off, SENSOR).iter_frames(src))

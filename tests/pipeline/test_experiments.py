@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from pipeline.experiments.data import (
     SceneSamples,
+    confirm_stitches,
     operator_review,
     prepare_scene,
     route_part,
@@ -152,3 +155,27 @@ def test_oracle_object_pairs_make_each_labelled_object_one_component():
     assert len(np.unique(scene.track[pairs.ravel()])) > len(np.unique(scene.gt_object[pairs.ravel()]))
     lab, got, w = setting_data("oracle_object_constraints", scene, split)
     assert np.array_equal(lab, split.min_labelled) and np.array_equal(got, pairs) and (w == 1).all()
+
+
+def test_operator_confirms_stitches_of_one_object_only():
+    # samples: 0-1 object 5 (two tracks), 2 object 6, 3 not kept (label -1), 4-5 unknown object 9
+    label = np.array([1, 1, 1, -1, 6, 6], np.int16)
+    obj = np.array([5, 5, 6, 5, 9, 9], np.int64)
+    pairs = np.array([[1, 0], [2, 0], [3, 0], [5, 4]], np.int64)
+    assert confirm_stitches(pairs, label, obj).tolist() == [[1, 0]]
+
+
+def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
+    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+
+    scene = _toy_scene()
+    split = split_scene(scene, PaperConfig(labels_per_class=2))
+    train_t = [t for t in np.unique(scene.track) if t not in split.val_tracks]
+    # stitch two training tracks, and a training track to a validation track
+    a, b = np.flatnonzero(scene.track == train_t[0])[-1], np.flatnonzero(scene.track == train_t[1])[0]
+    v = np.flatnonzero(scene.track == split.val_tracks[0])[0]
+    scene = dataclasses.replace(scene, stitched_pairs=np.array([[b, a], [v, a]], np.int64))
+    _, base, _ = setting_data("constraint100_tracks_only", scene, split)
+    _, stitched, _ = setting_data("constraint100", scene, split)
+    added = {tuple(p) for p in stitched.tolist()} - {tuple(p) for p in base.tolist()}
+    assert added == {(int(b), int(a))}
