@@ -190,7 +190,7 @@ def associate(
     n_b = np.maximum(prev.n_points[vb], 1).astype(np.float64)
     share = votes / n_a[:, None]  # (A, B) share of a's points voting for b
     # fragments: either segment's share of the points they have in common (before any gate)
-    mutual = np.maximum(share, votes / n_b[None, :])  # (A, B)
+    mutual = np.minimum(np.maximum(share, votes / n_b[None, :]), 1.0)  # (A, B); a pixel may take 2 points
     # link score: votes over the larger of the two segments, so that the pieces of a split do not
     # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
     overlap = votes / np.maximum(n_a[:, None], n_b[None, :])

@@ -153,6 +153,7 @@ def run_process(
         "tracks_multi_frame": int((lengths > 1).sum()),
         "tracks_spanning_all_frames": int((lengths == len(names)).sum()) if names else 0,
         "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in builder.tracks.values())),
+        "stitches": len(builder.stitches),
         "mean_track_length": float(lengths.mean()),
         "ms": {k: _stats(v) for k, v in timings.items()},
         "ms_project_ground_segment": _stats(per_frame),

@@ -5,9 +5,13 @@
     {"linked": true, "frames": [names...],
      "tracks": [{"id": 7, "frames": [3, 4, 5], "points": [120, 131, 118],
                  "centroids": [[x, y, z], ...] (world frame, or lidar frame when unlinked),
-                 "scores": [0.91, 0.88]}]}          # one score per link (len(frames) - 1)
+                 "scores": [0.91, 0.88]}],          # one score per link (len(frames) - 1)
+     "stitches": [{"tracks": [7, 12], "links": 5, "share": 0.83}]}
 
-Consecutive frames of a track are must-link constraint pairs.
+Consecutive frames of a track are must-link constraint pairs. A stitch joins two tracks whose
+segments are pieces of one object that split, merged or reshuffled between frames (the
+association's fragment links: `links` of them, the largest shared-point `share`); once an operator
+confirms that both tracks show one object, its fragment links are must-link pairs too.
 """
 
 from __future__ import annotations
@@ -47,9 +51,20 @@ class TrackBuilder:
 
     def __init__(self) -> None:
         self.tracks: dict[int, Track] = {}
+        self.stitches: dict[tuple[int, int], list[float]] = {}  # (track a, track b), a < b -> [links, share]
+        self._prev_track_id = np.zeros(0, np.int64)
 
     def add(self, fr: FrameResult) -> None:
         seg = fr.segments
+        if len(fr.fragments) and len(self._prev_track_id):
+            ta = seg.track_id[fr.fragments[:, 0]]
+            tb = self._prev_track_id[fr.fragments[:, 1]]
+            for a, b, share in zip(ta.tolist(), tb.tolist(), fr.fragment_share.tolist(), strict=True):
+                if a > 0 and b > 0 and a != b:
+                    st = self.stitches.setdefault((min(a, b), max(a, b)), [0, 0.0])
+                    st[0] += 1
+                    st[1] = max(st[1], share)
+        self._prev_track_id = np.asarray(seg.track_id, np.int64)
         for s in np.flatnonzero(seg.track_id > 0):
             tid = int(seg.track_id[s])
             tr = self.tracks.get(tid)
@@ -74,6 +89,8 @@ class TrackBuilder:
             "linked": linked,
             "frames": frame_names,
             "tracks": [t.to_dict() for t in sorted(self.tracks.values(), key=lambda t: t.id)],
+            "stitches": [{"tracks": [a, b], "links": int(n), "share": round(float(sh), 3)}
+                         for (a, b), (n, sh) in sorted(self.stitches.items())],
         }
         Path(path).write_text(json.dumps(data, separators=(",", ":")))
 

@@ -29,8 +29,16 @@ def test_cli_process_writes_track_labels_json_and_summary(sim, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 6 and summary["linked"]
     assert summary["ms_project_ground_segment"]["median"] > 0
-    tracks = json.loads((out / "tracks.json").read_text())["tracks"]
+    doc = json.loads((out / "tracks.json").read_text())
+    tracks = doc["tracks"]
     assert any(len(t["frames"]) == 6 for t in tracks)
+    # stitches join two different tracks that exist in consecutive frames
+    frames_of = {t["id"]: set(t["frames"]) for t in tracks}
+    assert summary["stitches"] == len(doc["stitches"]) > 0
+    for st in doc["stitches"]:
+        a, b = st["tracks"]
+        assert a < b and st["links"] >= 1 and 0.3 <= st["share"] <= 1.0
+        assert any(f + 1 in frames_of[b] or f - 1 in frames_of[b] for f in frames_of[a])
     for t in tracks:
         assert len(t["scores"]) == len(t["frames"]) - 1
         assert t["frames"] == list(range(t["frames"][0], t["frames"][0] + len(t["frames"])))
