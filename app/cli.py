@@ -209,6 +209,7 @@ def experiment_paper(
     unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints", help="Also the constraints of unknown tracks (the paper has none).")] = False,
     test_style: Annotated[str, typer.Option(help="Campus style of test scene D (a or b).")] = "b",
     bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
+    train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
@@ -217,7 +218,8 @@ def experiment_paper(
     from pipeline.experiments.paper import PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "test_style": test_style, "bridge_pixels": bridge_pixels}
+                             "test_style": test_style, "bridge_pixels": bridge_pixels,
+                             "train_seed": train_seed}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
                        ("crowd", crowd), ("cyclists", cyclists)):

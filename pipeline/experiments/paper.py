@@ -105,6 +105,7 @@ class PaperConfig:
     cyclists: float = 3.0  # simulator: further factor on cyclists
     test_style: str = "b"  # campus style of D: another part of town (pipeline.simulation.style)
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
+    train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
     bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
@@ -128,7 +129,7 @@ class PaperConfig:
             lr=self.lr,
             lr_schedule=self.lr_schedule,
             transitive_pairs=self.transitive_pairs,
-            seed=self.seed,
+            seed=self.seed if self.train_seed is None else self.train_seed,
             balance_weight=self.balance_weight,
             augment=self.augment,
             balanced_labels=self.balanced_labels,
