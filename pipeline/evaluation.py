@@ -167,6 +167,39 @@ def evaluate_frames(frames: list[FrameTruth], links: list[tuple[int, int, int]])
     return _summarise(acc)
 
 
+def track_objects(frames: list[FrameTruth]) -> tuple[np.ndarray, np.ndarray]:
+    """(track ids (T,) int64 sorted, dominant instance key (T,) int64 of each): the instance key
+    holding most of the track's points over all its frames."""
+    tids, keys = [], []
+    for ft in frames:
+        m = ft.track > 0
+        tids.append(ft.track[m].astype(np.int64))
+        keys.append(ft.inst_key[m] & 0xFFFFFF)
+    tid, key = _cat(tids, np.int64), _cat(keys, np.int64)
+    if len(tid) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    pair, cnt = np.unique((tid << 24) | key, return_counts=True)
+    t = pair >> 24
+    order = np.lexsort((-cnt, t))
+    pair, t = pair[order], t[order]
+    first = np.ones(len(t), bool)
+    first[1:] = t[1:] != t[:-1]
+    return t[first], pair[first] & 0xFFFFFF
+
+
+def evaluate_stitches(frames: list[FrameTruth], stitches: np.ndarray) -> dict:
+    """How often a stitch (S, 2) track ids joins tracks whose dominant object is one instance
+    (`same_object`) or one class (`same_class`); None where there are no stitches."""
+    ids, obj = track_objects(frames)
+    st = np.asarray(stitches, np.int64).reshape(-1, 2)
+    st = st[np.isin(st, ids).all(axis=1)]
+    if len(st) == 0:
+        return {"stitches": 0, "same_object": None, "same_class": None}
+    a, b = obj[np.searchsorted(ids, st[:, 0])], obj[np.searchsorted(ids, st[:, 1])]
+    return {"stitches": int(len(st)), "same_object": float(np.mean(a == b)),
+            "same_class": float(np.mean((a >> 16) == (b >> 16)))}
+
+
 def _cat(xs: list[np.ndarray], dtype=np.float64) -> np.ndarray:
     return np.concatenate(xs).astype(dtype) if xs else np.zeros(0, dtype)
 
@@ -222,6 +255,10 @@ def format_table(result: dict) -> str:
 
     lines.append(row("overall", result["overall"]))
     lines.append(f"over-segmentation (segments per object): {f(result['overall'].get('over_segmentation'), False)}")
+    st = result.get("stitches")
+    if st:
+        lines.append(f"stitches: {st['stitches']}, joining one object {f(st['same_object']).strip()} %, "
+                     f"one class {f(st['same_class']).strip()} %")
     lines.append("-- per class")
     lines += [row(k, v) for k, v in result["per_class"].items()]
     lines.append("-- per range (m)")

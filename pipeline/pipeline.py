@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
-from pipeline.evaluation import FrameTruth, evaluate_frames, object_keys
+from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys
 from pipeline.io import open_sequence
 from pipeline.processing import SequenceProcessor
 from pipeline.scan import Scan, SequenceSource
@@ -205,4 +205,6 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) ->
                 links.append((index_of[a], t.id))
     result = evaluate_frames(frames, links)
     result["frames"] = len(frames)
+    stitches = np.asarray([st["tracks"] for st in doc.get("stitches", [])], np.int64).reshape(-1, 2)
+    result["stitches"] = evaluate_stitches(frames, stitches)
     return result

@@ -86,6 +86,9 @@ def test_cli_evaluate_reports_purity_and_association(sim, tmp_path):
     assert metrics["overall"]["purity"] > 0.95
     assert metrics["overall"]["association_precision"] > 0.95
     assert "purity" in res.output and "per class" in res.output
+    st = metrics["stitches"]
+    assert st["stitches"] > 0 and 0.5 < st["same_object"] <= st["same_class"] <= 1.0
+    assert "stitches:" in res.output
 
 
 def test_cli_process_without_poses_says_so_and_makes_one_frame_tracks(sim, tmp_path):

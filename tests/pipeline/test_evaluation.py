@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation import FrameTruth, evaluate_frames, object_keys
+from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys
 
 CAR, BUSH = 10, 70  # SemanticKITTI ids
 
@@ -51,3 +51,15 @@ def test_evaluation_per_range_bins():
     f0 = _frame([1] * 10, [CAR] * 10, [1] * 10, dist=40.0)
     res = evaluate_frames([f0], links=[])
     assert res["per_range"]["30-50"]["segments"] == 1 and res["per_range"]["0-15"]["segments"] == 0
+
+
+def test_evaluation_stitches_by_dominant_object_of_each_track():
+    # track 1: bush#3 over two frames; track 2: bush#3 (a piece of it); track 3: bush#4 (another
+    # bush: same class, other object); track 4: car#1 whose frame-0 segment held 2 bush points
+    f0 = _frame([1] * 6 + [2] * 3 + [3] * 4 + [4] * 7, [BUSH] * 13 + [BUSH] * 2 + [CAR] * 5,
+                [3] * 9 + [4] * 4 + [3] * 2 + [1] * 5)
+    f1 = _frame([1] * 5 + [4] * 5, [BUSH] * 5 + [CAR] * 5, [3] * 5 + [1] * 5)
+    res = evaluate_stitches([f0, f1], np.array([[1, 2], [1, 3], [1, 4], [2, 99]]))
+    assert res["stitches"] == 3  # track 99 does not exist
+    assert res["same_object"] == 1 / 3 and res["same_class"] == 2 / 3
+    assert evaluate_stitches([f0, f1], np.zeros((0, 2), np.int64))["same_object"] is None
