@@ -41,6 +41,7 @@ from app.models import (
     PairConstraint,
     Segment,
     Sequence,
+    Stitch,
     Track,
     User,
     utcnow,
@@ -584,6 +585,7 @@ def clear_sequence_rows(session: Session, sequence_id: int) -> None:
     session.execute(delete(Label).where(Label.sequence_id == sequence_id))
     session.execute(delete(AnchorProposal).where(AnchorProposal.sequence_id == sequence_id))
     session.execute(delete(PairConstraint).where(PairConstraint.sequence_id == sequence_id))
+    session.execute(delete(Stitch).where(Stitch.sequence_id == sequence_id))
     session.execute(update(AnnotationEvent).where(AnnotationEvent.track_id.in_(tracks)).values(reverts_event_id=None))
     session.execute(delete(AnnotationEvent).where(AnnotationEvent.track_id.in_(tracks)))
     session.execute(delete(Segment).where(Segment.sequence_id == sequence_id))
@@ -591,7 +593,7 @@ def clear_sequence_rows(session: Session, sequence_id: int) -> None:
     session.execute(delete(Frame).where(Frame.sequence_id == sequence_id))
 
 
-BULK_TABLES = ("tracks", "segments", "constraints", "frames")
+BULK_TABLES = ("tracks", "segments", "constraints", "stitches", "frames")
 
 
 def analyze_tables(session: Session) -> None:
@@ -653,13 +655,18 @@ def progress_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
 def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
     """Constraint pairs inside the kept range of non-discarded tracks (accepted only when verified_only).
 
+    Two kinds: track links (`must_link`, both segments in one track) and the fragment links of
+    stitches (`fragment`: each segment in its own track's kept range, both tracks not discarded and
+    the stitch not rejected; verified when the stitch is confirmed and both tracks are accepted).
+
     Columns: id, track_id, segment_a_id, segment_b_id, frame_a, frame_b, score, verified.
     """
+    from sqlalchemy import and_, union_all
     from sqlalchemy.orm import aliased
 
     sa, sb = aliased(Segment), aliased(Segment)
     verified = (Track.status == "accepted").label("verified")
-    q = (
+    links = (
         select(
             PairConstraint.id,
             PairConstraint.track_id,
@@ -674,17 +681,48 @@ def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
         .join(sa, sa.id == PairConstraint.segment_a_id)
         .join(sb, sb.id == PairConstraint.segment_b_id)
         .where(
+            PairConstraint.kind == "must_link",
             Track.status != "discarded",
             sa.frame_index >= Track.keep_start,
             sb.frame_index <= Track.keep_end,
         )
-        .order_by(PairConstraint.id)
+    )
+    fa, fb = aliased(Segment), aliased(Segment)
+    ta, tb = aliased(Track), aliased(Track)
+    frag_verified = and_(Stitch.status == "confirmed", ta.status == "accepted", tb.status == "accepted")
+    fragments = (
+        select(
+            PairConstraint.id,
+            PairConstraint.track_id,
+            PairConstraint.segment_a_id,
+            PairConstraint.segment_b_id,
+            fa.frame_index.label("frame_a"),
+            fb.frame_index.label("frame_b"),
+            PairConstraint.score,
+            frag_verified.label("verified"),
+        )
+        .join(Stitch, Stitch.id == PairConstraint.stitch_id)
+        .join(fa, fa.id == PairConstraint.segment_a_id)
+        .join(fb, fb.id == PairConstraint.segment_b_id)
+        .join(ta, ta.id == fa.track_id)
+        .join(tb, tb.id == fb.track_id)
+        .where(
+            PairConstraint.kind == "fragment",
+            Stitch.status != "rejected",
+            ta.status != "discarded",
+            tb.status != "discarded",
+            fa.frame_index.between(ta.keep_start, ta.keep_end),
+            fb.frame_index.between(tb.keep_start, tb.keep_end),
+        )
     )
     if sequence_id is not None:
-        q = q.where(PairConstraint.sequence_id == sequence_id)
+        links = links.where(PairConstraint.sequence_id == sequence_id)
+        fragments = fragments.where(PairConstraint.sequence_id == sequence_id)
     if verified_only:
-        q = q.where(Track.status == "accepted")
-    return q
+        links = links.where(Track.status == "accepted")
+        fragments = fragments.where(frag_verified)
+    both = union_all(links, fragments).subquery()
+    return select(both).order_by(both.c.id)
 
 
 def verified_constraints_query(sequence_id: int | None) -> Any:

@@ -204,8 +204,35 @@ class Segment(Base):
     sample_index: Mapped[int | None] = mapped_column(Integer)
 
 
+class Stitch(Base):
+    """Two tracks joined by the association's fragment links: pieces of one object that split,
+    merged or reshuffled between frames (`pipeline.association.Links.fragments`). An operator
+    confirms (one object) or rejects it; the fragment pairs of a confirmed stitch between two
+    accepted tracks are verified constraints. track_a_id < track_b_id."""
+
+    __tablename__ = "stitches"
+    __table_args__ = (
+        UniqueConstraint("track_a_id", "track_b_id"),
+        CheckConstraint(_in("status", ("pending", "confirmed", "rejected")), name="status"),
+        Index("ix_stitches_sequence_id_status", "sequence_id", "status"),
+    )
+
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"), index=True)
+    track_a_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    track_b_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    links: Mapped[int] = mapped_column(Integer, default=0)  # fragment pairs joining the two tracks
+    share: Mapped[float] = mapped_column(Float, default=0.0)  # their largest shared-point share
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    version: Mapped[int] = mapped_column(Integer, default=1)
+    decided_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    decided_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
 class PairConstraint(Base):
-    """A must-link pair of samples: consecutive valid samples of one track, with the link score."""
+    """A must-link pair of samples: consecutive valid samples of one track (kind `must_link`), or
+    a fragment link between two tracks of a stitch (kind `fragment`, `stitch_id` set; segment_a is
+    in `track_id` at frame t, segment_b in the other track at t-1), with its score."""
 
     __tablename__ = "constraints"
 
@@ -216,6 +243,8 @@ class PairConstraint(Base):
     segment_b_id: Mapped[int] = mapped_column(ForeignKey("segments.id", ondelete="CASCADE"))
     score: Mapped[float] = mapped_column(Float)
     kind: Mapped[str] = mapped_column(String(16), default="must_link")
+    # migration 0007: the stitch of a fragment pair
+    stitch_id: Mapped[int | None] = mapped_column(ForeignKey("stitches.id", ondelete="CASCADE"), index=True)
 
 
 class Label(Base):

@@ -319,3 +319,35 @@ class AnchorEventPublic(_Public):
     action: Literal["confirm", "correct", "reject"]
     class_name: str | None
     created_at: datetime
+
+
+# ----------------------------------------------------------------------------- stitches (issue 5)
+StitchStatus = Literal["pending", "confirmed", "rejected"]
+
+
+class StitchPublic(_Public):
+    """Two tracks joined by the association's fragment links (pieces of one object that split,
+    merged or reshuffled between frames). Confirmed: one object; its fragment pairs become
+    verified constraints once both tracks are accepted."""
+
+    id: int
+    sequence_id: int
+    track_a_id: int
+    track_b_id: int
+    links: int = Field(description="Fragment pairs joining the two tracks.")
+    share: float = Field(description="Largest share of a segment's points shared by a linked pair.")
+    status: StitchStatus
+    version: int
+    decided_by_id: int | None
+    decided_at: datetime | None
+
+
+class StitchList(BaseModel):
+    items: list[StitchPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class StitchDecision(_Request):
+    version: int = Field(ge=1, le=2**31 - 1, description="The stitch version the decision was made on.")

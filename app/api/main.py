@@ -4,8 +4,20 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from app.api.routes import anchors, datasets, exports, frames, health, jobs, models, review, tracks, users
+from app.api.routes import (
+    anchors,
+    datasets,
+    exports,
+    frames,
+    health,
+    jobs,
+    models,
+    review,
+    stitches,
+    tracks,
+    users,
+)
 
 api_router = APIRouter()
-for module in (health, users, datasets, frames, tracks, review, exports, jobs, models, anchors):
+for module in (health, users, datasets, frames, tracks, review, exports, jobs, models, anchors, stitches):
     api_router.include_router(module.router)

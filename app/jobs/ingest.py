@@ -4,7 +4,8 @@
 2. Run `SequenceProcessor.iter_frames` in frame order.
 3. Every `ingest_batch_frames` frames: the new tracks (one short transaction), the frames'
    artifact files (no lock held), then in one transaction the frames, segments, constraint pairs
-   and track statistics. A frame row is visible only together with all its segments; a killed attempt leaves whole
+   (track links, and the fragment links that join two tracks into a stitch) and track and
+   stitch statistics. A frame row is visible only together with all its segments; a killed attempt leaves whole
    batches, which the next attempt (another worker, after the lease expires) rolls back and redoes.
 4. Mark the sequence `ready`. Reviews need a ready sequence, so no operator work is lost by step 1.
 """
@@ -27,7 +28,7 @@ from app.artifacts import FrameArtifact
 from app.core.errors import Conflict, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
-from app.models import Frame, Job, PairConstraint, Segment, Sequence, Track, utcnow
+from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
 
 
 class IngestParams(BaseModel):
@@ -92,13 +93,27 @@ class _TrackAcc:
 
 
 @dataclass
+class _StitchAcc:
+    """Running statistics of one stitch during ingest."""
+
+    db_id: int
+    links: int = 0
+    share: float = 0.0
+
+
+@dataclass
 class _IngestState:
     sequence_id: int
     tracks: dict[int, _TrackAcc] = field(default_factory=dict)
+    stitches: dict[tuple[int, int], _StitchAcc] = field(default_factory=dict)  # (track a, track b) db ids
     frames: int = 0
     segments: int = 0
     constraints: int = 0
+    fragments: int = 0
     skipped: list[str] = field(default_factory=list)
+    # the previous frame's segment rows and their tracks (fragment links point at them)
+    prev_seg_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    prev_db_track: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
@@ -159,6 +174,8 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         "segments": state.segments,
         "tracks": len(state.tracks),
         "constraints": state.constraints,
+        "fragments": state.fragments,
+        "stitches": len(state.stitches),
         "skipped": state.skipped,
         "linked": bool(getattr(processor, "linked", True)),
     }
@@ -182,8 +199,15 @@ def _write_batch(ctx: JobContext, state: _IngestState, frames: list[Any]) -> Non
     rels = [_write_artifact(ctx, state, fr) for fr in frames]
     with ctx.db.write() as s:
         touched: set[int] = set()
+        stitched: set[tuple[int, int]] = set()
         for fr, rel in zip(frames, rels, strict=True):
-            _write_frame(s, state, fr, rel, touched)
+            _write_frame(s, state, fr, rel, touched, stitched)
+        if stitched:
+            s.execute(
+                update(Stitch),
+                [{"id": state.stitches[k].db_id, "links": state.stitches[k].links, "share": state.stitches[k].share}
+                 for k in sorted(stitched)],
+            )
         if touched:
             s.execute(
                 update(Track),
@@ -271,7 +295,9 @@ def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
     )
 
 
-def _write_frame(s: Session, state: _IngestState, fr: Any, rel: str, touched: set[int]) -> None:
+def _write_frame(
+    s: Session, state: _IngestState, fr: Any, rel: str, touched: set[int], stitched: set[tuple[int, int]]
+) -> None:
     seg = fr.segments
     n_seg = len(seg.n_points)
     keys = np.asarray(seg.track_id, dtype=np.int64)
@@ -297,6 +323,7 @@ def _write_frame(s: Session, state: _IngestState, fr: Any, rel: str, touched: se
     ).scalar_one()
     state.frames += 1
     if n_seg == 0:
+        state.prev_seg_ids, state.prev_db_track = np.zeros(0, np.int64), np.zeros(0, np.int64)
         return
 
     cen, cw = np.asarray(seg.centroid, np.float64), np.asarray(seg.centroid_world, np.float64)
@@ -354,6 +381,55 @@ def _write_frame(s: Session, state: _IngestState, fr: Any, rel: str, touched: se
     if pairs:
         s.execute(insert(PairConstraint), pairs)
         state.constraints += len(pairs)
+    _write_fragments(s, state, fr, seg_ids, db_track, sample_index, stitched)
+    state.prev_seg_ids, state.prev_db_track = seg_ids, db_track
+
+
+def _write_fragments(
+    s: Session,
+    state: _IngestState,
+    fr: Any,
+    seg_ids: np.ndarray,
+    db_track: np.ndarray,
+    sample_index: np.ndarray,
+    stitched: set[tuple[int, int]],
+) -> None:
+    """The frame's fragment links (this frame's segment, previous frame's segment) between two
+    different tracks: a stitch row per new track pair, a `fragment` constraint row per link."""
+    frag = np.asarray(getattr(fr, "fragments", np.zeros((0, 2))), np.int64).reshape(-1, 2)
+    if len(frag) == 0 or len(state.prev_seg_ids) == 0:
+        return
+    share = np.asarray(getattr(fr, "fragment_share", np.zeros(len(frag))), np.float64)
+    ok = (frag[:, 0] < len(seg_ids)) & (frag[:, 1] < len(state.prev_seg_ids))
+    frag, share = frag[ok], share[ok]
+    ta, tb = db_track[frag[:, 0]], state.prev_db_track[frag[:, 1]]
+    ok = (ta > 0) & (tb > 0) & (ta != tb) & (sample_index[frag[:, 0]] >= 0)
+    frag, share, ta, tb = frag[ok], share[ok], ta[ok], tb[ok]
+    if len(frag) == 0:
+        return
+    keys = [(int(min(a, b)), int(max(a, b))) for a, b in zip(ta, tb, strict=True)]
+    new = sorted({k for k in keys if k not in state.stitches})
+    if new:
+        s.execute(insert(Stitch), [{"sequence_id": state.sequence_id, "track_a_id": a, "track_b_id": b,
+                                    "links": 0, "share": 0.0, "status": "pending", "version": 1} for a, b in new])
+        for sid, a, b in s.execute(
+            select(Stitch.id, Stitch.track_a_id, Stitch.track_b_id).where(
+                Stitch.sequence_id == state.sequence_id, Stitch.track_a_id.in_({a for a, _ in new}),
+                Stitch.track_b_id.in_({b for _, b in new}))
+        ).all():
+            if (int(a), int(b)) not in state.stitches:
+                state.stitches[(int(a), int(b))] = _StitchAcc(int(sid))
+    rows = []
+    for k, (i, j), a, sh in zip(keys, frag, ta, share, strict=True):
+        acc = state.stitches[k]
+        acc.links += 1
+        acc.share = max(acc.share, float(sh))
+        stitched.add(k)
+        rows.append({"sequence_id": state.sequence_id, "track_id": int(a), "segment_a_id": int(seg_ids[i]),
+                     "segment_b_id": int(state.prev_seg_ids[j]), "score": float(sh), "kind": "fragment",
+                     "stitch_id": acc.db_id})
+    s.execute(insert(PairConstraint), rows)
+    state.fragments += len(rows)
 
 
 def _finite(value: Any) -> float | None:

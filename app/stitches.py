@@ -1,0 +1,71 @@
+"""Stitches in the database: listing them and the operator's decision (confirm: the two tracks
+show one object; reject: they do not). Routes: app/api/routes/stitches.py; rows are written by
+ingest (app/jobs/ingest.py), and `crud.constraints_query` turns a confirmed stitch's fragment
+pairs into verified constraints.
+
+A decision locks the stitch row, checks its version (stale -> Conflict, nothing changes) and that
+its sequence is ready, records the status, who and when, and bumps the version. A decision can be
+changed later with the new version (an operator who confirmed by mistake rejects it).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.core.errors import Conflict, NotFound
+from app.crud import AuthUser
+from app.models import Sequence, Stitch, utcnow
+
+DECISIONS = {"confirm": "confirmed", "reject": "rejected"}
+
+
+def list_stitches(
+    session: Session,
+    sequence_id: int | None,
+    status: str | None,
+    track_id: int | None,
+    limit: int,
+    offset: int,
+) -> tuple[list[Stitch], int]:
+    """Stitches filtered by sequence, status and track (either side), most links first."""
+    where: list[Any] = []
+    if sequence_id is not None:
+        where.append(Stitch.sequence_id == sequence_id)
+    if status is not None:
+        where.append(Stitch.status == status)
+    if track_id is not None:
+        where.append((Stitch.track_a_id == track_id) | (Stitch.track_b_id == track_id))
+    total = session.scalar(select(func.count()).select_from(Stitch).where(*where)) or 0
+    items = session.scalars(
+        select(Stitch).where(*where).order_by(Stitch.links.desc(), Stitch.id).limit(limit).offset(offset)
+    ).all()
+    return list(items), int(total)
+
+
+def get_stitch(session: Session, stitch_id: int) -> Stitch:
+    st = session.get(Stitch, stitch_id)
+    if st is None:
+        raise NotFound(f"stitch {stitch_id} not found")
+    return st
+
+
+def decide_stitch(session: Session, stitch_id: int, user: AuthUser, decision: str, version: int) -> Stitch:
+    """Confirm or reject a stitch decided on `version` and commit. Unknown -> NotFound; stale
+    version or a sequence that is not ready -> Conflict."""
+    st = session.scalars(select(Stitch).where(Stitch.id == stitch_id).with_for_update()).first()
+    if st is None:
+        raise NotFound(f"stitch {stitch_id} not found")
+    seq_status = session.scalar(select(Sequence.status).where(Sequence.id == st.sequence_id))
+    if seq_status != "ready":
+        raise Conflict(f"sequence {st.sequence_id} is {seq_status}; stitches can be decided once it is ready")
+    if version != st.version:
+        raise Conflict(f"stale version {version}: stitch {stitch_id} is at version {st.version}")
+    st.status = DECISIONS[decision]
+    st.version += 1
+    st.decided_by_id = user.id
+    st.decided_at = utcnow()
+    session.commit()
+    return st
