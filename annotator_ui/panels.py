@@ -357,3 +357,78 @@ class AnchorsPanel:
         except ApiError as exc:
             self.notify("Anchor answer not saved", exc.detail, "red")
         self.refresh()
+
+
+STITCHES_PATH = "/stitches"
+
+
+class StitchesPanel:
+    """Stitches (`/stitches`): two tracks joined by fragment links, pieces of one object. The
+    panel lists the pending stitches of the shown track (else of the shown sequence), most links
+    first; the operator confirms (one object: its fragment pairs become constraints once both
+    tracks are accepted), rejects, or opens either track in the 3D view. Without that API the
+    panel says so and stays disabled."""
+
+    PAGE = 8
+
+    def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
+                 sequence_id: Callable[[], int | None], track_id: Callable[[], int | None],
+                 open_track: Callable[[int], None]) -> None:
+        self.gui = gui
+        self.api = api
+        self.notify = notify
+        self.sequence_id = sequence_id
+        self.track_id = track_id
+        self.open_track = open_track
+        self.available = False
+        self.gui_status = gui.add_markdown("Checking for stitches ...")
+        self.gui_refresh = gui.add_button("Refresh stitches", icon=viser.Icon.REFRESH, disabled=True)
+        self.gui_refresh.on_click(lambda _: self.refresh())
+        self._items: list[Any] = []
+
+    def refresh(self) -> None:
+        self.available = self.api.has_route("get", STITCHES_PATH)
+        self.gui_refresh.disabled = not self.available
+        if not self.available:
+            self.gui_status.content = "**No stitches.** This track service has no stitches API."
+            return
+        track, seq = self.track_id(), self.sequence_id()
+        params: dict[str, Any] = {"status": "pending", "limit": self.PAGE}
+        if track is not None:
+            params["track_id"] = track
+        elif seq is not None:
+            params["sequence_id"] = seq
+        try:
+            body = self.api.get(STITCHES_PATH, **params)
+        except ApiError as exc:
+            self.gui_status.content = f"Stitches unavailable: {exc.detail}"
+            return
+        self._render(body.get("items", []), int(body.get("total", 0)), track)
+
+    def _render(self, items: list[dict[str, Any]], total: int, track: int | None) -> None:
+        for h in self._items:
+            h.remove()
+        self._items = []
+        where = f"of track {track}" if track is not None else "of this sequence"
+        if not items:
+            self.gui_status.content = f"**No pending stitches** {where}."
+            return
+        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"
+        for item in items:
+            a, b = int(item["track_a_id"]), int(item["track_b_id"])
+            self._items.append(self.gui.add_markdown(
+                f"#{item['id']} · track {a} ↔ track {b} · {item['links']} links · share {item['share']:.2f}"))
+            group = self.gui.add_button_group(f"Stitch #{item['id']}", ("One object", "Different", f"Show {a}", f"Show {b}"))
+            group.on_click(lambda e, it=item: self._decide(it, e.target.value))
+            self._items.append(group)
+
+    def _decide(self, item: dict[str, Any], what: str) -> None:
+        if what.startswith("Show "):
+            self.open_track(int(what.split()[1]))
+            return
+        action = "confirm" if what == "One object" else "reject"
+        try:
+            self.api.post(f"{STITCHES_PATH}/{item['id']}/{action}", {"version": int(item["version"])})
+        except ApiError as exc:
+            self.notify("Stitch decision not saved", exc.detail, "red")
+        self.refresh()

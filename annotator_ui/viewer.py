@@ -27,7 +27,7 @@ from annotator_ui.client import ApiClient, ApiError, StaleEdit
 from annotator_ui.colours import COLOUR_MODES, ColourMode, fade, legend_html, point_colours
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.geometry import pick_point, polyline_segments, pose_matrix, world_to_lidar
-from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel
+from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.review import QueueCoordinator, ReviewSession
 from annotator_ui.samples import blank_image, sample_image
 from pipeline.classes import SAMPLE_CLASSES
@@ -138,6 +138,10 @@ class ClientTab:
         with tabs.add_tab("Anchors", viser.Icon.ANCHOR):
             self.anchors = AnchorsPanel(gui, self.api, self.notify, self.sequence_id,
                                         lambda tid: self.later(lambda: self.open_track(tid)))
+        with tabs.add_tab("Stitches", viser.Icon.LINK):
+            self.stitches = StitchesPanel(gui, self.api, self.notify, self.sequence_id,
+                                          lambda: self.session.track_id,
+                                          lambda tid: self.later(lambda: self.open_track(tid)))
 
     def sequence_id(self) -> int | None:
         """The sequence under review: the shown track's, else the first ready one."""
@@ -258,6 +262,7 @@ class ClientTab:
         except ApiError as exc:
             self.notify("Cannot load a track", exc.detail, "red")
         self.render_track(reset_camera=True)
+        self.later(self.stitches.refresh)  # the shown track's stitches
 
     # ------------------------------------------------------------------ frames and playback
     def _on_slider(self, event: viser.GuiEvent) -> None:

@@ -13,7 +13,7 @@ import pytest
 
 from annotator_ui.client import ApiClient
 from annotator_ui.headless import HeadlessClient, is_points
-from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, learning_curve
+from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel, learning_curve
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 
 TRACK_RE = re.compile(r"\*\*Track (\d+)\*\*")
@@ -257,3 +257,24 @@ def test_viewer_without_token_each_tab_signs_in(live_api):
         c.close()
     finally:
         v.stop()
+
+
+def test_viewer_stitches_panel_lists_the_tracks_stitches_and_decides_them(viewer, tab_client, live_api):
+    panel: StitchesPanel = viewer.tabs[0].stitches
+    api = ApiClient(live_api.url, live_api.admin_token)
+    pending = api.get("/stitches", status="pending", limit=1000)
+    assert pending["total"] > 0  # the live service ingested a simulated scene with the real pipeline
+    st = pending["items"][0]
+    viewer.tabs[0].open_track(int(st["track_a_id"]))
+    wait_until(lambda: viewer.tabs[0].session.track_id == st["track_a_id"])
+    panel.refresh()
+    assert f"of track {st['track_a_id']}" in panel.gui_status.content and "pending stitches" in panel.gui_status.content
+    panel._decide(st, "One object")
+    assert api.get(f"/stitches/{st['id']}")["status"] == "confirmed"
+    panel._decide(st, "Different")  # decided on the old version: refused, and said so
+    assert api.get(f"/stitches/{st['id']}")["status"] == "confirmed"
+    panel._decide(api.get(f"/stitches/{st['id']}"), "Different")
+    assert api.get(f"/stitches/{st['id']}")["status"] == "rejected"
+    panel._decide(st, f"Show {st['track_b_id']}")
+    wait_until(lambda: viewer.tabs[0].session.track_id == st["track_b_id"])
+    api.close()
