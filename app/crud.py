@@ -664,19 +664,14 @@ def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
     from sqlalchemy import and_, union_all
     from sqlalchemy.orm import aliased
 
+    def pair_columns(sa: Any, sb: Any, verified: Any) -> Any:
+        return select(PairConstraint.id, PairConstraint.track_id, PairConstraint.segment_a_id,
+                      PairConstraint.segment_b_id, sa.frame_index.label("frame_a"), sb.frame_index.label("frame_b"),
+                      PairConstraint.score, verified.label("verified"))
+
     sa, sb = aliased(Segment), aliased(Segment)
-    verified = (Track.status == "accepted").label("verified")
     links = (
-        select(
-            PairConstraint.id,
-            PairConstraint.track_id,
-            PairConstraint.segment_a_id,
-            PairConstraint.segment_b_id,
-            sa.frame_index.label("frame_a"),
-            sb.frame_index.label("frame_b"),
-            PairConstraint.score,
-            verified,
-        )
+        pair_columns(sa, sb, Track.status == "accepted")
         .join(Track, Track.id == PairConstraint.track_id)
         .join(sa, sa.id == PairConstraint.segment_a_id)
         .join(sb, sb.id == PairConstraint.segment_b_id)
@@ -691,16 +686,7 @@ def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
     ta, tb = aliased(Track), aliased(Track)
     frag_verified = and_(Stitch.status == "confirmed", ta.status == "accepted", tb.status == "accepted")
     fragments = (
-        select(
-            PairConstraint.id,
-            PairConstraint.track_id,
-            PairConstraint.segment_a_id,
-            PairConstraint.segment_b_id,
-            fa.frame_index.label("frame_a"),
-            fb.frame_index.label("frame_b"),
-            PairConstraint.score,
-            frag_verified.label("verified"),
-        )
+        pair_columns(fa, fb, frag_verified)
         .join(Stitch, Stitch.id == PairConstraint.stitch_id)
         .join(fa, fa.id == PairConstraint.segment_a_id)
         .join(fb, fb.id == PairConstraint.segment_b_id)

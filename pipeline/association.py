@@ -189,8 +189,6 @@ def associate(
     n_a = np.maximum(curr.n_points[va], 1).astype(np.float64)
     n_b = np.maximum(prev.n_points[vb], 1).astype(np.float64)
     share = votes / n_a[:, None]  # (A, B) share of a's points voting for b
-    # fragments: either segment's share of the points they have in common (before any gate)
-    mutual = np.minimum(np.maximum(share, votes / n_b[None, :]), 1.0)  # (A, B); a pixel may take 2 points
     # link score: votes over the larger of the two segments, so that the pieces of a split do not
     # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
     overlap = votes / np.maximum(n_a[:, None], n_b[None, :])
@@ -269,13 +267,18 @@ def associate(
                     continue  # another candidate is nearly as close: ambiguous
                 links.prev[va[free_a[i]]] = vb[free_b[j]]
                 links.score[va[free_a[i]]] = float(1.0 - dij / config.max_centroid_distance) * 0.5
-    return _with_fragments(links, mutual, va, vb, config.fragment_min_share)
+    return _with_fragments(links, votes, n_a, n_b, va, vb, config.fragment_min_share)
 
 
-def _with_fragments(links: Links, mutual: np.ndarray, va: np.ndarray, vb: np.ndarray, min_share: float) -> Links:
-    """`links` plus the (t, t-1) pairs whose mutual share is >= min_share and that are not links."""
+def _with_fragments(
+    links: Links, votes: np.ndarray, n_a: np.ndarray, n_b: np.ndarray, va: np.ndarray, vb: np.ndarray,
+    min_share: float,
+) -> Links:
+    """`links` plus the (t, t-1) pairs not linked to each other where either segment has at least
+    min_share of its points on the other (votes: (A, B) plain ego-motion votes, before any gate)."""
     if not 0.0 < min_share <= 1.0:
         return links
+    mutual = np.minimum(np.maximum(votes / n_a[:, None], votes / n_b[None, :]), 1.0)  # a pixel may take 2 points
     ia, jb = np.nonzero(mutual >= min_share)
     a, b = va[ia], vb[jb]
     keep = links.prev[a] != b

@@ -25,6 +25,25 @@ import numpy as np
 from pipeline.processing import FrameResult
 
 
+def fragment_track_pairs(
+    fragments: np.ndarray, share: np.ndarray, track_id: np.ndarray, prev_track_id: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame's fragment links as stitches: (links (K, 2), track pairs (K, 2) int64 with the
+    smaller id first, share (K,)) of the links whose two segments lie in two different tracks.
+
+    fragments: (E, 2) (segment of this frame, segment of the previous one); share: (E,);
+    track_id / prev_track_id: (S,) / (S',) track id per segment of each frame, <= 0 = none.
+    """
+    frag = np.asarray(fragments, np.int64).reshape(-1, 2)
+    share = np.asarray(share, np.float64)
+    inside = (frag[:, 0] < len(track_id)) & (frag[:, 1] < len(prev_track_id))
+    frag, share = frag[inside], share[inside]
+    ta = np.asarray(track_id, np.int64)[frag[:, 0]]
+    tb = np.asarray(prev_track_id, np.int64)[frag[:, 1]]
+    kept = (ta > 0) & (tb > 0) & (ta != tb)
+    return frag[kept], np.sort(np.stack([ta[kept], tb[kept]], axis=1), axis=1), share[kept]
+
+
 @dataclass
 class Track:
     """One track: frame indices (ascending, consecutive), per-frame point counts and centroids,
@@ -56,14 +75,11 @@ class TrackBuilder:
 
     def add(self, fr: FrameResult) -> None:
         seg = fr.segments
-        if len(fr.fragments) and len(self._prev_track_id):
-            ta = seg.track_id[fr.fragments[:, 0]]
-            tb = self._prev_track_id[fr.fragments[:, 1]]
-            for a, b, share in zip(ta.tolist(), tb.tolist(), fr.fragment_share.tolist(), strict=True):
-                if a > 0 and b > 0 and a != b:
-                    st = self.stitches.setdefault((min(a, b), max(a, b)), [0, 0.0])
-                    st[0] += 1
-                    st[1] = max(st[1], share)
+        _, pairs, share = fragment_track_pairs(fr.fragments, fr.fragment_share, seg.track_id, self._prev_track_id)
+        for (a, b), sh in zip(pairs.tolist(), share.tolist(), strict=True):
+            st = self.stitches.setdefault((a, b), [0, 0.0])
+            st[0] += 1
+            st[1] = max(st[1], sh)
         self._prev_track_id = np.asarray(seg.track_id, np.int64)
         for s in np.flatnonzero(seg.track_id > 0):
             tid = int(seg.track_id[s])

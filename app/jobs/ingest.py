@@ -396,18 +396,18 @@ def _write_fragments(
 ) -> None:
     """The frame's fragment links (this frame's segment, previous frame's segment) between two
     different tracks: a stitch row per new track pair, a `fragment` constraint row per link."""
-    frag = np.asarray(getattr(fr, "fragments", np.zeros((0, 2))), np.int64).reshape(-1, 2)
-    if len(frag) == 0 or len(state.prev_seg_ids) == 0:
+    from pipeline.tracks import fragment_track_pairs
+
+    frag = getattr(fr, "fragments", None)
+    if frag is None or len(frag) == 0 or len(state.prev_seg_ids) == 0:
         return
-    share = np.asarray(getattr(fr, "fragment_share", np.zeros(len(frag))), np.float64)
-    ok = (frag[:, 0] < len(seg_ids)) & (frag[:, 1] < len(state.prev_seg_ids))
-    frag, share = frag[ok], share[ok]
-    ta, tb = db_track[frag[:, 0]], state.prev_db_track[frag[:, 1]]
-    ok = (ta > 0) & (tb > 0) & (ta != tb) & (sample_index[frag[:, 0]] >= 0)
-    frag, share, ta, tb = frag[ok], share[ok], ta[ok], tb[ok]
+    # segments without a sample hold no constraint: their track is "none" here
+    db_track = np.where(sample_index >= 0, db_track, 0)
+    frag, pairs, share = fragment_track_pairs(frag, fr.fragment_share, db_track, state.prev_db_track)
     if len(frag) == 0:
         return
-    keys = [(int(min(a, b)), int(max(a, b))) for a, b in zip(ta, tb, strict=True)]
+    keys = [(int(a), int(b)) for a, b in pairs]
+    ta = db_track[frag[:, 0]]
     new = sorted({k for k in keys if k not in state.stitches})
     if new:
         s.execute(insert(Stitch), [{"sequence_id": state.sequence_id, "track_a_id": a, "track_b_id": b,

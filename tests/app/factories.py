@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from sqlalchemy import select
 
@@ -94,3 +95,12 @@ class Factory:
             t = s.get(Track, track_id)
             assert t is not None
             return t
+
+
+def simulated_campus(tmp_path_factory: Any, frames: int, seed: int) -> Path:
+    """A few frames of the simulated campus (SemanticKITTI layout) in a fresh temporary folder."""
+    from pipeline.simulation import simulate_sequence
+
+    out = tmp_path_factory.mktemp("sim") / "campus"
+    simulate_sequence(out, frames=frames, seed=seed)
+    return out

@@ -8,15 +8,12 @@ import numpy as np
 import pytest
 
 from app.worker import Worker
+from tests.app.factories import simulated_campus
 
 
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
-    from pipeline.simulation import simulate_sequence
-
-    out = tmp_path_factory.mktemp("sim") / "campus"
-    simulate_sequence(out, frames=4, seed=0)
-    return out
+    return simulated_campus(tmp_path_factory, frames=4, seed=0)
 
 
 def test_ingest_pipeline_simulated_sequence_end_to_end(client, factory, settings, db, simulated):

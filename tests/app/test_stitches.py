@@ -8,15 +8,12 @@ import json
 import pytest
 
 from app.worker import Worker
+from tests.app.factories import simulated_campus
 
 
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
-    from pipeline.simulation import simulate_sequence
-
-    out = tmp_path_factory.mktemp("sim") / "campus"
-    simulate_sequence(out, frames=6, seed=3)
-    return out
+    return simulated_campus(tmp_path_factory, frames=6, seed=3)
 
 
 def _ingest(client, factory, settings, db, simulated):
