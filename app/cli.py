@@ -69,7 +69,8 @@ def simulate(
     cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="A further factor on the number of "
                                             "cyclists.")] = 1.0,
     style: Annotated[str, typer.Option(help="Campus style: a (default) or b (other cars, trees, people: "
-                                       "another part of town).")] = "a",
+                                       "another part of town); a+ and b+ add a long tail of kinds to each "
+                                       "class (pickups, groups, scooters, tree guards, kiosks, ...).")] = "a",
 ) -> None:
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
     from pipeline.simulation import simulate_sequence
@@ -207,7 +208,8 @@ def experiment_paper(
     crowd: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars (default 3).")] = None,
     cyclists: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists (default 3).")] = None,
     unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints", help="Also the constraints of unknown tracks (the paper has none).")] = False,
-    test_style: Annotated[str, typer.Option(help="Campus style of test scene D (a or b).")] = "b",
+    train_style: Annotated[str | None, typer.Option(help="Campus style of the training route: a, b, a+ or b+ (default a+).")] = None,
+    test_style: Annotated[str | None, typer.Option(help="Campus style of test scene D: a, b, a+ or b+ (default b+).")] = None,
     bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
     train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
@@ -218,11 +220,11 @@ def experiment_paper(
     from pipeline.experiments.paper import PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "test_style": test_style, "bridge_pixels": bridge_pixels,
-                             "train_seed": train_seed}
+                             "bridge_pixels": bridge_pixels, "train_seed": train_seed}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
-                       ("crowd", crowd), ("cyclists", cyclists)):
+                       ("crowd", crowd), ("cyclists", cyclists), ("train_style", train_style),
+                       ("test_style", test_style)):
         if value is not None:
             kw[key] = value
     cfg = PaperConfig.full(**kw) if full else PaperConfig(**kw)  # type: ignore[arg-type]
@@ -241,7 +243,7 @@ def experiment_finetune(
     test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 465,
     crowd: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars.")] = 3.0,
     cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists.")] = 3.0,
-    test_style: Annotated[str, typer.Option(help="Campus style of the new scene (a or b).")] = "b",
+    test_style: Annotated[str, typer.Option(help="Campus style of the new scene (a, b, a+ or b+).")] = "b",
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
     strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
     budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",

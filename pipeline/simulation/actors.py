@@ -21,8 +21,11 @@ from pipeline.simulation.models import (
     PersonShape,
     add_bicycle,
     add_car,
+    add_cargo_box,
     add_person,
     add_rider,
+    add_scooter,
+    merge_builders,
 )
 from pipeline.simulation.route import SAMPLE_STEP, EgoProfile, Route
 from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, rot_z
@@ -118,6 +121,9 @@ class Actor:
     phase: float = 0.0
     frame_refl: float = 0.4
     model: PrimitiveSet | None = None  # rigid actors (cars): primitives in the object frame
+    vehicle: str = "bike"  # cyclists: bike | child (a child on a small bike) | cargo | scooter
+    # people walking together as one object: (shape, dx, dy, gait phase) beside the actor
+    companions: tuple[tuple[PersonShape, float, float, float], ...] = ()
 
     def position(self, t: float) -> np.ndarray:
         return self.path.pose(t)[0]
@@ -140,15 +146,28 @@ class Actor:
             add_car(b, self.shape, self.semantic, self.instance)  # type: ignore[arg-type]
             return b.build(rot, pos)
         b = PrimitiveBuilder()
-        if self.kind == "cyclist":
-            add_bicycle(b, self.semantic, self.instance, Material(refl=self.frame_refl, drop=0.02))
+        if self.kind == "cyclist" and self.vehicle == "scooter":
+            add_scooter(b, self.shape, self.semantic, self.instance, Material(refl=self.frame_refl, drop=0.02))  # type: ignore[arg-type]
+        elif self.kind == "cyclist":
+            frame = Material(refl=self.frame_refl, drop=0.02)
+            add_bicycle(b, self.semantic, self.instance, frame)
             crank = self.phase + 2 * np.pi * self.speed * t / 5.3  # 5.3 m per crank turn
             add_rider(b, self.shape, self.semantic, self.instance, crank, 0.65)  # type: ignore[arg-type]
+            if self.vehicle == "cargo":
+                add_cargo_box(b, self.semantic, self.instance, frame)
+            elif self.vehicle == "child":
+                b.scale(0.7)
         else:
             stride = 0.8 * self.shape.height  # type: ignore[union-attr]  # one full gait cycle
             gait = self.phase + 2 * np.pi * self.speed * t / stride
             swing = 0.42 if self.speed > 0 else 0.0
             add_person(b, self.shape, self.semantic, self.instance, gait, swing)  # type: ignore[arg-type]
+            for shape, dx, dy, phase in self.companions:
+                c = PrimitiveBuilder()
+                stride = 0.8 * shape.height
+                add_person(c, shape, self.semantic, self.instance, phase + 2 * np.pi * self.speed * t / stride, swing)
+                c.shift(dx, dy)
+                merge_builders(b, c)
         return b.build(rot_z(yaw), pos)
 
 

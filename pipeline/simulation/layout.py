@@ -26,7 +26,7 @@ from pipeline.simulation import models as m
 from pipeline.simulation.actors import ground_frame
 from pipeline.simulation.ground import GRID_CELL, GroundModel
 from pipeline.simulation.route import SAMPLE_STEP, Route
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_z
+from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_x, rot_z
 from pipeline.simulation.style import STYLES, CampusStyle
 
 STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
@@ -153,9 +153,12 @@ class Layout:
     def __init__(
         self, rng: np.random.Generator, route: Route, ground: GroundModel, road: RoadSpec, reg: Registry,
         style: CampusStyle | None = None,
+        extra: np.random.Generator | None = None,
     ):
         self.rng = rng
         self.style = style or STYLES["a"]
+        # the varied styles' own stream: their extra kinds leave the plain draws (layout) unchanged
+        self.extra = extra if self.style.variety else None
         self.route = route
         self.ground = ground
         self.road = road
@@ -166,6 +169,7 @@ class Layout:
         self.hedges: list[Facade] = []
         self.bushes: list[tuple[np.ndarray, float]] = []
         self.entrances: list[tuple[np.ndarray, float]] = []
+        self.benches: list[tuple[np.ndarray, float, float]] = []  # (xy, yaw, half length)
 
     # ------------------------------------------------------------------ geometry helpers
 
@@ -301,8 +305,36 @@ class Layout:
             # a tree stake (unknown object class) beside a young trunk
             stake_id = self.reg.new("stake", (m.POLE,), position=pos)
             b.cylinder((rt + 0.12, 0.0, 0.9), 0.03, 0.95, m.POLE, stake_id, Material(refl=0.3, noise=0.005))
-        self.put(b, xy, rng.uniform(0, 2 * np.pi))
+        rot = self._tree_variety(b, style, rt, top, trunk_id, bark, pos) if self.extra is not None else None
+        yaw = rng.uniform(0, 2 * np.pi)
+        self.put(b, xy, yaw, rot=None if rot is None else rot_z(yaw) @ rot)
         return True
+
+    def _tree_variety(
+        self, b: PrimitiveBuilder, style: str, rt: float, top: float, trunk_id: int, bark: Material, pos: np.ndarray
+    ) -> np.ndarray | None:
+        """The varied styles' trees: a second stem, a metal tree guard, a lean; returns the lean's
+        rotation (None when upright)."""
+        x, st = self.extra, self.style
+        if style != "conifer" and x.random() < st.fork_share:  # a second stem from low on the trunk
+            z0 = x.uniform(0.6, 1.6)
+            ang = x.uniform(0, 2 * np.pi)
+            reach = x.uniform(0.6, 1.4)
+            b.capsule((0, 0, z0), (reach * np.cos(ang), reach * np.sin(ang), max(z0 + 1.0, 0.9 * top)), 0.7 * rt,
+                      m.TRUNK, trunk_id, bark)
+        if style in ("young", "mature") and x.random() < st.guard_share:  # a tree guard: bars and two rings
+            gid = self.reg.new("tree_guard", (m.OTHER_OBJECT,), position=pos)
+            r, h = rt + x.uniform(0.25, 0.4), x.uniform(1.3, 1.8)
+            steel = Material(refl=x.uniform(0.2, 0.5), drop=0.05)
+            corners = [(r * np.cos(a), r * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 7)[:-1]]
+            for cx, cy in corners:
+                b.capsule((cx, cy, 0.0), (cx, cy, h), 0.015, m.OTHER_OBJECT, gid, steel)
+            for z in (0.5, h):
+                for (ax, ay), (bx, by) in zip(corners, corners[1:] + corners[:1], strict=True):
+                    b.capsule((ax, ay, z), (bx, by, z), 0.012, m.OTHER_OBJECT, gid, steel)
+        if x.random() < st.lean_share:
+            return rot_x(np.deg2rad(x.uniform(4.0, 14.0)))
+        return None
 
     def bush(self, xy: np.ndarray, size: float | None = None) -> bool:
         size = size or self.rng.uniform(0.8, 2.6)
@@ -312,6 +344,9 @@ class Layout:
         iid = self.reg.new("bush", (m.VEGETATION,), position=(xy[0], xy[1], self.z(xy)))
         b = PrimitiveBuilder()
         m.add_bush(b, self.rng, size, iid, self.style.bush_p)
+        if self.extra is not None and self.extra.random() < self.style.varied_bush_share:
+            b = PrimitiveBuilder()  # the plain draws above are made all the same, so the layout stays
+            m.add_varied_bush(b, self.extra, size, iid)
         self.put(b, xy, self.rng.uniform(0, 2 * np.pi))
         self.bushes.append((np.asarray(xy, float), 0.5 * size))
         return True
@@ -429,7 +464,7 @@ class Layout:
         return True
 
     def parked_car(self, xy: np.ndarray, yaw: float, kind: str | None = None) -> bool:
-        car = self.style.draw_car(self.rng, kind=kind)
+        car = self.style.draw_car(self.rng, kind=kind, extra=self.extra)
         pts = self.rect(xy, yaw, car.length / 2 + 0.2, car.width / 2 + 0.15)
         if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
             return False
@@ -469,6 +504,7 @@ class Layout:
             m.add_bin(b, rng, self.reg.new("bin", (m.OTHER_OBJECT,), position=pos))
         elif what == "bench":
             m.add_bench(b, rng, self.reg.new("bench", (m.OTHER_OBJECT,), position=pos))
+            self.benches.append((np.asarray(xy, float), float(yaw), 0.8))
         elif what == "bollard":
             m.add_bollard(b, self.reg.new("bollard", (m.OTHER_OBJECT,), position=pos))
         elif what == "bicycle":
@@ -524,6 +560,62 @@ def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> No
                     lay.at(sc - 3.0 - 1.5 * k, side * (lay.edge(sc, side) + 0.3)), "bollard", min_clear=0.0
                 )
     _standing_people(lay)
+    if lay.extra is not None:
+        _varied_extras(lay, stretches)
+
+
+EXTRA_FURNITURE_P = {"hydrant": 0.25, "postbox": 0.2, "cabinet": 0.3, "planter": 0.25, "statue": 0.12, "kiosk": 0.2}
+
+
+def _varied_extras(lay: Layout, stretches: list[Stretch]) -> None:
+    """The varied styles' extra kinds, placed last so that the plain layout stays as it is:
+    people sitting on benches; hydrants, post boxes, cabinets, planters and statues along the
+    sidewalks; kiosks and sheds beside them."""
+    x, st = lay.extra, lay.style
+    for xy, yaw, half in lay.benches:
+        if x.random() < st.sitting_share:
+            c, s = np.cos(yaw), np.sin(yaw)
+            along = x.uniform(-half + 0.3, half - 0.3)
+            p = xy + np.array([c * along + s * 0.08, s * along - c * 0.08])
+            b = PrimitiveBuilder()
+            iid = lay.reg.new("person", (m.PERSON,), position=(p[0], p[1], lay.z(p)))
+            m.add_sitting_person(b, st.draw_person(x), m.PERSON, iid)
+            lay.put(b, p, yaw + np.pi / 2)
+    for sr in stretches:
+        side = sr.side
+        for what, prob in EXTRA_FURNITURE_P.items():
+            if what == "kiosk" or x.random() >= prob * st.extra_furniture:
+                continue
+            s = x.uniform(sr.s0, sr.s1)
+            p = lay.at(s, side * (lay.edge(s, side) + x.uniform(0.3, 1.5)))
+            if not lay.free(lay.disc(p, 0.45), min_clear=0.0):
+                continue
+            lay.mark(lay.disc(p, 0.45))
+            b = PrimitiveBuilder()
+            pos = (p[0], p[1], lay.z(p))
+            iid = lay.reg.new(what, (m.OTHER_OBJECT,), position=pos)
+            if what == "hydrant":
+                m.add_hydrant(b, iid)
+            elif what == "postbox":
+                m.add_postbox(b, x, iid)
+            elif what == "cabinet":
+                m.add_cabinet(b, x, iid)
+            elif what == "planter":
+                m.add_planter(b, x, iid, lay.reg.new("bush", (m.VEGETATION,), position=pos))
+            else:
+                m.add_statue(b, x, iid)
+            lay.put(b, p, lay.yaw_at(s) + x.uniform(-0.3, 0.3))
+        if sr.kind in ("open", "frontage", "avenue", "hedges") and x.random() < EXTRA_FURNITURE_P["kiosk"] * st.extra_furniture:
+            s = x.uniform(sr.s0, sr.s1)
+            p = lay.at(s, side * (lay.edge(s, side) + x.uniform(2.0, 5.0)))
+            hx, hy = x.uniform(1.0, 2.25), x.uniform(0.9, 1.5)
+            yaw = lay.yaw_at(s) + (np.pi if side > 0 else 0.0)
+            pts = lay.rect(p, yaw, hx + 0.2, hy + 0.45)
+            if lay.free(pts, min_clear=0.3):
+                lay.mark(pts)
+                b = PrimitiveBuilder()
+                m.add_kiosk(b, x, lay.reg.new("kiosk", (m.BUILDING,), position=(p[0], p[1], lay.z(p))), hx, hy)
+                lay.put(b, p, yaw)
 
 
 def _furniture(lay: Layout, stretches: list[Stretch]) -> None:

@@ -49,6 +49,7 @@ class CarShape:
     paint: Material
     dark: bool
     kind: str
+    roof_box: bool = False  # a roof box on the cabin (varied styles)
 
 
 CAR_KINDS = {
@@ -57,7 +58,13 @@ CAR_KINDS = {
     "sedan": ((4.4, 4.9), (1.75, 1.88), (1.40, 1.52), (0.52, 0.62), (0.45, 0.55), (-0.08, -0.02)),
     "suv": ((4.4, 4.9), (1.82, 1.98), (1.62, 1.80), (0.68, 0.80), (0.55, 0.65), (-0.06, 0.0)),
     "van": ((4.8, 5.4), (1.90, 2.05), (1.90, 2.30), (0.80, 1.00), (0.78, 0.84), (-0.06, -0.04)),
+    # the varied styles' kinds (`EXTRA_CAR_KINDS`): a cabin reaching the rear, a cab with an open
+    # bed behind it, a short cab with a tall cargo box behind it
+    "hatch": ((3.9, 4.3), (1.70, 1.80), (1.45, 1.60), (0.52, 0.62), (0.62, 0.72), (-0.13, -0.09)),
+    "pickup": ((5.0, 5.6), (1.85, 2.0), (1.75, 1.90), (0.75, 0.90), (0.30, 0.36), (0.12, 0.17)),
+    "boxvan": ((5.6, 7.0), (2.0, 2.25), (2.6, 3.2), (0.80, 0.95), (0.20, 0.24), (0.36, 0.40)),
 }
+EXTRA_CAR_KINDS = ("hatch", "pickup", "boxvan")
 
 
 CAR_KIND_P = (0.25, 0.4, 0.2, 0.15)  # small, sedan, suv, van
@@ -70,7 +77,7 @@ def draw_car(
 ) -> CarShape:
     """A random car: small, sedan, SUV or van (`kind_p`); `dark_share` of them have dark paint."""
     if kind is None:
-        kind = str(rng.choice(list(CAR_KINDS), p=list(kind_p)))
+        kind = str(rng.choice(list(CAR_KINDS)[: len(kind_p)], p=list(kind_p)))
     lo_hi = CAR_KINDS[kind]
     length, width, height, body_h, cab_share, cab_off = (rng.uniform(*r) for r in lo_hi)
     dark = bool(rng.random() < dark_share)
@@ -94,9 +101,11 @@ def draw_car(
 
 
 def add_car(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) -> None:
-    """Body, glass cabin, roof, four wheels, bumpers, plates and mirrors (13 primitives)."""
+    """Body, glass cabin, roof, four wheels, bumpers, plates and mirrors (13 primitives); a
+    pickup's bed walls, a box van's cargo box, a roof box."""
     half_l, half_w = car.length / 2, car.width / 2
     z0 = car.clearance
+    _car_extras(b, car, semantic, instance)
     b.box(
         (0, 0, z0 + car.body_height / 2), (half_l, half_w, car.body_height / 2), semantic, instance, car.paint
     )
@@ -140,6 +149,26 @@ def add_car(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) ->
             instance,
             car.paint,
         )
+
+
+def _car_extras(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) -> None:
+    half_l, half_w = car.length / 2, car.width / 2
+    top = car.clearance + car.body_height
+    cab_rear = car.cabin_offset - car.cabin_length / 2
+    if car.kind == "pickup":  # the bed: side walls and tailgate above the body behind the cab
+        length = cab_rear + half_l - 0.1
+        xc = -half_l + length / 2
+        for sy in (-1, 1):
+            b.box((xc, sy * (half_w - 0.04), top + 0.22), (length / 2, 0.04, 0.22), semantic, instance, car.paint)
+        b.box((-half_l + 0.04, 0, top + 0.22), (0.04, half_w - 0.04, 0.22), semantic, instance, car.paint)
+    elif car.kind == "boxvan":  # a cargo box from behind the cab to the rear, up to the full height
+        length = cab_rear + half_l - 0.15
+        box_mat = Material(refl=min(0.8, car.paint.refl + 0.2), drop=0.01, spec=0.1)
+        b.box((-half_l + length / 2, 0, (top + car.height) / 2), (length / 2, half_w, (car.height - top) / 2),
+              semantic, instance, box_mat)
+    if car.roof_box:
+        b.box((car.cabin_offset - 0.1, 0, car.height + 0.2), (min(0.9, 0.4 * car.cabin_length), 0.4, 0.18),
+              semantic, instance, PLASTIC)
 
 
 # ------------------------------------------------------------------------------ people
@@ -451,3 +480,124 @@ def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, inst
         n = max(2, int(length / 2.5) + 1)
         for x in np.linspace(-length / 2, length / 2, n):
             b.cylinder((x, 0, h / 2), 0.03, h / 2, FENCE, instance, METAL)
+
+
+# ------------------------------------------------------------- the varied styles' kinds
+
+
+def add_sitting_person(b: PrimitiveBuilder, p: PersonShape, semantic: int, instance: int, seat: float = 0.48) -> None:
+    """A person sitting facing +x on a seat `seat` m high: thighs forward, shins down, upright torso."""
+    h, wf = p.height, p.build
+    hip_z = seat + 0.07 * wf
+    thigh = 0.245 * h  # the shins hang from the knees to the ground
+    for side in (1, -1):
+        y = side * 0.1 * wf
+        knee = (thigh, y, hip_z + 0.02)
+        b.capsule((0.0, y, hip_z), knee, 0.07 * wf, semantic, instance, p.bottom)
+        b.capsule(knee, (thigh + 0.05, y, 0.06), 0.055 * wf, semantic, instance, p.bottom)
+    torso_h = 0.175 * h
+    b.ellipsoid((-0.03, 0, hip_z + 0.05 + torso_h), (0.12 * wf, 0.19 * wf, torso_h), semantic, instance, p.top)
+    shoulder = hip_z + 0.05 + 1.75 * torso_h
+    for side in (1, -1):
+        b.capsule((0, side * 0.21 * wf, shoulder), (0.25, side * 0.15 * wf, hip_z + 0.12), 0.045 * wf, semantic,
+                  instance, p.top)
+    s = h / 1.75
+    b.ellipsoid((0.0, 0, shoulder + 0.17 * s), (0.095 * s, 0.08 * s, 0.115 * s), semantic, instance, SKIN)
+
+
+def add_scooter(b: PrimitiveBuilder, p: PersonShape, semantic: int, instance: int, deck: Material) -> None:
+    """An e-scooter rider: small wheels, a deck, a stem with a handlebar, a person standing upright."""
+    for x in (-0.42, 0.42):
+        b.cylinder((x, 0, 0.1), 0.1, 0.025, semantic, instance, RUBBER, _WHEEL_ROT)
+    b.box((0.0, 0, 0.14), (0.38, 0.08, 0.025), semantic, instance, deck)
+    b.capsule((0.42, 0, 0.12), (0.36, 0, 1.05), 0.02, semantic, instance, METAL)
+    b.capsule((0.36, -0.25, 1.05), (0.36, 0.25, 1.05), 0.018, semantic, instance, METAL)
+    rider = PrimitiveBuilder()
+    add_person(rider, p, semantic, instance, 0.3, 0.05)
+    rider.shift(-0.08, 0.0, 0.16)  # standing on the deck, a little back
+    merge_builders(b, rider)
+
+
+def add_cargo_box(b: PrimitiveBuilder, semantic: int, instance: int, mat: Material) -> None:
+    """The load box in front of a cargo bike's handlebar (on `add_bicycle`'s frame)."""
+    b.box((0.95, 0, 0.5), (0.38, 0.32, 0.25), semantic, instance, mat)
+    b.cylinder((1.3, 0, 0.2), 0.2, 0.025, semantic, instance, WHEEL_SPOKED, _WHEEL_ROT)
+
+
+def merge_builders(b: PrimitiveBuilder, other: PrimitiveBuilder) -> None:
+    for i in range(len(other)):
+        b._add(other._kind[i], other._center[i], other._rot[i], other._size[i], other._sem[i], other._inst[i],
+               other._mat[i])
+
+
+def add_hydrant(b: PrimitiveBuilder, instance: int) -> None:
+    red = Material(refl=0.35)
+    b.cylinder((0, 0, 0.35), 0.11, 0.35, OTHER_OBJECT, instance, red)
+    b.ellipsoid((0, 0, 0.72), (0.12, 0.12, 0.08), OTHER_OBJECT, instance, red)
+    b.cylinder((0, 0, 0.45), 0.05, 0.2, OTHER_OBJECT, instance, red, _WHEEL_ROT)
+
+
+def add_postbox(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A post box on a post or a pillar box: 1.1-1.6 m, the size of a child."""
+    mat = Material(refl=rng.uniform(0.2, 0.5))
+    if rng.random() < 0.5:
+        b.cylinder((0, 0, 0.55), 0.04, 0.55, OTHER_OBJECT, instance, METAL)
+        b.box((0, 0, 1.2), (0.2, 0.18, 0.25), OTHER_OBJECT, instance, mat)
+    else:
+        h = rng.uniform(1.3, 1.6)
+        b.cylinder((0, 0, h / 2), rng.uniform(0.22, 0.3), h / 2, OTHER_OBJECT, instance, mat)
+
+
+def add_cabinet(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A utility cabinet: a grey box 1.0-1.6 m high, 0.6-1.4 m wide."""
+    h, w = rng.uniform(1.0, 1.6), rng.uniform(0.3, 0.7)
+    b.box((0, 0, h / 2), (w, rng.uniform(0.2, 0.35), h / 2), OTHER_OBJECT, instance,
+          Material(refl=rng.uniform(0.25, 0.55), spec=0.1))
+
+
+def add_planter(b: PrimitiveBuilder, rng: np.random.Generator, instance: int, plant: int) -> None:
+    """A concrete planter (other object) with a shrub in it (vegetation, instance `plant`)."""
+    half, h = rng.uniform(0.4, 0.9), rng.uniform(0.4, 0.7)
+    b.box((0, 0, h / 2), (half, half * rng.uniform(0.6, 1.0), h / 2), OTHER_OBJECT, instance,
+          Material(refl=rng.uniform(0.3, 0.55)))
+    b.ellipsoid((0, 0, h + 0.25), (0.8 * half, 0.7 * half, rng.uniform(0.25, 0.6)), VEGETATION, plant,
+                foliage(rng, dense=True))
+
+
+def add_statue(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> None:
+    """A statue on a plinth: a figure of stone or bronze, a person's shape on a block."""
+    plinth = rng.uniform(0.5, 1.4)
+    stone = Material(refl=rng.uniform(0.1, 0.5), spec=0.2)
+    b.box((0, 0, plinth / 2), (0.45, 0.45, plinth / 2), OTHER_OBJECT, instance, stone)
+    h = rng.uniform(1.4, 2.2)
+    fig = PrimitiveBuilder()
+    add_person(fig, PersonShape(h, rng.uniform(0.9, 1.4), stone, stone, False), OTHER_OBJECT, instance,
+               rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.3))
+    fig.shift(0.0, 0.0, plinth)
+    merge_builders(b, fig)
+
+
+def add_kiosk(b: PrimitiveBuilder, rng: np.random.Generator, instance: int, hx: float, hy: float) -> None:
+    """A kiosk or shed (building) of half extents (hx, hy), 2.3-3.2 m high, its roof overhanging
+    the front (+y) by 0.9 m and the sides by 0.2 m."""
+    h = rng.uniform(2.3, 3.2)
+    wall = Material(refl=rng.uniform(0.15, 0.6), drop=0.01, spec=0.05)
+    b.box((0, 0, h / 2 - 0.1), (hx, hy, h / 2 + 0.1), BUILDING, instance, wall)
+    b.box((0, 0.45, h + 0.05), (hx + 0.2, hy + 0.45, 0.06), BUILDING, instance, wall)
+
+
+def add_varied_bush(b: PrimitiveBuilder, rng: np.random.Generator, size: float, instance: int) -> None:
+    """The varied styles' shrubs: a pruned box (0.5-1.3 m, flat faces, like a cabinet or a car's
+    flank) or a standard (a ball of leaves, 0.5-1.1 m across, on a 0.9-1.6 m stem: a person's or
+    a young tree's height)."""
+    leaves = foliage(rng, dense=True)
+    if rng.random() < 0.5:
+        half = 0.5 * float(np.clip(size, 0.6, 1.6))
+        h = rng.uniform(0.5, 1.3)
+        b.box((0, 0, h / 2 - 0.05), (half, half * rng.uniform(0.6, 1.0), h / 2), VEGETATION, instance, leaves)
+        return
+    stem = rng.uniform(0.9, 1.6)
+    r = rng.uniform(0.25, 0.55)
+    b.cylinder((0, 0, stem / 2), rng.uniform(0.025, 0.05), stem / 2, VEGETATION, instance,
+               Material(refl=rng.uniform(0.2, 0.35)))
+    b.ellipsoid((0, 0, stem + 0.8 * r), (r, r, r * rng.uniform(0.8, 1.1)), VEGETATION, instance, leaves)

@@ -33,15 +33,32 @@ def populate_actors(
     crowd: float = 1.0,
     cyclists: float = 1.0,
     style: CampusStyle | None = None,
+    extra: np.random.Generator | None = None,
 ) -> list[Actor]:
+    """The moving actors. `extra`: the varied styles' own random stream (car, cyclist and group
+    kinds), so that their layout and traffic are those of the plain style."""
     style = style or STYLES["a"]
+    varied = style.variety and extra is not None
     actors: list[Actor] = []
+
+    def vehicle() -> str:
+        if not varied:
+            return "bike"
+        return str(extra.choice(["bike", "child", "cargo", "scooter"], p=list(style.cyclist_kind_p)))
+
+    def companions() -> tuple:
+        if not varied or extra.random() >= style.group_share:
+            return ()
+        side = 1 if extra.random() < 0.5 else -1
+        sides = (side,) if extra.random() < 0.7 else (side, -side)  # a pair, or three abreast
+        return tuple((style.draw_person(extra), float(extra.uniform(-0.25, 0.25)), sd * float(extra.uniform(0.55, 0.75)),
+                      float(extra.uniform(0, 2 * np.pi))) for sd in sides)
 
     length = route.length
     s_ego = ego.s0
 
     def car(s0: float, v: float) -> None:
-        shape = style.draw_car(rng)
+        shape = style.draw_car(rng, extra=extra if varied else None)
         iid = reg.new("car", (m.MOVING_CAR,), moving=True, dark=shape.dark)
         if v < 0:
             path = LanePath(route, s0, v, road.lane)
@@ -65,6 +82,7 @@ def populate_actors(
                 abs(v),
                 rng.uniform(0, 2 * np.pi),
                 rng.uniform(0.15, 0.6),
+                vehicle=vehicle(),
             )
         )
 
@@ -76,10 +94,11 @@ def populate_actors(
         iid = reg.new("person", (m.MOVING_PERSON,), moving=True)
         path = LanePath(route, s0, v, side * off, follow=follow[side])
         actors.append(
-            Actor(iid, "person", m.MOVING_PERSON, path, style.draw_person(rng), abs(v), rng.uniform(0, 2 * np.pi))
+            Actor(iid, "person", m.MOVING_PERSON, path, style.draw_person(rng), abs(v), rng.uniform(0, 2 * np.pi),
+                  companions=companions())
         )
 
-    def polyline_walker(points: np.ndarray, t0: float, v: float | None = None) -> None:
+    def polyline_walker(points: np.ndarray, t0: float, v: float | None = None, group: bool = True) -> None:
         v = v or rng.uniform(0.9, 1.5)
         iid = reg.new("person", (m.MOVING_PERSON,), moving=True)
         actors.append(
@@ -91,6 +110,7 @@ def populate_actors(
                 style.draw_person(rng),
                 v,
                 rng.uniform(0, 2 * np.pi),
+                companions=companions() if group else (),
             )
         )
 
@@ -116,11 +136,11 @@ def populate_actors(
     for f in lay.facades:
         if rng.random() < 0.5:
             off = rng.uniform(0.35, 0.7)
-            polyline_walker(f.ends + off * f.normal[None], rng.uniform(0, 60))
+            polyline_walker(f.ends + off * f.normal[None], rng.uniform(0, 60), group=False)
     for h in lay.hedges:
         if np.linalg.norm(h.ends[1] - h.ends[0]) > 5.0 and rng.random() < 0.4:
             off = rng.uniform(0.25, 0.5)
-            polyline_walker(h.ends + off * h.normal[None], rng.uniform(0, 60))
+            polyline_walker(h.ends + off * h.normal[None], rng.uniform(0, 60), group=False)
     # 5. Crossers at zebra crossings, timed to be on the road shortly before the ego arrives.
     for sc in crossings:
         t_arrive = ego.time_at(float(sc), length)
@@ -172,6 +192,7 @@ def populate_actors(
                     v,
                     rng.uniform(0, 2 * np.pi),
                     rng.uniform(0.15, 0.6),
+                    vehicle=vehicle(),
                 )
             )
     return actors

@@ -100,8 +100,9 @@ def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0, style: str
     that of cyclists on top of it; `style` names the distributions objects are drawn from
     (`pipeline.simulation.style`)."""
     campus = get_style(style)
-    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5)]
-    rng_route, rng_road, rng_layout, rng_actors, rng_ego = streams
+    # spawn(7)'s first five children are spawn(5)'s: the plain styles' draws do not change
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(7)]
+    rng_route, rng_road, rng_layout, rng_actors, rng_ego, extra_layout, extra_actors = streams
     # 1. The loop and the ego vehicle's drive along it.
     route = make_route(rng_route)
     road = RoadSpec(
@@ -140,10 +141,12 @@ def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0, style: str
     )
     # 3. Static objects, then 4. everything that moves.
     reg = Registry()
-    lay = Layout(rng_layout, route, ground, road, reg, campus)
+    lay = Layout(rng_layout, route, ground, road, reg, campus, extra_layout)
     populate(lay, stretches, crossings)
     static = static_primitives(lay)
-    actors = populate_actors(rng_actors, route, ground, road, ego, lay, reg, crossings, crowd, cyclists, campus)
+    actors = populate_actors(
+        rng_actors, route, ground, road, ego, lay, reg, crossings, crowd, cyclists, campus, extra_actors
+    )
     return Scene(
         seed=int(seed),
         route=route,

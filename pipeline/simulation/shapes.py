@@ -218,6 +218,16 @@ class PrimitiveBuilder:
         centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.5 * (z0 + z1))
         self._add(CAPSULE, centre, rot, (radius, radius, 0.5 * length), semantic, instance, mat)
 
+    def scale(self, factor: float) -> None:
+        """Scale everything added so far about the builder's origin (a child's bicycle)."""
+        f = float(factor)
+        self._center = [(c[0] * f, c[1] * f, c[2] * f) for c in self._center]
+        self._size = [(z[0] * f, z[1] * f, z[2] * f) for z in self._size]
+
+    def shift(self, dx: float, dy: float, dz: float = 0.0) -> None:
+        """Move everything added so far by (dx, dy, dz) in the builder's frame."""
+        self._center = [(c[0] + dx, c[1] + dy, c[2] + dz) for c in self._center]
+
     def build(self, pose_rot: np.ndarray | None = None, pose_t: np.ndarray | None = None) -> PrimitiveSet:
         if not self._kind:
             return empty_set()

@@ -169,7 +169,8 @@ def simulate_sequence(
     crowd: factor on the number of moving actors (pedestrians, cyclists, traffic); 1 = default.
     cyclists: a further factor on the number of cyclists.
     style: the campus style, the distributions objects are drawn from ("a" = default; "b" =
-    another part of town, see `pipeline.simulation.style`).
+    another part of town; "a+" / "b+" the same with more kinds per class, see
+    `pipeline.simulation.style`).
     """
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")

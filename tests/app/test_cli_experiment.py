@@ -33,6 +33,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
         assert row["steps"] == 4 and len(row["train_loss"]) == 2 and {"train_val", "val", "test"} <= set(row)
     assert doc["data"]["constraint30"]["pairs"] <= doc["data"]["constraint100"]["pairs"]
     assert "test_gain_constraint100_over_baseline_min" in doc["targets"]
+    assert (doc["config"]["train_style"], doc["config"]["test_style"]) == ("a+", "b+")  # the varied campus
     md = (out / "paper.md").read_text()
     assert "| sup. (oracle) | oracle_objects20 |" in md
     assert "| semi-sup. | constraint100 |" in md and "test scene D" in md and "Constraints only on D" in md
@@ -44,3 +45,6 @@ def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
     assert r.exit_code == 2
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--bridge-pixels", "0"])
     assert r.exit_code == 2
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--test-style", "z"])
+    assert r.exit_code == 2 and "test_style" in r.output and "a+" in r.output
+    assert not (tmp_path / "cache").exists()  # refused before simulating anything

@@ -244,6 +244,52 @@ def test_simulate_style_b_shifts_what_objects_are_drawn_from(scene):
         build_scene(SEED, style="z")
 
 
+def test_simulate_varied_style_adds_kinds_and_keeps_the_plain_draws():
+    """Style "a+" is style "a" (same route, traffic, trees, people) plus the long tail of kinds
+    drawn from its own streams: other car bodies, groups, child / cargo / scooter cyclists, tree
+    guards, street furniture, kiosks."""
+    from pipeline.simulation.models import EXTRA_CAR_KINDS, add_car
+
+    plain = build_scene(SEED, crowd=3.0)
+    varied = build_scene(SEED, crowd=3.0, style="a+")
+    assert varied.style == "a+"
+    np.testing.assert_array_equal(varied.route.xy, plain.route.xy)
+    assert [a.kind for a in varied.actors] == [a.kind for a in plain.actors]
+    people = [(a.path.pose(3.0)[0], a.shape) for a in plain.actors if a.kind == "person"]
+    people_v = [(a.path.pose(3.0)[0], a.shape) for a in varied.actors if a.kind == "person"]
+    np.testing.assert_allclose([p for p, _ in people_v], [p for p, _ in people])  # same walkers, same paths
+    assert [s for _, s in people_v] == [s for _, s in people]
+    kinds = {i.kind for i in varied.instances.values()}
+    assert {"tree_guard", "kiosk", "hydrant", "cabinet"} <= kinds
+    assert not {"tree_guard", "kiosk", "hydrant", "cabinet"} & {i.kind for i in plain.instances.values()}
+    assert {a.vehicle for a in varied.actors if a.kind == "cyclist"} == {"bike", "child", "cargo", "scooter"}
+    assert {a.vehicle for a in plain.actors if a.kind == "cyclist"} == {"bike"}
+    groups = [a for a in varied.actors if a.companions]
+    assert groups and not any(a.companions for a in plain.actors)
+    bodies = {a.shape.kind for a in varied.actors if a.kind == "car"}
+    assert bodies & set(EXTRA_CAR_KINDS)
+    # a group is one object: every member's primitives carry the actor's instance id
+    g = groups[0]
+    prims = g.primitives(2.0, varied.ground)
+    assert set(prims.instance.tolist()) == {g.instance}
+    from pipeline.simulation.models import add_person
+    from pipeline.simulation.shapes import PrimitiveBuilder
+    from pipeline.simulation.style import STYLES
+
+    def person_prims(shape) -> int:
+        b = PrimitiveBuilder()
+        add_person(b, shape, 254, 1, 0.0, 0.4)
+        return len(b)
+
+    assert len(prims) == sum(person_prims(s) for s in [g.shape, *(c[0] for c in g.companions)])
+    # the extra car bodies add primitives (bed walls, cargo box) to the plain car's 13
+    rng = np.random.default_rng(0)
+    for kind, extra in (("pickup", 3), ("boxvan", 1), ("hatch", 0)):
+        b = PrimitiveBuilder()
+        add_car(b, STYLES["a"].draw_car(rng, kind=kind), 10, 1)
+        assert len(b) == 13 + extra
+
+
 def test_simulate_sequence_unknown_style_is_a_config_error(tmp_path: Path):
     from pipeline.errors import ConfigError
 
