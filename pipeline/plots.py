@@ -117,8 +117,9 @@ def plot_f_bars(
     x = np.arange(len(groups))
     width = 0.8 / max(len(settings), 1)
     fig, ax = plt.subplots(figsize=(max(6.4, 1.1 * len(groups)), 4.0))
+    colours = plt.get_cmap("tab10" if len(settings) <= 10 else "tab20")  # distinct beyond ten settings
     for i, name in enumerate(settings):
-        ax.bar(x - 0.4 + width * (i + 0.5), np.nan_to_num(data[i]), width, label=name)
+        ax.bar(x - 0.4 + width * (i + 0.5), np.nan_to_num(data[i]), width, label=name, color=colours(i % colours.N))
     ax.set_xticks(x, labels=groups, rotation=30, ha="right")
     ax.set_ylabel("F-measure")
     ax.set_ylim(0, 100)
