@@ -14,8 +14,9 @@ standards (a ball of leaves on a stem); people walking in groups and
 people sitting on benches; child cyclists, cargo bikes and e-scooter riders; leaning and forked
 trunks, some in metal tree guards; hydrants, post boxes, utility cabinets, planters and statues;
 kiosks and sheds (small buildings). A few labels per class then miss whole kinds, as they do on a
-real campus. Their extra draws come from separate random streams, so "a+" has the same layout,
-traffic and objects as "a" plus the extra kinds (cars and cyclists switch kind in place).
+real campus. Their extra draws come from separate random streams, so "a+" has the route,
+traffic, people and trees of "a" plus the extra kinds (cars and cyclists switch kind in place;
+a longer parked car may no longer fit its bay, which shifts the later placements a little).
 """
 
 from __future__ import annotations
