@@ -128,6 +128,9 @@ class TrainingConfig(_Section):
     # Extensions to the paper's pair handling (each off by default):
     transitive_pairs: bool = False  # must-link is transitive: pair a drawn sample with any sample of its track
     gamma_rampup: float = Field(default=0.0, ge=0.0, le=1.0)  # fraction of the steps over which gamma ramps 0 -> gamma
+    # with transitive pairs: draw each pair's component with probability ~ size**power (None: draw
+    # links uniformly, so a component's share grows with its links; 0: every component alike)
+    component_power: float | None = Field(default=None, ge=0.0, le=2.0)
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda

@@ -15,6 +15,9 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
 - `transitive_pairs`: must-link is an equivalence, so the right side of each drawn pair is any
   other sample of the left side's track (its component in the pair graph), not only the next
   frame's: pairs then join near and far, whole and occluded views of one object;
+- `component_power` p (with transitive pairs): each pair's component is drawn with probability
+  proportional to size**p and its left sample uniformly in it, instead of drawing links uniformly
+  (where a component's share grows with its links: one long bush track outweighs many short ones);
 - `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
 - `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
   among which the selection rule picks, move less than a constant rate lets them.
@@ -341,6 +344,22 @@ class _TrackPartners:
         self.pos = np.empty(num_samples, np.int64)
         self.pos[self.order] = np.arange(num_samples)  # (M,) position of each sample in `order`
 
+    def components(self, power: float) -> tuple[np.ndarray, np.ndarray]:
+        """(starts, probabilities) of the components with >= 2 members, each drawn with probability
+        proportional to size**power."""
+        first = np.flatnonzero(self.start[self.order] == np.arange(len(self.order)))  # positions where a component starts
+        size = self.size[self.order[first]]
+        keep = size >= 2
+        w = size[keep].astype(np.float64) ** power
+        return first[keep], w / w.sum()
+
+    def draw_left(self, n: int, starts: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(n,) left samples: a component drawn by `p`, then one of its members uniformly."""
+        c = self.rng.choice(len(starts), size=n, p=p)
+        s = starts[c]
+        size = self.size[self.order[s]]
+        return self.order[s + self.rng.integers(0, size)]
+
     def draw(self, left: np.ndarray) -> np.ndarray:
         """(n,) a member of each left sample's component other than itself (components have >= 2)."""
         size = self.size[left]
@@ -486,6 +505,7 @@ def _train(
         lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
     pair_cycle = _Cycler(num_p, rng) if n else None
     partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
+    by_component = partners.components(config.component_power) if partners is not None and config.component_power is not None else None
     total_steps = max(config.epochs * steps, 1)
 
     samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
@@ -520,14 +540,15 @@ def _train(
                     break
                 li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
                 pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
-                left = pairs_np[pi, 0]
+                left = pairs_np[pi, 0] if by_component is None else partners.draw_left(n, *by_component)  # type: ignore[union-attr]
                 right = partners.draw(left) if partners is not None else pairs_np[pi, 1]
                 idx = np.concatenate([data.labelled[li], left, right])  # (m + 2n,)
                 x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
                 if config.augment:
                     x = augment_batch(x, max_shift, gen)
                 logits = model(x)  # (m + 2n, K)
-                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w else None  # (n,)
+                # pair weights belong to links; component draws are unweighted
+                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w and by_component is None else None  # (n,)
                 gamma = config.gamma
                 if config.gamma_rampup > 0:
                     gamma *= _rampup((epoch * steps + step) / (config.gamma_rampup * total_steps))

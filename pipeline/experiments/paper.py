@@ -101,6 +101,7 @@ class PaperConfig:
     lr: float = 1e-3
     lr_schedule: str = "cosine"  # constant (the paper) | cosine: steadier last epochs to select from
     transitive_pairs: bool = True  # any two samples of a track are a pair (constraint100_paper_pairs: off)
+    component_power: float | None = None  # pair draws per component ~ size**p (None: per link; see training)
     balance_weight: float = 0.0
     augment: bool = True
     val_fraction: float = 0.3
@@ -137,6 +138,7 @@ class PaperConfig:
             lr=self.lr,
             lr_schedule=self.lr_schedule,
             transitive_pairs=self.transitive_pairs,
+            component_power=self.component_power,
             seed=self.seed if self.train_seed is None else self.train_seed,
             balance_weight=self.balance_weight,
             augment=self.augment,

@@ -339,6 +339,29 @@ def test_track_partners_draw_any_other_member_of_the_track():
     assert set(right[left == 5].tolist()) == {6} and set(right[left == 6].tolist()) == {5}
 
 
+def test_track_partners_draw_components_by_size_power():
+    # a component of 4 samples (0-3), one of 2 (5-6); sample 4 and 7 are in no pair
+    pairs = np.array([[0, 1], [1, 2], [2, 3], [5, 6]])
+    tp = _TrackPartners(pairs, 8, np.random.default_rng(0))
+    for power, share_big in ((0.0, 0.5), (1.0, 4 / 6), (2.0, 16 / 20)):
+        starts, p = tp.components(power)
+        assert len(starts) == 2 and p.sum() == pytest.approx(1.0)
+        left = tp.draw_left(6000, starts, p)
+        assert set(left.tolist()) == {0, 1, 2, 3, 5, 6}  # members only, every member drawn
+        assert np.isin(left, [0, 1, 2, 3]).mean() == pytest.approx(share_big, abs=0.02)
+        counts = np.bincount(left, minlength=8)[:4]
+        assert counts.min() > 0.8 * counts.max()  # uniform inside a component
+
+
+def test_train_with_component_draws_runs(blob_data):
+    x, y, _ = blob_data
+    labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
+    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
+    res = train(data, _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, component_power=0.5),
+                TINY, SAMPLES)
+    assert len(res.history) == 2 and all(math.isfinite(r.loss) for r in res.history)
+
+
 def test_train_with_transitive_pairs_and_gamma_rampup_runs(blob_data):
     x, y, _ = blob_data
     labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
