@@ -95,7 +95,7 @@ def test_elevation_rings_nearest_beam(beam: int, azimuth: float, rng: float, fra
     sensor = get_sensor("hdl64e")
     el = sensor.elevations_rad()
     # the beams are not evenly spaced: stay within half the nearer neighbour's gap
-    gaps = [el[beam - 1] - el[beam]] * (beam > 0) + [el[beam] - el[beam + 1]] * (beam < 63)
+    gaps = ([el[beam - 1] - el[beam]] if beam > 0 else []) + ([el[beam] - el[beam + 1]] if beam < 63 else [])
     e = el[beam] + frac * min(gaps)
     p = np.array([[rng * np.cos(e) * np.cos(azimuth), rng * np.cos(e) * np.sin(azimuth), rng * np.sin(e)]])
     assert elevation_rings(p, sensor)[0] == beam
