@@ -25,7 +25,6 @@ from pipeline.simulation.models import (
     add_person,
     add_rider,
     add_scooter,
-    merge_builders,
 )
 from pipeline.simulation.route import SAMPLE_STEP, EgoProfile, Route
 from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, rot_z
@@ -167,7 +166,7 @@ class Actor:
                 stride = 0.8 * shape.height
                 add_person(c, shape, self.semantic, self.instance, phase + 2 * np.pi * self.speed * t / stride, swing)
                 c.shift(dx, dy)
-                merge_builders(b, c)
+                b.extend(c)
         return b.build(rot_z(yaw), pos)
 
 

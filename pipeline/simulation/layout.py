@@ -564,7 +564,8 @@ def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> No
         _varied_extras(lay, stretches)
 
 
-EXTRA_FURNITURE_P = {"hydrant": 0.25, "postbox": 0.2, "cabinet": 0.3, "planter": 0.25, "statue": 0.12, "kiosk": 0.2}
+EXTRA_FURNITURE_P = {"hydrant": 0.25, "postbox": 0.2, "cabinet": 0.3, "planter": 0.25, "statue": 0.12}
+KIOSK_P = 0.2  # per open, frontage, avenue or hedges stretch (times `extra_furniture`)
 
 
 def _varied_extras(lay: Layout, stretches: list[Stretch]) -> None:
@@ -584,7 +585,7 @@ def _varied_extras(lay: Layout, stretches: list[Stretch]) -> None:
     for sr in stretches:
         side = sr.side
         for what, prob in EXTRA_FURNITURE_P.items():
-            if what == "kiosk" or x.random() >= prob * st.extra_furniture:
+            if x.random() >= prob * st.extra_furniture:
                 continue
             s = x.uniform(sr.s0, sr.s1)
             p = lay.at(s, side * (lay.edge(s, side) + x.uniform(0.3, 1.5)))
@@ -605,7 +606,7 @@ def _varied_extras(lay: Layout, stretches: list[Stretch]) -> None:
             else:
                 m.add_statue(b, x, iid)
             lay.put(b, p, lay.yaw_at(s) + x.uniform(-0.3, 0.3))
-        if sr.kind in ("open", "frontage", "avenue", "hedges") and x.random() < EXTRA_FURNITURE_P["kiosk"] * st.extra_furniture:
+        if sr.kind in ("open", "frontage", "avenue", "hedges") and x.random() < KIOSK_P * st.extra_furniture:
             s = x.uniform(sr.s0, sr.s1)
             p = lay.at(s, side * (lay.edge(s, side) + x.uniform(2.0, 5.0)))
             hx, hy = x.uniform(1.0, 2.25), x.uniform(0.9, 1.5)

@@ -515,19 +515,13 @@ def add_scooter(b: PrimitiveBuilder, p: PersonShape, semantic: int, instance: in
     rider = PrimitiveBuilder()
     add_person(rider, p, semantic, instance, 0.3, 0.05)
     rider.shift(-0.08, 0.0, 0.16)  # standing on the deck, a little back
-    merge_builders(b, rider)
+    b.extend(rider)
 
 
 def add_cargo_box(b: PrimitiveBuilder, semantic: int, instance: int, mat: Material) -> None:
     """The load box in front of a cargo bike's handlebar (on `add_bicycle`'s frame)."""
     b.box((0.95, 0, 0.5), (0.38, 0.32, 0.25), semantic, instance, mat)
     b.cylinder((1.3, 0, 0.2), 0.2, 0.025, semantic, instance, WHEEL_SPOKED, _WHEEL_ROT)
-
-
-def merge_builders(b: PrimitiveBuilder, other: PrimitiveBuilder) -> None:
-    for i in range(len(other)):
-        b._add(other._kind[i], other._center[i], other._rot[i], other._size[i], other._sem[i], other._inst[i],
-               other._mat[i])
 
 
 def add_hydrant(b: PrimitiveBuilder, instance: int) -> None:
@@ -574,7 +568,7 @@ def add_statue(b: PrimitiveBuilder, rng: np.random.Generator, instance: int) -> 
     add_person(fig, PersonShape(h, rng.uniform(0.9, 1.4), stone, stone, False), OTHER_OBJECT, instance,
                rng.uniform(0, 2 * np.pi), rng.uniform(0.0, 0.3))
     fig.shift(0.0, 0.0, plinth)
-    merge_builders(b, fig)
+    b.extend(fig)
 
 
 def add_kiosk(b: PrimitiveBuilder, rng: np.random.Generator, instance: int, hx: float, hy: float) -> None:

@@ -228,6 +228,16 @@ class PrimitiveBuilder:
         """Move everything added so far by (dx, dy, dz) in the builder's frame."""
         self._center = [(c[0] + dx, c[1] + dy, c[2] + dz) for c in self._center]
 
+    def extend(self, other: PrimitiveBuilder) -> None:
+        """Append `other`'s primitives (same frame): a part built and moved on its own builder."""
+        self._kind += other._kind
+        self._center += other._center
+        self._rot += other._rot
+        self._size += other._size
+        self._sem += other._sem
+        self._inst += other._inst
+        self._mat += other._mat
+
     def build(self, pose_rot: np.ndarray | None = None, pose_t: np.ndarray | None = None) -> PrimitiveSet:
         if not self._kind:
             return empty_set()
