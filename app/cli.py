@@ -200,7 +200,7 @@ def experiment_paper(
     frames: Annotated[int | None, typer.Option(min=20, help="Frames of the training route (default 1200; --full 1400).")] = None,
     test_frames: Annotated[int | None, typer.Option(min=10, help="Frames of test scene D (default 465).")] = None,
     size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
-    steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 800; --full 6000).")] = None,
+    steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 1600; --full 6000).")] = None,
     labels_per_class: Annotated[int | None, typer.Option(min=1, help="baseline_min labels per class (default 30; --full 350).")] = None,
     evals: Annotated[int | None, typer.Option(min=1, help="Model-selection checkpoints per setting (default 8).")] = None,
     eval_max: Annotated[int | None, typer.Option(min=0, help="Samples per evaluation set, random subsample (default 6000; 0 = all).")] = None,
