@@ -212,6 +212,7 @@ def experiment_paper(
     test_style: Annotated[str | None, typer.Option(help="Campus style of test scene D: a, b, a+ or b+ (default b+).")] = None,
     bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
     train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
+    label_seed: Annotated[int | None, typer.Option(help="Seed of baseline_min's label draw (the few labels every setting but baseline_max uses); default: drawn after the split from --seed. Scenes, split and evaluation sets follow --seed.")] = None,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
@@ -220,7 +221,7 @@ def experiment_paper(
     from pipeline.experiments.paper import PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "bridge_pixels": bridge_pixels, "train_seed": train_seed}
+                             "bridge_pixels": bridge_pixels, "train_seed": train_seed, "label_seed": label_seed}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
                        ("crowd", crowd), ("cyclists", cyclists), ("train_style", train_style),

@@ -115,6 +115,7 @@ class PaperConfig:
     test_style: str = "b+"  # campus style of D: another part of town (pipeline.simulation.style)
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
     train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
+    label_seed: int | None = None  # draw of baseline_min's labels; None = seed. Scenes and 70/30 split follow seed
     bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
@@ -165,7 +166,8 @@ class Split:
 
 
 def split_scene(scene: SceneSamples, cfg: PaperConfig) -> Split:
-    """70/30 by track, per class; then `labels_per_class` random training labels per class."""
+    """70/30 by track, per class; then `labels_per_class` random training labels per class
+    (drawn from `label_seed` when set, else from the split's own random stream)."""
     rng = np.random.default_rng(cfg.seed)
     lab = scene.labelled
     cls = scene.label[lab]
@@ -179,6 +181,8 @@ def split_scene(scene: SceneSamples, cfg: PaperConfig) -> Split:
     vt = np.unique(np.concatenate(val_tracks)) if val_tracks else np.zeros(0, np.int64)
     in_val = np.isin(trk, vt)
     train_l, val_l = lab[~in_val], lab[in_val]
+    if cfg.label_seed is not None:  # another draw of the few labels; same split and evaluation sets
+        rng = np.random.default_rng([cfg.seed, cfg.label_seed])
     mins = []
     for k in range(NUM_SAMPLE_CLASSES):
         idx = train_l[scene.label[train_l] == k]

@@ -116,6 +116,22 @@ def test_paper_split_by_track_and_settings_grow_constraints():
     assert np.array_equal(lab, split.train_labelled) and len(pairs) == 0
 
 
+def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
+    from pipeline.experiments.paper import PaperConfig, split_scene
+
+    scene = _toy_scene(n_tracks=70, length=5)
+    base = split_scene(scene, PaperConfig(labels_per_class=2))
+    same = split_scene(scene, PaperConfig(labels_per_class=2, label_seed=None))
+    assert np.array_equal(base.min_labelled, same.min_labelled)  # None keeps the default draw
+    draws = [split_scene(scene, PaperConfig(labels_per_class=2, label_seed=k)) for k in (1, 2)]
+    for d in draws:
+        assert np.array_equal(d.train_labelled, base.train_labelled) and np.array_equal(d.val_tracks, base.val_tracks)
+        assert np.bincount(scene.label[d.min_labelled], minlength=7).tolist() == [2] * 7
+        assert set(d.min_labelled) <= set(d.train_labelled)
+    assert not np.array_equal(draws[0].min_labelled, draws[1].min_labelled)
+    assert not np.array_equal(draws[0].min_labelled, base.min_labelled)
+
+
 def test_oracle_objects_label_every_view_of_the_labelled_objects_only():
     from pipeline.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
 
