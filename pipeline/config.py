@@ -131,6 +131,9 @@ class TrainingConfig(_Section):
     # with transitive pairs: draw each pair's component with probability ~ size**power (None: draw
     # links uniformly, so a component's share grows with its links; 0: every component alike)
     component_power: float | None = Field(default=None, ge=0.0, le=2.0)
+    # must-link closure: every sample a verified pair chain joins to a labelled sample is trained
+    # on that label too (components whose labelled members disagree keep their own labels only)
+    closure_labels: bool = False
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda

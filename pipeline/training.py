@@ -18,6 +18,11 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
 - `component_power` p (with transitive pairs): each pair's component is drawn with probability
   proportional to size**p and its left sample uniformly in it, instead of drawing links uniformly
   (where a component's share grows with its links: one long bush track outweighs many short ones);
+- `closure_labels`: must-link is an equivalence, so a label holds for its whole component of
+  the pair graph; every member of a component with a labelled sample is trained on that label
+  (the labelled cross-entropy then draws from the closure; a component whose labelled samples
+  disagree, possible only with unverified pairs, keeps just its own labels). The product's
+  track review does the same: one click labels every sample of a track;
 - `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
 - `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
   among which the selection rule picks, move less than a constant rate lets them.
@@ -63,6 +68,7 @@ from pipeline.model import (
 __all__ = [
     "LabelledSamples",
     "LossParts",
+    "closure_labels",
     "TrainingData",
     "TrainProgress",
     "TrainResult",
@@ -324,6 +330,40 @@ class _BalancedCycler:
         return out
 
 
+def closure_labels(
+    labelled: np.ndarray, labels: np.ndarray, pairs: np.ndarray, num_samples: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """(labelled', labels', conflicting components): the labels spread over the must-link graph.
+
+    labelled (L,) indices, labels (L,) classes, pairs (P, 2) into 0..num_samples-1. Each connected
+    component holding labelled samples of one class gives that class to all its members; a
+    component whose labelled samples disagree keeps only those samples' own labels.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    labelled = np.asarray(labelled, np.int64)
+    labels = np.asarray(labels, np.int64)
+    if len(pairs) == 0 or len(labelled) == 0:
+        return labelled, labels, 0
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_samples, num_samples))
+    n_comp, comp = connected_components(graph, directed=False)
+    lab_comp = comp[labelled]
+    lo = np.full(n_comp, np.iinfo(np.int64).max)
+    hi = np.full(n_comp, -1)
+    np.minimum.at(lo, lab_comp, labels)
+    np.maximum.at(hi, lab_comp, labels)
+    agreed = hi >= 0  # components with a labelled member ...
+    conflict = agreed & (lo != hi)
+    agreed &= ~conflict  # ... whose labelled members all agree
+    spread = np.flatnonzero(agreed[comp])  # every member of such a component
+    keep = conflict[lab_comp]  # labelled samples of disagreeing components keep their own
+    out_idx = np.concatenate([spread, labelled[keep]])
+    out_lab = np.concatenate([hi[comp[spread]], labels[keep]])
+    order = np.argsort(out_idx, kind="stable")
+    return out_idx[order], out_lab[order], int(conflict.sum())
+
+
 class _TrackPartners:
     """Must-link is an equivalence: every sample of a track (a connected component of the pair
     graph) has the same class. `draw(left)` gives each left sample a random other member of its
@@ -460,6 +500,9 @@ def train(
     if config.batch_labelled < 1 or config.pairs_per_label < 0:
         raise ConfigError("training.batch_labelled must be >= 1 and training.pairs_per_label >= 0")
 
+    if config.closure_labels and num_l and num_p:
+        lab, y, _ = closure_labels(data.labelled, data.labels, data.pairs, len(data.samples))
+        data = TrainingData(data.samples, lab, y, data.pairs, data.pair_weights)
     threads_before = torch.get_num_threads()
     if config.threads:
         torch.set_num_threads(config.threads)

@@ -103,6 +103,7 @@ class PaperConfig:
     transitive_pairs: bool = True  # any two samples of a track are a pair (constraint100_paper_pairs: off)
     component_power: float | None = None  # pair draws per component ~ size**p (None: per link; see training)
     balance_weight: float = 0.0
+    closure_labels: bool = False  # labels spread over their must-link components (see training)
     augment: bool = True
     val_fraction: float = 0.3
     select_val: int = 2100  # validation samples used for model selection (stratified subsample)
@@ -140,6 +141,7 @@ class PaperConfig:
             lr_schedule=self.lr_schedule,
             transitive_pairs=self.transitive_pairs,
             component_power=self.component_power,
+            closure_labels=self.closure_labels,
             seed=self.seed if self.train_seed is None else self.train_seed,
             balance_weight=self.balance_weight,
             augment=self.augment,

@@ -378,3 +378,25 @@ def test_gamma_rampup_rises_from_near_zero_to_one():
     vals = [_rampup(t) for t in np.linspace(0, 1.5, 16)]
     assert vals[0] < 0.01 and vals[-1] == 1.0 and _rampup(1.0) == 1.0
     assert all(a <= b for a, b in zip(vals[:-1], vals[1:], strict=True))
+
+
+def test_closure_labels_spread_over_components_and_skip_disagreeing_ones():
+    from pipeline.training import closure_labels
+
+    # components {0,1,2} (labelled 1 as class 2), {3,4} (3 as 4), {5,6,7} (5 as 1, 7 as 3: they
+    # disagree), 8 alone (labelled 0), 9 alone (unlabelled)
+    pairs = np.array([[0, 1], [1, 2], [3, 4], [5, 6], [6, 7]])
+    idx, lab, conflicts = closure_labels(np.array([1, 3, 5, 7, 8]), np.array([2, 4, 1, 3, 0]), pairs, 10)
+    assert idx.tolist() == [0, 1, 2, 3, 4, 5, 7, 8]
+    assert lab.tolist() == [2, 2, 2, 4, 4, 1, 3, 0]
+    assert conflicts == 1
+    idx, lab, conflicts = closure_labels(np.array([1]), np.array([2]), np.zeros((0, 2), np.int64), 10)
+    assert idx.tolist() == [1] and lab.tolist() == [2] and conflicts == 0
+
+
+def test_train_with_closure_labels_runs(blob_data):
+    x, y, val = blob_data
+    labelled = np.flatnonzero(np.arange(len(y)) % 50 == 0)
+    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
+    res = train(data, _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, closure_labels=True), TINY, SAMPLES, val=val)
+    assert len(res.history) == 2 and all(r.loss_labelled > 0 for r in res.history)
