@@ -22,9 +22,15 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
                                     "constraint100_auto", "constraint100_tracks_only", "constraint100_paper_pairs", "constraint100_no_mask",
-                                    "oracle_objects20", "oracle_object_constraints"]
+                                    "constraint100_no_closure", "oracle_objects20", "oracle_object_constraints"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
+    assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
+    assert doc["config"]["closure_labels"] is True
+    data = doc["data"]
+    assert data["baseline_min"]["closure_labels"] == data["baseline_min"]["labels"]  # no pairs: nothing spreads
+    assert data["constraint100_no_closure"]["closure_labels"] == data["constraint100_no_closure"]["labels"]
+    assert sum(data["constraint100"]["closure_labels"]) >= sum(data["constraint30"]["closure_labels"]) >= sum(data["constraint30"]["labels"])
     ad = doc["adaptation"]
     assert set(ad) == {"adapt_constraints_only", "adapt_constraints_only_balance", "constraint100_before"}
     assert ad["adapt_constraints_only_balance"]["balance_weight"] > 0 == ad["adapt_constraints_only"]["balance_weight"]
