@@ -120,7 +120,7 @@ class PaperConfig:
     test_style: str = "b+"  # campus style of D: another part of town (pipeline.simulation.style)
     unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
     train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
-    label_seed: int | None = None  # draw of baseline_min's labels; None = seed. Scenes and 70/30 split follow seed
+    label_seed: int | None = None  # draw of baseline_min's labels; None: the split's stream. Scenes and split follow seed
     bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
