@@ -26,6 +26,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
+    assert doc["results"]["constraint100_auto"]["training"]["closure_labels"] is False  # unverified pairs
     assert doc["config"]["closure_labels"] is True
     data = doc["data"]
     assert data["baseline_min"]["closure_labels"] == data["baseline_min"]["labels"]  # no pairs: nothing spreads
