@@ -213,15 +213,20 @@ def experiment_paper(
     bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
     train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
     label_seed: Annotated[int | None, typer.Option(help="Seed of baseline_min's label draw (the few labels every setting but baseline_max uses); default: drawn after the split from --seed. Scenes, split and evaluation sets follow --seed.")] = None,
+    labels_only_batch: Annotated[str, typer.Option(help="Labels per step of baseline_min/max: m (16), equal (176: a constraint step's canvases) or select (train both, keep the better validation F).")] = "select",
+    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (six more settings).")] = False,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
     """Reproduce the paper's Tables 7 and 8 on simulated data: its five settings, automatic
-    constraints, the extensions' ablations and the constraints-only adaptation to D (Fig. 12)."""
-    from pipeline.experiments.paper import PaperConfig, run_paper
+    constraints and the constraints-only adaptation to D (Fig. 12); with --ablations also the
+    extensions' ablations and oracle diagnostics."""
+    from pipeline.experiments.paper import ABLATIONS, SETTINGS, PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "bridge_pixels": bridge_pixels, "train_seed": train_seed, "label_seed": label_seed}
+                             "bridge_pixels": bridge_pixels, "train_seed": train_seed, "label_seed": label_seed,
+                             "settings": SETTINGS + ABLATIONS if ablations else SETTINGS,
+                             "labels_only_batch": labels_only_batch}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
                        ("crowd", crowd), ("cyclists", cyclists), ("train_style", train_style),

@@ -217,7 +217,7 @@ def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator) -
     cols = base[None, :] - shifts[1][:, None]  # (B, S)
     bi = torch.arange(b, device=dev)[:, None, None]  # (B, 1, 1)
     out = padded.permute(0, 2, 3, 1)[bi, rows[:, :, None], cols[:, None, :]]  # (B, S, S, C)
-    return out.permute(0, 3, 1, 2).contiguous()  # (B, C, S, S)
+    return out.permute(0, 3, 1, 2)  # (B, C, S, S), stored NHWC: the network's channels_last, no copy
 
 
 @dataclass(frozen=True)

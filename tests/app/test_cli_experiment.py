@@ -1,4 +1,4 @@
-"""`tracklabel experiment paper` end to end at a toy size (the real default takes ~25 minutes)."""
+"""`tracklabel experiment paper` end to end at a toy size (the real default takes 20-60 minutes, by host)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,8 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     r = runner.invoke(
         app,
         ["experiment", "paper", "--out", str(out), "--frames", "20", "--test-frames", "10", "--size", "32",
-         "--steps", "4", "--labels-per-class", "3", "--threads", "1", "--evals", "2", "--eval-max", "300"],
+         "--steps", "4", "--labels-per-class", "3", "--threads", "1", "--evals", "2", "--eval-max", "300",
+         "--ablations"],
     )
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
@@ -28,6 +29,14 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
     assert doc["results"]["constraint100_auto"]["training"]["closure_labels"] is False  # unverified pairs
     assert doc["config"]["closure_labels"] is True
+    m = doc["config"]["batch_labelled"]
+    big = m * (1 + 2 * doc["config"]["pairs_per_label"])  # a constraint step's canvases
+    for name in ("baseline_min", "baseline_max", "oracle_objects20"):  # labels only: both tried, the better kept
+        row = doc["results"][name]
+        tried = {int(k): v for k, v in row["batch_select"].items()}
+        assert set(tried) == {m, big} and row["training"]["batch_labelled"] == max(tried, key=lambda b: (tried[b], -b))
+    assert doc["results"]["constraint100"]["training"]["batch_labelled"] == m
+    assert "batch_select" not in doc["results"]["constraint100"]
     data = doc["data"]
     assert data["baseline_min"]["closure_labels"] == data["baseline_min"]["labels"]  # no pairs: nothing spreads
     assert data["constraint100_no_closure"]["closure_labels"] == data["constraint100_no_closure"]["labels"]
@@ -47,11 +56,27 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert (out / "paper_train.png").stat().st_size > 1000 and (out / "paper_test.png").stat().st_size > 1000
 
 
+def test_cli_experiment_paper_default_runs_the_issues_settings(tmp_path):
+    out = tmp_path / "paper"
+    r = runner.invoke(
+        app,
+        ["experiment", "paper", "--out", str(out), "--frames", "20", "--test-frames", "10", "--size", "32",
+         "--steps", "2", "--labels-per-class", "2", "--threads", "1", "--evals", "1", "--eval-max", "100"],
+    )
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "paper.json").read_text())
+    assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
+                                    "constraint100_auto"]
+    assert doc["config"]["labels_only_batch"] == "select" and "ordering_train_val" in doc["targets"]
+
+
 def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--frames", "5"])
     assert r.exit_code == 2
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--bridge-pixels", "0"])
     assert r.exit_code == 2
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--labels-only-batch", "big"])
+    assert r.exit_code == 2 and "labels_only_batch" in r.output
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--test-style", "z"])
     assert r.exit_code == 2 and "test_style" in r.output and "a+" in r.output
     assert not (tmp_path / "cache").exists()  # refused before simulating anything
