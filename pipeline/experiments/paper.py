@@ -568,7 +568,7 @@ def markdown(doc: dict[str, Any]) -> str:
         f"{cfg['test_frames']} frames, {te['labels']} labelled samples. "
         f"S={cfg['size']}, {cfg['steps']} steps per setting (m={cfg['batch_labelled']} labels + "
         f"{cfg['pairs_per_label'] * cfg['batch_labelled']} pairs per step), gamma={cfg['gamma']}, "
-        f"70/30 train/validation split by track.",
+        f"70/30 train/validation split by track.{_batch_note(res)}",
         "",
         "**Training data per setting** (like the paper's Table 6; constraints by the class of their track; "
         "labels via constraints: the annotations spread over their must-link components, `closure_labels`):",
@@ -596,6 +596,17 @@ def markdown(doc: dict[str, Any]) -> str:
         f"start {_load(doc['machine']['load_average_start'])}, at end {_load(doc['machine']['load_average_end'])}.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _batch_note(res: dict[str, Any]) -> str:
+    """' Labels-only settings ...' naming each one's labels per step tried and kept, or ''."""
+    picks = [f"{name} {r['training']['batch_labelled']} ("
+             + ", ".join(f"{b}: val F {f:.1f}" for b, f in r["batch_select"].items()) + ")"
+             for name, r in res.items() if r.get("batch_select")]
+    if not picks:
+        return ""
+    return (" Labels-only settings trained with each labels-per-step value and kept the better on the "
+            "validation split: " + "; ".join(picks) + ".")
 
 
 def _adapt_table(doc: dict[str, Any]) -> list[str]:
