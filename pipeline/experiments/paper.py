@@ -171,8 +171,6 @@ class PaperConfig:
     def setting_training(self, name: str) -> dict[str, Any]:
         """Training-config changes of one setting (the extensions' switches)."""
         out: dict[str, Any] = {"weighted_pairs": name == "constraint100_auto"}
-        if self.labels_only_batch == "equal" and name in LABELS_ONLY:
-            out["batch_labelled"] = self.equal_batch
         if name == "constraint100_paper_pairs":
             out["transitive_pairs"] = False
         if name in ("constraint100_no_closure", "constraint100_auto"):
@@ -192,9 +190,9 @@ class PaperConfig:
         several, the one of the best validation F is kept. The paper trains every classifier to a
         loss below 1e-4; with a fixed number of steps, m = 16 labels per step would show
         baseline_max's 104k labels a quarter of an epoch while a constraint step runs 176 canvases."""
-        if self.labels_only_batch == "select" and name in LABELS_ONLY:
-            return (self.batch_labelled, self.equal_batch)
-        return (None,)
+        if name not in LABELS_ONLY or self.labels_only_batch == "m":
+            return (None,)
+        return (self.batch_labelled, self.equal_batch) if self.labels_only_batch == "select" else (self.equal_batch,)
 
 
 @dataclass
@@ -402,12 +400,11 @@ def run_paper(
         }
         t1 = time.perf_counter()
         vs = val_select if mask else LabelledSamples(np.ascontiguousarray(val_select.samples[:, channels]), val_select.labels)
+        net_samples = sample_cfg if mask else sample_cfg.model_copy(update={"foreground_channel": False})
         res, best_f, chosen, tried = None, float("-inf"), setting_cfg.batch_labelled, {}
         for batch in cfg.batch_candidates(name):
             run_cfg = setting_cfg if batch is None else setting_cfg.model_copy(update={"batch_labelled": batch})
-            cand = train(data, run_cfg, model_cfg,
-                         sample_cfg if mask else sample_cfg.model_copy(update={"foreground_channel": False}),
-                         val=vs, progress=progress)
+            cand = train(data, run_cfg, model_cfg, net_samples, val=vs, progress=progress)
             cand_f = cand.val_report.mean_f if cand.val_report is not None else float("-inf")
             tried[str(run_cfg.batch_labelled)] = round(cand_f, 3)
             if res is None or cand_f > best_f:  # ties keep the earlier (smaller) batch
