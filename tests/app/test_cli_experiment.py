@@ -23,7 +23,8 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
                                     "constraint100_auto", "constraint100_tracks_only", "constraint100_paper_pairs", "constraint100_no_mask",
-                                    "constraint100_no_closure", "oracle_objects20", "oracle_object_constraints"]
+                                    "constraint100_no_closure", "constraint100_paper_batch", "constraint100_closure_only", "oracle_objects20",
+                                    "oracle_object_constraints"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
@@ -35,7 +36,17 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
         row = doc["results"][name]
         tried = {int(k): v for k, v in row["batch_select"].items()}
         assert set(tried) == {m, big} and row["training"]["batch_labelled"] == max(tried, key=lambda b: (tried[b], -b))
-    assert doc["results"]["constraint100"]["training"]["batch_labelled"] == m
+    # constraint settings: 1 pair per label at a constraint step's canvases (58 + 58 of 176);
+    # constraint100_paper_batch keeps the paper's m labels + 5 m pairs
+    assert doc["config"]["constraint_pairs_per_label"] == 1
+    for name in ("constraint30", "constraint100", "constraint100_auto", "oracle_object_constraints"):
+        tr = doc["results"][name]["training"]
+        assert (tr["batch_labelled"], tr["pairs_per_label"]) == (big // 3, 1)
+    tr = doc["results"]["constraint100_paper_batch"]["training"]
+    assert (tr["batch_labelled"], tr["pairs_per_label"]) == (m, doc["config"]["pairs_per_label"])
+    tr = doc["results"]["constraint100_closure_only"]["training"]
+    assert (tr["batch_labelled"], tr["pairs_per_label"]) == (big, 0)
+    assert f"{big // 3} labels + {big // 3} pairs (the paper's step: {m} + {m * doc['config']['pairs_per_label']})" in (out / "paper.md").read_text()
     assert "batch_select" not in doc["results"]["constraint100"]
     data = doc["data"]
     assert data["baseline_min"]["closure_labels"] == data["baseline_min"]["labels"]  # no pairs: nothing spreads
@@ -77,6 +88,8 @@ def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
     assert r.exit_code == 2
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--labels-only-batch", "big"])
     assert r.exit_code == 2 and "labels_only_batch" in r.output
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--constraint-pairs-per-label", "-1"])
+    assert r.exit_code == 2 and "constraint-pairs-per-label" in r.output
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--test-style", "z"])
     assert r.exit_code == 2 and "test_style" in r.output and "a+" in r.output
     assert not (tmp_path / "cache").exists()  # refused before simulating anything

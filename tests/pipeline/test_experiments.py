@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from pipeline.experiments.data import (
     SceneSamples,
@@ -195,3 +196,21 @@ def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
     _, stitched, _ = setting_data("constraint100", scene, split)
     added = {tuple(p) for p in stitched.tolist()} - {tuple(p) for p in base.tolist()}
     assert added == {(int(b), int(a))}
+
+
+def test_paper_constraint_step_keeps_the_papers_canvases():
+    from pipeline.errors import ConfigError
+    from pipeline.experiments.paper import PaperConfig
+
+    cfg = PaperConfig()  # the paper's step: 16 labels + 80 pairs = 176 canvases
+    assert cfg.equal_batch == 176
+    assert cfg.constraint_batch == {"batch_labelled": 58, "pairs_per_label": 1}  # 174 canvases, never more
+    assert PaperConfig(constraint_pairs_per_label=5).constraint_batch == {"batch_labelled": 16, "pairs_per_label": 5}
+    assert PaperConfig(constraint_pairs_per_label=0).constraint_batch == {"batch_labelled": 176, "pairs_per_label": 0}
+    assert "batch_labelled" not in cfg.setting_training("baseline_min")  # labels only: batch_candidates decides
+    assert cfg.setting_training("constraint60")["batch_labelled"] == 58
+    assert cfg.setting_training("constraint100_auto")["pairs_per_label"] == 1
+    paper = cfg.setting_training("constraint100_paper_batch")
+    assert (paper["batch_labelled"], paper["pairs_per_label"]) == (16, 5)
+    with pytest.raises(ConfigError, match="constraint_pairs_per_label"):
+        PaperConfig(constraint_pairs_per_label=-1)
