@@ -470,7 +470,7 @@ def run_paper(
                         test, test_idx, log, progress)
 
     doc: dict[str, Any] = {
-        "config": asdict(cfg) | {"settings": list(cfg.settings)},
+        "config": asdict(cfg) | {"settings": list(cfg.settings), "constraint_batch": cfg.constraint_batch},
         "training": tcfg.model_dump(mode="json"),
         "model": model_cfg.model_dump(mode="json"),
         "scenes": {"train": scene.summary(), "test": test.summary()},
@@ -626,10 +626,9 @@ def markdown(doc: dict[str, Any]) -> str:
 
 
 def _constraint_step(cfg: dict[str, Any]) -> str:
-    """'58 labels + 58 pairs (the paper's: 16 + 80)' from a config dict."""
+    """'58 labels + 58 pairs (the paper's step: 16 + 80)' from a doc's config (its `constraint_batch`)."""
     m, ppl = cfg["batch_labelled"], cfg["pairs_per_label"]
-    c = cfg.get("constraint_pairs_per_label", ppl)
-    cm = max(1, m * (1 + 2 * ppl) // (1 + 2 * c))
+    cm, c = cfg["constraint_batch"]["batch_labelled"], cfg["constraint_batch"]["pairs_per_label"]
     own = f"{cm} labels + {cm * c} pairs"
     return own if (cm, c) == (m, ppl) else f"{own} (the paper's step: {m} + {m * ppl})"
 

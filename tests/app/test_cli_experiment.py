@@ -39,6 +39,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     # constraint settings: 1 pair per label at a constraint step's canvases (58 + 58 of 176);
     # constraint100_paper_batch keeps the paper's m labels + 5 m pairs
     assert doc["config"]["constraint_pairs_per_label"] == 1
+    assert doc["config"]["constraint_batch"] == {"batch_labelled": big // 3, "pairs_per_label": 1}
     for name in ("constraint30", "constraint100", "constraint100_auto", "oracle_object_constraints"):
         tr = doc["results"][name]["training"]
         assert (tr["batch_labelled"], tr["pairs_per_label"]) == (big // 3, 1)
