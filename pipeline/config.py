@@ -134,6 +134,10 @@ class TrainingConfig(_Section):
     # must-link closure: every sample a verified pair chain joins to a labelled sample is trained
     # on that label too (components whose labelled members disagree keep their own labels only)
     closure_labels: bool = False
+    # how the closure's labels are drawn: "sample" (each labelled sample alike, so an annotation
+    # weighs as much as its component is large) or "annotation" (an annotation, then a member of
+    # its component: each annotation weighs as without constraints)
+    closure_draw: str = Field(default="sample", pattern="^(sample|annotation)$")
     eval_batch: int = 256
     threads: int = Field(default=0, ge=0)  # torch CPU threads while training, 0 = torch's default (1 beats 2 on a busy 2-core box)
     device: str = "auto"  # auto | cpu | cuda

@@ -330,24 +330,22 @@ class _BalancedCycler:
         return out
 
 
-def closure_labels(
-    labelled: np.ndarray, labels: np.ndarray, pairs: np.ndarray, num_samples: int
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """(labelled', labels', conflicting components): the labels spread over the must-link graph.
-
-    labelled (L,) indices, labels (L,) classes, pairs (P, 2) into 0..num_samples-1. Each connected
-    component holding labelled samples of one class gives that class to all its members; a
-    component whose labelled samples disagree keeps only those samples' own labels.
-    """
+def _components(pairs: np.ndarray, num_samples: int) -> tuple[int, np.ndarray]:
+    """(number of components, (num_samples,) component id) of the must-link graph."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    labelled = np.asarray(labelled, np.int64)
-    labels = np.asarray(labels, np.int64)
-    if len(pairs) == 0 or len(labelled) == 0:
-        return labelled, labels, 0
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_samples, num_samples))
     n_comp, comp = connected_components(graph, directed=False)
+    return int(n_comp), comp
+
+
+def _closure(
+    labelled: np.ndarray, labels: np.ndarray, pairs: np.ndarray, num_samples: int
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """closure_labels' result plus (L',) a group id per output sample: its component, or a group
+    of its own for a labelled sample of a disagreeing component (which spreads to nothing)."""
+    n_comp, comp = _components(pairs, num_samples)
     lab_comp = comp[labelled]
     lo = np.full(n_comp, np.iinfo(np.int64).max)
     hi = np.full(n_comp, -1)
@@ -360,8 +358,51 @@ def closure_labels(
     keep = conflict[lab_comp]  # labelled samples of disagreeing components keep their own
     out_idx = np.concatenate([spread, labelled[keep]])
     out_lab = np.concatenate([hi[comp[spread]], labels[keep]])
+    group = np.concatenate([comp[spread], n_comp + np.arange(int(keep.sum()))])
     order = np.argsort(out_idx, kind="stable")
-    return out_idx[order], out_lab[order], int(conflict.sum())
+    return out_idx[order], out_lab[order], int(conflict.sum()), group[order]
+
+
+def closure_labels(
+    labelled: np.ndarray, labels: np.ndarray, pairs: np.ndarray, num_samples: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """(labelled', labels', conflicting components): the labels spread over the must-link graph.
+
+    labelled (L,) indices, labels (L,) classes, pairs (P, 2) into 0..num_samples-1. Each connected
+    component holding labelled samples of one class gives that class to all its members; a
+    component whose labelled samples disagree keeps only those samples' own labels.
+    """
+    labelled = np.asarray(labelled, np.int64)
+    labels = np.asarray(labels, np.int64)
+    if len(pairs) == 0 or len(labelled) == 0:
+        return labelled, labels, 0
+    return _closure(labelled, labels, pairs, num_samples)[:3]
+
+
+class _AnnotationDraw:
+    """Labels via constraints drawn per annotation (`closure_draw="annotation"`): each draw picks
+    one of the operator's annotations (class-uniformly with `balanced`), then a member of its
+    component uniformly. Every annotation keeps the weight it has without constraints; drawing the
+    closure's samples uniformly instead weights an annotation by its component's size, and since
+    a long track is also the likelier to hold a drawn label, a class's few longest tracks take
+    most of its draws (constraint30's bush: one component, 61 %)."""
+
+    def __init__(self, annotation_pos: np.ndarray, annotation_labels: np.ndarray, group: np.ndarray,
+                 balanced: bool, rng: np.random.Generator) -> None:
+        # annotation_pos: (A,) positions of the annotations among the closure's samples;
+        # group: (L',) group (component) id of each of the closure's samples
+        self.rng = rng
+        self.cycle: _Cycler | _BalancedCycler = (
+            _BalancedCycler(annotation_labels, rng) if balanced else _Cycler(len(annotation_pos), rng))
+        self.order = np.argsort(group, kind="stable")
+        sorted_group = group[self.order]
+        g = group[annotation_pos]
+        self.start = np.searchsorted(sorted_group, g)  # (A,) first position of each annotation's group
+        self.size = np.searchsorted(sorted_group, g, side="right") - self.start  # (A,) its group's size
+
+    def take(self, k: int) -> np.ndarray:
+        a = self.cycle.take(k)  # (k,) annotations
+        return self.order[self.start[a] + self.rng.integers(0, self.size[a])]  # (k,) closure positions
 
 
 class _TrackPartners:
@@ -371,12 +412,8 @@ class _TrackPartners:
     consecutive frames."""
 
     def __init__(self, pairs: np.ndarray, num_samples: int, rng: np.random.Generator) -> None:
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
-
         self.rng = rng
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(num_samples, num_samples))
-        _, comp = connected_components(graph, directed=False)
+        _, comp = _components(pairs, num_samples)
         self.order = np.argsort(comp, kind="stable")  # (M,) samples grouped by component
         sorted_comp = comp[self.order]
         self.start = np.searchsorted(sorted_comp, comp)  # (M,) first position of each sample's component
@@ -500,14 +537,18 @@ def train(
     if config.batch_labelled < 1 or config.pairs_per_label < 0:
         raise ConfigError("training.batch_labelled must be >= 1 and training.pairs_per_label >= 0")
 
+    annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     if config.closure_labels and num_l and num_p:
-        lab, y, _ = closure_labels(data.labelled, data.labels, data.pairs, len(data.samples))
+        lab, y, _, group = _closure(data.labelled, data.labels, data.pairs, len(data.samples))
+        if config.closure_draw == "annotation":  # (positions of the annotations, their labels, groups)
+            annotations = (np.searchsorted(lab, data.labelled), data.labels, group)
         data = TrainingData(data.samples, lab, y, data.pairs, data.pair_weights)
     threads_before = torch.get_num_threads()
     if config.threads:
         torch.set_num_threads(config.threads)
     try:
-        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, stop)
+        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, stop,
+                      annotations)
     finally:
         torch.set_num_threads(threads_before)
 
@@ -522,6 +563,7 @@ def _train(
     init_model: SampleCNN | None,
     progress: Callable[[TrainProgress], None] | bool,
     stop: Callable[[], bool] | None,
+    annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TrainResult:
     num_l, num_p = len(data.labelled), len(data.pairs)
     seed_everything(config.seed)
@@ -543,8 +585,10 @@ def _train(
         n = min(config.batch_labelled, num_p)
     steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
     steps = max(steps, 1)
-    lab_cycle: _Cycler | _BalancedCycler | None = None
-    if m:
+    lab_cycle: _Cycler | _BalancedCycler | _AnnotationDraw | None = None
+    if m and annotations is not None:
+        lab_cycle = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
+    elif m:
         lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
     pair_cycle = _Cycler(num_p, rng) if n else None
     partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None

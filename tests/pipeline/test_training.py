@@ -400,3 +400,39 @@ def test_train_with_closure_labels_runs(blob_data):
     data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
     res = train(data, _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, closure_labels=True), TINY, SAMPLES, val=val)
     assert len(res.history) == 2 and all(r.loss_labelled > 0 for r in res.history)
+
+
+def test_annotation_draw_gives_each_annotation_its_own_weight_spread_over_its_component():
+    from pipeline.training import _AnnotationDraw, _closure
+
+    # component {0..9} holds annotation 0 (class 1); {10, 11} holds annotation 10 (class 1);
+    # {20, 21} holds 20 (class 2) and 21 (class 3): they disagree and spread to nothing
+    pairs = np.array([[i, i + 1] for i in range(9)] + [[10, 11], [20, 21]])
+    annotated, labels = np.array([0, 10, 20, 21]), np.array([1, 1, 2, 3])
+    idx, lab, conflicts, group = _closure(annotated, labels, pairs, 30)
+    assert conflicts == 1 and idx.tolist() == [*range(12), 20, 21]
+    draw = _AnnotationDraw(np.searchsorted(idx, annotated), labels, group, False, np.random.default_rng(0))
+    got = idx[draw.take(8000)]
+    # each annotation a quarter of the draws, whatever its component's size
+    assert (got < 10).mean() == pytest.approx(0.25, abs=0.02)
+    assert np.isin(got, [10, 11]).mean() == pytest.approx(0.25, abs=0.02)
+    assert (got == 20).mean() == pytest.approx(0.25, abs=0.02) and (got == 21).mean() == pytest.approx(0.25, abs=0.02)
+    counts = np.bincount(got, minlength=30)[:10]
+    assert counts.min() > 0.6 * counts.max()  # uniform inside the component
+    # drawing the closure's samples alike instead gives the 10-sample component 10 / 14 of them
+    # (the default, closure_draw="sample"); balanced: class-uniform over the annotations' classes
+    bal = lab[_AnnotationDraw(np.searchsorted(idx, annotated), labels, group, True,
+                              np.random.default_rng(0)).take(9000)]
+    assert np.bincount(bal, minlength=4)[1:] / 9000 == pytest.approx([1 / 3] * 3, abs=0.02)
+
+
+def test_train_with_closure_drawn_per_annotation_runs(blob_data):
+    x, y, val = blob_data
+    labelled = np.flatnonzero(np.arange(len(y)) % 50 == 0)
+    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
+    cfg = _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, closure_labels=True, closure_draw="annotation",
+               balanced_labels=True)
+    res = train(data, cfg, TINY, SAMPLES, val=val)
+    assert len(res.history) == 2 and all(r.loss_labelled > 0 for r in res.history)
+    with pytest.raises(ValueError):
+        _cfg(closure_draw="track")
