@@ -215,7 +215,8 @@ def experiment_paper(
     label_seed: Annotated[int | None, typer.Option(help="Seed of baseline_min's label draw (the few labels every setting but baseline_max uses); default: drawn after the split from --seed. Scenes, split and evaluation sets follow --seed.")] = None,
     labels_only_batch: Annotated[str, typer.Option(help="Labels per step of baseline_min/max: m (16), equal (176: a constraint step's canvases) or select (train both, keep the better validation F).")] = "select",
     constraint_pairs_per_label: Annotated[int, typer.Option(min=0, help="Pairs per label of the constraint settings at the paper's canvases per step: 1 = 58 labels + 58 pairs (default), 5 = the paper's 16 + 80, 0 = labels via constraints only.")] = 1,
-    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (eight more settings).")] = False,
+    closure_draw: Annotated[str, typer.Option(help="How labels via constraints are drawn: annotation (an annotation, then a member of its component; default) or sample (every sample of the closure alike).")] = "annotation",
+    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (nine more settings).")] = False,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
@@ -228,7 +229,7 @@ def experiment_paper(
                              "bridge_pixels": bridge_pixels, "train_seed": train_seed, "label_seed": label_seed,
                              "settings": SETTINGS + ABLATIONS if ablations else SETTINGS,
                              "labels_only_batch": labels_only_batch,
-                             "constraint_pairs_per_label": constraint_pairs_per_label}
+                             "constraint_pairs_per_label": constraint_pairs_per_label, "closure_draw": closure_draw}
     for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
                        ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
                        ("crowd", crowd), ("cyclists", cyclists), ("train_style", train_style),

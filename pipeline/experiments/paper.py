@@ -43,9 +43,14 @@
    - constraint100_paper_batch: the paper's step, 16 labels + 80 pairs;
    - constraint100_closure_only: no constraint term (L_c): all 176 canvases of a step are labels
      via constraints (the annotations spread over their components), so it measures what L_c adds;
+   - constraint100_sample_closure: labels via constraints drawn uniformly over the closure's
+     samples (stop 18's default) instead of per annotation (`closure_draw`): an annotation then
+     weighs as its component is large, and a long track, likelier to hold a drawn label in the
+     first place, takes much of its class's draws;
    - constraint100_no_closure: the paper's use of the labels. By default (`closure_labels`) a
      label holds for every sample its verified pairs join it to (must-link is an equivalence),
-     so the cross-entropy draws from the labelled samples' whole components, not the 30 alone.
+     so the cross-entropy draws from the labelled samples' whole components, not the 30 alone:
+     an annotation, then any member of its component (`closure_draw` "annotation").
    A diagnostic, not a method: oracle_objects20 labels up to 20 training samples of every object
    that baseline_min's labels show (ground-truth identity, spread over the object's frames): every
    view of the labelled objects, as perfect constraints joining each object's tracks would give.
@@ -96,6 +101,7 @@ ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnosti
     "constraint100_no_closure",
     "constraint100_paper_batch",
     "constraint100_closure_only",
+    "constraint100_sample_closure",
     "oracle_objects20",
     "oracle_object_constraints",
 )
@@ -130,6 +136,11 @@ class PaperConfig:
     component_power: float | None = None  # pair draws per component ~ size**p (None: per link; see training)
     balance_weight: float = 0.0
     closure_labels: bool = True  # each label spreads over its must-link component (constraint100_no_closure: off)
+    # how labels via constraints are drawn: "annotation" (one of the operator's annotations, then a
+    # member of its component: each annotation weighs as without constraints) or "sample" (every
+    # sample of the closure alike, so an annotation weighs as its component is large; stop 18's
+    # default, the ablation constraint100_sample_closure). Chosen on the validation split (README)
+    closure_draw: str = "annotation"
     augment: bool = True
     val_fraction: float = 0.3
     select_val: int = 2100  # validation samples used for model selection (stratified subsample)
@@ -156,6 +167,8 @@ class PaperConfig:
     def __post_init__(self) -> None:
         if self.labels_only_batch not in ("m", "equal", "select"):
             raise ConfigError(f"labels_only_batch: expected m, equal or select, got {self.labels_only_batch!r}")
+        if self.closure_draw not in ("annotation", "sample"):
+            raise ConfigError(f"closure_draw: expected annotation or sample, got {self.closure_draw!r}")
         if self.constraint_pairs_per_label < 0:
             raise ConfigError(f"constraint_pairs_per_label: expected >= 0, got {self.constraint_pairs_per_label}")
 
@@ -178,6 +191,7 @@ class PaperConfig:
             transitive_pairs=self.transitive_pairs,
             component_power=self.component_power,
             closure_labels=self.closure_labels,
+            closure_draw=self.closure_draw,
             seed=self.seed if self.train_seed is None else self.train_seed,
             balance_weight=self.balance_weight,
             augment=self.augment,
@@ -196,6 +210,8 @@ class PaperConfig:
             out |= self.constraint_batch
         if name == "constraint100_paper_pairs":
             out["transitive_pairs"] = False
+        if name == "constraint100_sample_closure":
+            out["closure_draw"] = "sample"
         if name in ("constraint100_no_closure", "constraint100_auto"):
             # closure trusts every pair: over unverified links (fragment links join other objects
             # 9 % of the time) one label spreads to whatever the chains reach (seed-0 route:
@@ -598,7 +614,8 @@ def markdown(doc: dict[str, Any]) -> str:
         f"70/30 train/validation split by track.{_batch_note(res)}",
         "",
         "**Training data per setting** (like the paper's Table 6; constraints by the class of their track; "
-        "labels via constraints: the annotations spread over their must-link components, `closure_labels`):",
+        "labels via constraints: the annotations spread over their must-link components, `closure_labels`, "
+        f"drawn {_closure_draw(cfg)}):",
         "",
         *data_rows,
         "",
@@ -623,6 +640,13 @@ def markdown(doc: dict[str, Any]) -> str:
         f"start {_load(doc['machine']['load_average_start'])}, at end {_load(doc['machine']['load_average_end'])}.",
     ]
     return "\n".join(lines) + "\n"
+
+
+def _closure_draw(cfg: dict[str, Any]) -> str:
+    """How a doc's labels via constraints were drawn (docs before `closure_draw` drew per sample)."""
+    if cfg.get("closure_draw", "sample") == "annotation":
+        return "per annotation: an annotation, then a member of its component"
+    return "uniformly over the samples"
 
 
 def _constraint_step(cfg: dict[str, Any]) -> str:

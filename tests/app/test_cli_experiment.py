@@ -23,13 +23,18 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
                                     "constraint100_auto", "constraint100_tracks_only", "constraint100_paper_pairs", "constraint100_no_mask",
-                                    "constraint100_no_closure", "constraint100_paper_batch", "constraint100_closure_only", "oracle_objects20",
+                                    "constraint100_no_closure", "constraint100_paper_batch", "constraint100_closure_only", "constraint100_sample_closure",
+                                    "oracle_objects20",
                                     "oracle_object_constraints"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
     assert doc["results"]["constraint100_auto"]["training"]["closure_labels"] is False  # unverified pairs
     assert doc["config"]["closure_labels"] is True
+    assert doc["config"]["closure_draw"] == "annotation"  # labels via constraints: per annotation
+    assert doc["results"]["constraint100_sample_closure"]["training"]["closure_draw"] == "sample"
+    assert "closure_draw" not in doc["results"]["constraint100"]["training"]  # the config's
+    assert "drawn per annotation" in (out / "paper.md").read_text()
     m = doc["config"]["batch_labelled"]
     big = m * (1 + 2 * doc["config"]["pairs_per_label"])  # a constraint step's canvases
     for name in ("baseline_min", "baseline_max", "oracle_objects20"):  # labels only: both tried, the better kept
@@ -91,6 +96,8 @@ def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
     assert r.exit_code == 2 and "labels_only_batch" in r.output
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--constraint-pairs-per-label", "-1"])
     assert r.exit_code == 2 and "constraint-pairs-per-label" in r.output
+    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--closure-draw", "track"])
+    assert r.exit_code == 2 and "closure_draw" in r.output
     r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--test-style", "z"])
     assert r.exit_code == 2 and "test_style" in r.output and "a+" in r.output
     assert not (tmp_path / "cache").exists()  # refused before simulating anything

@@ -214,3 +214,17 @@ def test_paper_constraint_step_keeps_the_papers_canvases():
     assert (paper["batch_labelled"], paper["pairs_per_label"]) == (16, 5)
     with pytest.raises(ConfigError, match="constraint_pairs_per_label"):
         PaperConfig(constraint_pairs_per_label=-1)
+
+
+def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
+    from pipeline.errors import ConfigError
+    from pipeline.experiments.paper import ABLATIONS, PaperConfig
+
+    cfg = PaperConfig()
+    assert cfg.training_config().closure_draw == "annotation" and cfg.training_config().closure_labels
+    assert "constraint100_sample_closure" in ABLATIONS
+    assert cfg.setting_training("constraint100_sample_closure")["closure_draw"] == "sample"
+    assert "closure_draw" not in cfg.setting_training("constraint100")
+    assert PaperConfig(closure_draw="sample").training_config().closure_draw == "sample"
+    with pytest.raises(ConfigError, match="closure_draw"):
+        PaperConfig(closure_draw="track")
