@@ -207,7 +207,7 @@ def experiment_paper(
     threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default; 1 is faster on a busy 2-core box).")] = 0,
     crowd: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars (default 3).")] = None,
     cyclists: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists (default 3).")] = None,
-    unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints", help="Also the constraints of unknown tracks (the paper has none).")] = False,
+    unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints/--no-unknown-constraints", help="Also the verified constraints of unknown tracks (default; the paper has none).")] = True,
     train_style: Annotated[str | None, typer.Option(help="Campus style of the training route: a, b, a+ or b+ (default a+).")] = None,
     test_style: Annotated[str | None, typer.Option(help="Campus style of test scene D: a, b, a+ or b+ (default b+).")] = None,
     bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
@@ -216,7 +216,7 @@ def experiment_paper(
     labels_only_batch: Annotated[str, typer.Option(help="Labels per step of baseline_min/max: m (16), equal (176: a constraint step's canvases) or select (train both, keep the better validation F).")] = "select",
     constraint_pairs_per_label: Annotated[int, typer.Option(min=0, help="Pairs per label of the constraint settings at the paper's canvases per step: 1 = 58 labels + 58 pairs (default), 5 = the paper's 16 + 80, 0 = labels via constraints only.")] = 1,
     closure_draw: Annotated[str, typer.Option(help="How labels via constraints are drawn: annotation (an annotation, then a member of its component; default) or sample (every sample of the closure alike).")] = "annotation",
-    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (nine more settings).")] = False,
+    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (ten more settings).")] = False,
     full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:

@@ -21,8 +21,8 @@
    (`labels_only_batch`):
    - baseline_min: `labels_per_class` labels per class drawn from the training split, no constraints;
    - constraint30/60/100: the same labels + the verified constraints of A / A+B / A+B+C
-     (training-split tracks; no constraints for unknown, as in the paper, unless
-     `unknown_constraints`);
+     (training-split tracks; those of unknown tracks too, `unknown_constraints`: the paper
+     makes none for unknown, which is the ablation constraint100_no_unknown);
    - baseline_max: every label of the training split;
    - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
      weighted by its association score (no label closure: it would trust every link).
@@ -47,6 +47,9 @@
      samples (stop 18's default) instead of per annotation (`closure_draw`): an annotation then
      weighs as its component is large, and a long track, likelier to hold a drawn label in the
      first place, takes much of its class's draws;
+   - constraint100_no_unknown: the paper's constraint set, none from unknown tracks (the default
+     takes the verified links of unknown tracks too, `unknown_constraints`: the operator accepts
+     and labels an unknown track like any other, and its links join views of one object);
    - constraint100_no_closure: the paper's use of the labels. By default (`closure_labels`) a
      label holds for every sample its verified pairs join it to (must-link is an equivalence),
      so the cross-entropy draws from the labelled samples' whole components, not the 30 alone:
@@ -102,6 +105,7 @@ ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnosti
     "constraint100_paper_batch",
     "constraint100_closure_only",
     "constraint100_sample_closure",
+    "constraint100_no_unknown",
     "oracle_objects20",
     "oracle_object_constraints",
 )
@@ -155,7 +159,10 @@ class PaperConfig:
     cyclists: float = 3.0  # simulator: further factor on cyclists
     train_style: str = "a+"  # campus style of the training route (pipeline.simulation.style)
     test_style: str = "b+"  # campus style of D: another part of town (pipeline.simulation.style)
-    unknown_constraints: bool = False  # verified constraints of unknown tracks too (the paper has none)
+    # verified constraints of unknown tracks too (the paper has none: constraint100_no_unknown).
+    # With labels drawn per annotation this gave constraint100 validation F 87.2 against 86.0
+    # (training seed 1: 87.0 against 85.6); chosen on the validation split (README)
+    unknown_constraints: bool = True
     train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
     label_seed: int | None = None  # draw of baseline_min's labels; None: the split's stream. Scenes and split follow seed
     bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
@@ -302,7 +309,7 @@ def setting_data(
     else:
         up_to = {"constraint30": 0, "constraint60": 1}.get(name, 2)  # constraint100 and its variants: 2
         pairs = scene.verified_pairs
-        if unknown_constraints:  # every link inside the kept part of an accepted track
+        if unknown_constraints and name != "constraint100_no_unknown":  # every link inside the kept part of an accepted track
             pairs = scene.auto_pairs[(scene.label[scene.auto_pairs[:, 0]] >= 0) & (scene.label[scene.auto_pairs[:, 1]] >= 0)]
         if name != "constraint100_tracks_only":  # the paper's constraints are track links alone
             pairs = np.concatenate([pairs, scene.stitched_pairs]).astype(np.int64)

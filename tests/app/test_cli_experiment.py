@@ -23,7 +23,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     doc = json.loads((out / "paper.json").read_text())
     assert list(doc["results"]) == ["baseline_min", "constraint30", "constraint60", "constraint100", "baseline_max",
                                     "constraint100_auto", "constraint100_tracks_only", "constraint100_paper_pairs", "constraint100_no_mask",
-                                    "constraint100_no_closure", "constraint100_paper_batch", "constraint100_closure_only", "constraint100_sample_closure",
+                                    "constraint100_no_closure", "constraint100_paper_batch", "constraint100_closure_only", "constraint100_sample_closure", "constraint100_no_unknown",
                                     "oracle_objects20",
                                     "oracle_object_constraints"]
     assert doc["results"]["constraint100_paper_pairs"]["training"]["transitive_pairs"] is False
@@ -31,6 +31,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
     assert doc["results"]["constraint100_auto"]["training"]["closure_labels"] is False  # unverified pairs
     assert doc["config"]["closure_labels"] is True
+    assert doc["config"]["unknown_constraints"] is True  # the default; constraint100_no_unknown: the paper's
     assert doc["config"]["closure_draw"] == "annotation"  # labels via constraints: per annotation
     assert doc["results"]["constraint100_sample_closure"]["training"]["closure_draw"] == "sample"
     assert "closure_draw" not in doc["results"]["constraint100"]["training"]  # the config's

@@ -228,3 +228,21 @@ def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
     assert PaperConfig(closure_draw="sample").training_config().closure_draw == "sample"
     with pytest.raises(ConfigError, match="closure_draw"):
         PaperConfig(closure_draw="track")
+
+
+def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ablation():
+    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+
+    scene = _toy_scene()
+    cfg = PaperConfig(labels_per_class=2)
+    assert cfg.unknown_constraints
+    split = split_scene(scene, cfg)
+    _, paper, _ = setting_data("constraint100", scene, split, unknown_constraints=False)
+    _, ours, _ = setting_data("constraint100", scene, split, unknown_constraints=True)
+    _, ablation, _ = setting_data("constraint100_no_unknown", scene, split, unknown_constraints=True)
+    assert not (scene.label[paper[:, 0]] == 6).any() and (scene.label[ours[:, 0]] == 6).any()
+    assert np.array_equal(ablation, paper)
+    known = scene.label[ours[:, 0]] != 6  # the rest is the paper's set
+    assert {tuple(p) for p in ours[known].tolist()} == {tuple(p) for p in paper.tolist()}
+    assert (scene.label[ours[:, 0]] == scene.label[ours[:, 1]]).all()  # inside one accepted track
+    assert not np.isin(scene.track[ours], split.val_tracks).any()
