@@ -308,16 +308,25 @@ def setting_data(
         up_to = 2
     else:
         up_to = {"constraint30": 0, "constraint60": 1}.get(name, 2)  # constraint100 and its variants: 2
-        pairs = scene.verified_pairs
-        if unknown_constraints and name != "constraint100_no_unknown":  # every link inside the kept part of an accepted track
-            pairs = scene.auto_pairs[(scene.label[scene.auto_pairs[:, 0]] >= 0) & (scene.label[scene.auto_pairs[:, 1]] >= 0)]
-        if name != "constraint100_tracks_only":  # the paper's constraints are track links alone
-            pairs = np.concatenate([pairs, scene.stitched_pairs]).astype(np.int64)
+        pairs = verified_constraints(scene, unknown_constraints and name != "constraint100_no_unknown",
+                                     stitches=name != "constraint100_tracks_only")  # the paper's: track links alone
         weights = np.ones(len(pairs), np.float32)
     part = route_part(scene.progress)
     # a pair belongs to the part of its earlier sample; both samples must be on training-split tracks
     keep = (part[pairs].min(axis=1) <= up_to) & ~np.isin(scene.track[pairs], split.val_tracks).any(axis=1)
     return split.min_labelled, pairs[keep], weights[keep]
+
+
+def verified_constraints(scene: SceneSamples, unknown: bool, stitches: bool = True) -> np.ndarray:
+    """(P, 2) the operator's verified constraints of a scene: the links inside the kept part of
+    every accepted track (of unknown tracks too with `unknown`; the paper makes none for unknown),
+    plus the fragment links of the confirmed stitches with `stitches`."""
+    pairs = scene.verified_pairs
+    if unknown:  # every link inside the kept part of an accepted track
+        pairs = scene.auto_pairs[(scene.label[scene.auto_pairs[:, 0]] >= 0) & (scene.label[scene.auto_pairs[:, 1]] >= 0)]
+    if stitches:
+        pairs = np.concatenate([pairs, scene.stitched_pairs])
+    return pairs.astype(np.int64)
 
 
 def _by_object_then_frame(scene: SceneSamples, idx: np.ndarray) -> np.ndarray:
@@ -539,11 +548,9 @@ def _adapt(
         cols = np.asarray(confusion, np.float64).sum(0)
         return cols / max(cols.sum(), 1.0)
 
-    if pretrained is None or not cfg.adapt or len(test.verified_pairs) == 0:
+    pairs = verified_constraints(test, cfg.unknown_constraints)  # as constraint100's on the route
+    if pretrained is None or not cfg.adapt or len(pairs) == 0:
         return {}
-    pairs = np.concatenate([test.verified_pairs, test.stitched_pairs]).astype(np.int64)
-    if not cfg.unknown_constraints:
-        pairs = pairs[test.label[pairs[:, 0]] != NUM_SAMPLE_CLASSES - 1]
     out: dict[str, Any] = {}
     evals = max(1, min(4, cfg.adapt_steps))
     for name in cfg.adapt:

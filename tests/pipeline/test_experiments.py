@@ -231,7 +231,7 @@ def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
 
 
 def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ablation():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene, verified_constraints
 
     scene = _toy_scene()
     cfg = PaperConfig(labels_per_class=2)
@@ -246,3 +246,5 @@ def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ab
     assert {tuple(p) for p in ours[known].tolist()} == {tuple(p) for p in paper.tolist()}
     assert (scene.label[ours[:, 0]] == scene.label[ours[:, 1]]).all()  # inside one accepted track
     assert not np.isin(scene.track[ours], split.val_tracks).any()
+    assert np.array_equal(verified_constraints(scene, False, stitches=False), scene.verified_pairs)
+    assert len(verified_constraints(scene, True)) > len(scene.verified_pairs)  # D's adaptation takes the same set
