@@ -23,6 +23,10 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
   (the labelled cross-entropy then draws from the closure; a component whose labelled samples
   disagree, possible only with unverified pairs, keeps just its own labels). The product's
   track review does the same: one click labels every sample of a track;
+- `closure_draw="annotation"` (with closure labels): each labelled draw picks one of the given
+  annotations, then a member of its component, so every annotation weighs as it does without
+  constraints; "sample" (the default) draws the closure's samples alike, which weighs an
+  annotation by the size of its component;
 - `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
 - `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
   among which the selection rule picks, move less than a constant rate lets them.
