@@ -210,7 +210,6 @@ def experiment_paper(
     unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints/--no-unknown-constraints", help="Also the verified constraints of unknown tracks (default; the paper has none).")] = True,
     train_style: Annotated[str | None, typer.Option(help="Campus style of the training route: a, b, a+ or b+ (default a+).")] = None,
     test_style: Annotated[str | None, typer.Option(help="Campus style of test scene D: a, b, a+ or b+ (default b+).")] = None,
-    bridge_pixels: Annotated[int, typer.Option(min=1, max=32, help="Segmentation: empty pixels in a row stepped over (default 1).")] = 1,
     train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
     label_seed: Annotated[int | None, typer.Option(help="Seed of baseline_min's label draw (the few labels every setting but baseline_max uses); default: drawn after the split from --seed. Scenes, split and evaluation sets follow --seed.")] = None,
     labels_only_batch: Annotated[str, typer.Option(help="Labels per step of baseline_min/max: m (16), equal (176: a constraint step's canvases) or select (train both, keep the better validation F).")] = "select",
@@ -226,7 +225,7 @@ def experiment_paper(
     from pipeline.experiments.paper import ABLATIONS, SETTINGS, PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "bridge_pixels": bridge_pixels, "train_seed": train_seed, "label_seed": label_seed,
+                             "train_seed": train_seed, "label_seed": label_seed,
                              "settings": SETTINGS + ABLATIONS if ablations else SETTINGS,
                              "labels_only_batch": labels_only_batch,
                              "constraint_pairs_per_label": constraint_pairs_per_label, "closure_draw": closure_draw}

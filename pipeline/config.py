@@ -44,6 +44,23 @@ class SegmentationConfig(_Section):
     vertical_slope: float = 0.04
     horizontal_base: float = 0.25
     horizontal_slope: float = 0.03
+    # depth_clustering's beta criterion: neighbours whose connecting surface is seen at less than
+    # this angle from the beam do not join (0 = off). Separates a hedge from the wall behind it
+    # where only a grazing surface links them.
+    angle_threshold_deg: float = Field(default=10.0, ge=0.0, lt=90.0)
+    # Rough (foliage) and smooth (walls, cars) pixels do not join; a pixel is rough when most of
+    # its 5 x 9 window has a row line-fit residual above this many metres (0 = no texture cut).
+    texture_threshold: float = Field(default=0.03, ge=0.0)
+    # components under this many pixels join the neighbour they share the most joins with
+    merge_pixels: int = Field(default=100, ge=0)
+    # pixels without a return stepped over between two that may join (glass, dark paint)
+    bridge_horizontal: int = Field(default=2, ge=0, le=32)
+    bridge_vertical: int = Field(default=3, ge=0, le=32)
+    # pixels of a nearer occluder stepped over (a pole or a person in front of a car)
+    occluder_pixels: int = Field(default=8, ge=0, le=64)
+    # ground points up to this many metres below a segment's lowest pixel that join it by the
+    # vertical rules go back to it (wheels, the feet of walls and people; 0 = off)
+    foot_height: float = Field(default=0.3, ge=0.0)
     # Overhang: a vertical pair whose upper pixel is nearer than the lower one by more than
     # overhang_base + overhang_slope * r (a crown over its trunk, an eave over a person) does not join.
     # A vertical surface steps by ~0 m between rings; overhang_slope <= 0 disables the rule.
@@ -57,11 +74,7 @@ class SegmentationConfig(_Section):
     thin_min_height: float = 1.0
     wide_width: float = 1.5
     wide_ratio: float = 2.0
-    use_angle_criterion: bool = False
-    angle_threshold_deg: float = 10.0  # depth_clustering's beta criterion when enabled
     min_points: int = 3  # segments smaller than this are dropped (label 0)
-    bridge_empty: bool = True  # step over pixels without any return (see segmentation.py)
-    bridge_pixels: int = Field(default=1, ge=1, le=32)  # at most this many empty pixels in a row are stepped over
 
 
 class SampleConfig(_Section):

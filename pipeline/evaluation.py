@@ -14,6 +14,11 @@ dominant object is the key holding most of its points.
 
 Segments here are the sampled segments (track id > 0 in `tracks/*.label`).
 Everything is also reported per class (of the dominant object) and per range bin.
+
+`quality_summary` gives the four headline numbers used to choose the perception defaults on real
+scans: purity with ground and unlabelled points left out, thing cover (per person, car or
+cyclist instance of >= 30 points in a frame, the share of all its points in its largest segment,
+averaged over instances), link precision and thing link recall.
 """
 
 from __future__ import annotations
@@ -167,6 +172,43 @@ def evaluate_frames(frames: list[FrameTruth], links: list[tuple[int, int, int]])
     return _summarise(acc)
 
 
+def thing_cover(frames: list[FrameTruth]) -> tuple[float | None, int]:
+    """(mean share of a thing instance's points in its largest segment, instances): every person,
+    car or cyclist instance with >= MIN_PRESENCE_POINTS points in a frame counts once per frame."""
+    shares = []
+    for ft in frames:
+        thing = np.isin(ft.inst_key >> 16, THINGS) & ((ft.inst_key & 0xFFFF) > 0)
+        keys, counts = np.unique(ft.inst_key[thing], return_counts=True)
+        for key, n in zip(keys, counts, strict=True):
+            if n >= MIN_PRESENCE_POINTS:
+                seg = ft.track[ft.inst_key == key]
+                shares.append(np.unique(seg[seg > 0], return_counts=True)[1].max(initial=0) / n)
+    return (float(np.mean(shares)) if shares else None), len(shares)
+
+
+def quality_summary(frames: list[FrameTruth], links: list[tuple[int, int]]) -> dict:
+    """The headline numbers of the module docstring."""
+    objects = []
+    for ft in frames:
+        cls = ft.key >> 16
+        drop = (cls == CLASS_INDEX["ground"]) | (cls == UNLABELLED)
+        objects.append(FrameTruth(np.where(drop, 0, ft.track).astype(ft.track.dtype), ft.key, ft.inst_key, ft.points))
+    res = evaluate_frames(objects, links)
+    cover, instances = thing_cover(frames)
+    hits = [res["per_class"][name] for name in ("person", "car", "cyclist") if name in res["per_class"]]
+    presences = sum(b["presences"] for b in hits)
+    recalled = sum(b["presences"] * (b["association_recall"] or 0.0) for b in hits)
+    return {
+        "purity": res["overall"]["purity"],
+        "thing_cover": cover,
+        "thing_instances": instances,
+        "link_precision": res["overall"]["association_precision"],
+        "thing_link_recall": recalled / presences if presences else None,
+        "link_recall": res["overall"]["association_recall"],
+        "segments": res["overall"]["segments"],
+    }
+
+
 def track_objects(frames: list[FrameTruth]) -> tuple[np.ndarray, np.ndarray]:
     """(track ids (T,) int64 sorted, dominant instance key (T,) int64 of each): the instance key
     holding most of the track's points over all its frames."""
@@ -254,6 +296,12 @@ def format_table(result: dict) -> str:
         )
 
     lines.append(row("overall", result["overall"]))
+    sm = result.get("summary")
+    if sm:
+        lines.append(f"objects (ground and unlabelled points left out): purity {f(sm['purity']).strip()} %, "
+                     f"thing cover {f(sm['thing_cover']).strip()} % ({sm['thing_instances']} instances), "
+                     f"link precision {f(sm['link_precision']).strip()} %, "
+                     f"thing link recall {f(sm['thing_link_recall']).strip()} %")
     lines.append(f"over-segmentation (segments per object): {f(result['overall'].get('over_segmentation'), False)}")
     st = result.get("stitches")
     if st:

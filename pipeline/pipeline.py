@@ -18,12 +18,12 @@ import numpy as np
 
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
-from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys
+from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
 from pipeline.io import open_sequence
 from pipeline.processing import SequenceProcessor
 from pipeline.scan import Scan, SequenceSource
 from pipeline.sensors import SensorModel, get_sensor
-from pipeline.tracks import TrackBuilder, read_tracks
+from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
 
 
 def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
@@ -155,6 +155,7 @@ def run_process(
         "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in builder.tracks.values())),
         "stitches": len(builder.stitches),
         "mean_track_length": float(lengths.mean()),
+        "track_statistics": track_statistics(list(builder.tracks.values()), len(names)),
         "ms": {k: _stats(v) for k, v in timings.items()},
         "ms_project_ground_segment": _stats(per_frame),
         "seconds": round(elapsed, 3),
@@ -168,7 +169,8 @@ def run_process(
 
 
 def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) -> dict:
-    """Evaluate `tracklabel process` output `out` against the labels of sequence `seq`."""
+    """Evaluate `tracklabel process` output `out` against the labels of sequence `seq`; frames
+    without labels are left out (links are scored between consecutive labelled frames)."""
     out = Path(out)
     tracks_file = out / "tracks.json"
     if not tracks_file.exists():
@@ -185,25 +187,28 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) ->
 
         iterator = tqdm(kept_names, unit="frame", desc="evaluate")
     index_of: dict[int, int] = {}
-    for k, name in enumerate(iterator):
+    for name in iterator:
         if name not in pos_of_name:
             raise DataError(out, f"frame {name} of tracks.json is not in {seq}")
         scan = source.frame(pos_of_name[name])
         if scan.semantic is None or scan.instance is None:
-            raise DataError(seq, f"frame {name} has no labels: evaluation needs SemanticKITTI labels")
+            continue
         label_file = out / "tracks" / f"{name}.label"
         track = np.fromfile(label_file, dtype=np.uint32)
         if len(track) != len(scan):
             raise DataError(label_file, f"has {len(track)} ids but the scan has {len(scan)} points")
         key, inst = object_keys(scan.semantic, scan.instance)
+        index_of[pos_of_name[name]] = len(frames)
         frames.append(FrameTruth(track, key, inst, scan.points))
-        index_of[pos_of_name[name]] = k
+    if not frames:
+        raise DataError(seq, "no frame has labels: evaluation needs SemanticKITTI labels")
     links = []
     for t in tracks:
         for a, b in zip(t.frames[:-1], t.frames[1:], strict=True):
             if a in index_of and b in index_of and index_of[b] == index_of[a] + 1:
                 links.append((index_of[a], t.id))
     result = evaluate_frames(frames, links)
+    result["summary"] = quality_summary(frames, links)
     result["frames"] = len(frames)
     stitches = np.asarray([st["tracks"] for st in doc.get("stitches", [])], np.int64).reshape(-1, 2)
     result["stitches"] = evaluate_stitches(frames, stitches)

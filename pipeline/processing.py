@@ -144,8 +144,10 @@ def process_scan(
         "segment": 1e3 * (t3 - t2),
         "samples": 1e3 * (t4 - t3),
     }
+    # segmentation takes the feet of objects back from the ground band
+    ground = g.ground & (seg.point < 0)
     return _FrameCore(
-        index, name, scan, seg.point, g.ground, g.height, valid_pixel.astype(np.int32), image.range, table,
+        index, name, scan, seg.point, ground, g.height, valid_pixel.astype(np.int32), image.range, table,
         canv, canv_seg, timings,
     )
 

@@ -111,6 +111,27 @@ class TrackBuilder:
         Path(path).write_text(json.dumps(data, separators=(",", ":")))
 
 
+def track_statistics(tracks: list[Track], frames: int) -> dict:
+    """How long tracks are and how much review they need: tracks spanning >= 10 / 30 / all of
+    `frames` frames, and the reviews (one per track, longest tracks first, then the larger) that
+    cover 50 / 90 % of the tracked points."""
+    lengths = np.asarray([len(t.frames) for t in tracks], np.int64)
+    points = np.asarray([sum(t.points) for t in tracks], np.float64)
+    order = np.lexsort((-points, -lengths))
+    covered = np.cumsum(points[order]) / max(points.sum(), 1.0)
+
+    def reviews(share: float) -> int:
+        return int(np.searchsorted(covered, share - 1e-9) + 1) if len(covered) else 0
+
+    return {
+        "tracks": len(tracks),
+        "median_length": float(np.median(lengths)) if len(lengths) else 0.0,
+        "spanning": {"10": int((lengths >= 10).sum()), "30": int((lengths >= 30).sum()),
+                     "all": int((lengths >= frames).sum()) if frames else 0},
+        "reviews_for_share": {"50": reviews(0.5), "90": reviews(0.9)},
+    }
+
+
 def read_tracks(path: str | Path) -> tuple[list[Track], dict]:
     """Tracks and the raw document of a `tracks.json`."""
     data = json.loads(Path(path).read_text())

@@ -165,7 +165,6 @@ class PaperConfig:
     unknown_constraints: bool = True
     train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
     label_seed: int | None = None  # draw of baseline_min's labels; None: the split's stream. Scenes and split follow seed
-    bridge_pixels: int = 1  # segmentation: empty pixels stepped over (4 halves car fragments; README "Result")
     adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
     settings: tuple[str, ...] = SETTINGS
@@ -412,8 +411,7 @@ def run_paper(
     log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames) and test scene D "
         f"(seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames) at S={cfg.size}")
     t0 = time.perf_counter()
-    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists,
-           "config": PipelineConfig().override({"segmentation": {"bridge_pixels": cfg.bridge_pixels}})}
+    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
     scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, style=cfg.train_style, **sim)
     test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
                          style=cfg.test_style, **sim)

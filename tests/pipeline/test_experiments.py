@@ -72,11 +72,12 @@ def test_prepare_scene_caches_each_segmentation_apart(tmp_path):
     from pipeline.config import PipelineConfig
 
     plain = prepare_scene(tmp_path, seed=2, frames=3, size=32)
-    bridged = prepare_scene(tmp_path, seed=2, frames=3, size=32,
-                            config=PipelineConfig().override({"segmentation": {"bridge_pixels": 8}}))
-    assert len(list(tmp_path.glob("scene_*.npz"))) == 2  # the bridged scene did not reuse the cached one
-    # wider bridges join fragments (dark cars): fewer samples and tracks in the same frames
-    assert len(bridged) < len(plain) and len(np.unique(bridged.track)) < len(np.unique(plain.track))
+    unmerged = {"merge_pixels": 0, "bridge_horizontal": 0, "bridge_vertical": 0, "occluder_pixels": 0}
+    pieces = prepare_scene(tmp_path, seed=2, frames=3, size=32,
+                           config=PipelineConfig().override({"segmentation": unmerged}))
+    assert len(list(tmp_path.glob("scene_*.npz"))) == 2  # the other segmentation did not reuse the cached scene
+    # without merges and bridges objects fall apart: more samples and tracks in the same frames
+    assert len(pieces) > len(plain) and len(np.unique(pieces.track)) > len(np.unique(plain.track))
 
 
 def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:

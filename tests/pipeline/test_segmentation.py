@@ -83,11 +83,76 @@ def test_segmentation_labels_are_invariant_to_column_rotation(shift):
     assert len(np.unique(pairs[:, 0])) == len(pairs) == len(np.unique(pairs[:, 1]))
 
 
-def test_segmentation_angle_criterion_is_optional_and_stricter():
-    scan = scan_from_range_image(_scene(), SENSOR)
-    _, _, plain = _segment(scan)
-    _, _, strict = _segment(scan, SegmentationConfig(use_angle_criterion=True, angle_threshold_deg=60.0))
-    assert strict.count >= plain.count
+def _dominant(seg, mask: np.ndarray) -> int:
+    ids, counts = np.unique(seg.point[mask], return_counts=True)
+    return int(ids[np.argmax(counts)])
+
+
+def test_segmentation_angle_criterion_cuts_a_surface_seen_at_a_grazing_angle():
+    rimg = flat_ground(SENSOR, W)
+    rimg[4:11, 100:130] = 10.0 + 0.2 * np.arange(30)  # a wall receding 0.2 m per 1 deg column
+    scan = scan_from_range_image(rimg, SENSOR)
+    wall = (scan.ring >= 4) & (scan.ring < 11) & (np.linalg.norm(scan.points, axis=1) < 17.0)
+    _, _, plain = _segment(scan, SegmentationConfig(angle_threshold_deg=0.0))
+    _, _, strict = _segment(scan, SegmentationConfig(angle_threshold_deg=60.0))
+    assert len(np.unique(plain.point[wall])) == 1
+    assert len(np.unique(strict.point[wall])) > 10
+
+
+def _hedge_on_wall(patch_rows: slice, patch_cols: slice, scatter: float) -> tuple[Scan, np.ndarray, np.ndarray]:
+    """A smooth wall at 12 m with a patch of scattered returns (foliage) flush in front of it."""
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(2, 14), slice(80, 160), 12.0)
+    noise = np.random.default_rng(0).normal(0.0, scatter, (patch_rows.stop - patch_rows.start,
+                                                           patch_cols.stop - patch_cols.start))
+    rimg[patch_rows, patch_cols] = 12.0 - np.abs(noise)
+    scan = scan_from_range_image(rimg, SENSOR)
+    rows, cols = scan.ring, np.round(np.degrees(np.pi - np.arctan2(scan.points[:, 1], scan.points[:, 0])) - 0.5)
+    in_patch = (rows >= patch_rows.start) & (rows < patch_rows.stop) & (cols >= patch_cols.start) & (cols < patch_cols.stop)
+    in_wall = (rows >= 2) & (rows < 14) & (cols >= 80) & (cols < 160) & ~in_patch
+    return scan, in_patch, in_wall
+
+
+def test_segmentation_separates_foliage_flush_against_a_wall():
+    scan, hedge, wall = _hedge_on_wall(slice(6, 14), slice(100, 130), scatter=0.12)
+    _, _, seg = _segment(scan)
+    assert _dominant(seg, hedge) != _dominant(seg, wall)
+    _, _, no_texture = _segment(scan, SegmentationConfig(texture_threshold=0.0))
+    assert _dominant(no_texture, hedge) == _dominant(no_texture, wall)
+
+
+def test_segmentation_merges_a_small_rough_patch_back_into_its_object():
+    scan, patch, wall = _hedge_on_wall(slice(6, 12), slice(110, 122), scatter=0.12)  # 72 pixels
+    _, _, seg = _segment(scan)
+    assert _dominant(seg, patch) == _dominant(seg, wall)
+    _, _, unmerged = _segment(scan, SegmentationConfig(merge_pixels=0))
+    assert _dominant(unmerged, patch) != _dominant(unmerged, wall)
+
+
+def test_segmentation_steps_over_a_nearer_occluder():
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(6, 14), slice(100, 130), 12.0)  # a car ...
+    add_box(rimg, slice(0, 16), slice(113, 116), 8.0)  # ... behind a pole
+    scan = scan_from_range_image(rimg, SENSOR)
+    car = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & (scan.points[:, 2] > -1.55)
+    assert len(np.unique(_segment(scan)[2].point[car])) == 1
+    assert len(np.unique(_segment(scan, SegmentationConfig(occluder_pixels=0))[2].point[car])) == 2
+
+
+def test_segmentation_takes_the_feet_of_an_object_back_from_the_ground_band():
+    rimg = flat_ground(SENSOR, W)
+    add_box(rimg, slice(4, 15), slice(100, 110), 12.0)  # down to 0.1 m above the ground
+    scan = scan_from_range_image(rimg, SENSOR)
+    box = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3)
+    feet = box & (scan.points[:, 2] < -1.8 + 0.2)
+    assert feet.any()
+    _, g, seg = _segment(scan)
+    assert len(np.unique(seg.point[box])) == 1 and (seg.point[box] >= 0).all()
+    _, _, cut = _segment(scan, SegmentationConfig(foot_height=0.0))
+    assert (cut.point[feet] == -1).all()
+    # the road in front of it stays ground
+    road = ~box & (scan.points[:, 2] < -1.7)
+    assert (seg.point[road] == -1).all()
 
 
 def test_segmentation_too_few_points_gives_no_segments():
@@ -106,7 +171,7 @@ def test_segmentation_bridges_one_empty_column_but_not_a_return():
     above = scan.points[:, 2] > -1.8 + 0.25
     obj = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3) & above
     _, _, bridged = _segment(scan)
-    _, _, strict = _segment(scan, SegmentationConfig(bridge_empty=False))
+    _, _, strict = _segment(scan, SegmentationConfig(bridge_horizontal=0, merge_pixels=0))
     assert len(np.unique(bridged.point[obj])) == 1
     assert len(np.unique(strict.point[obj])) == 2
     # the same gap holding a far return (background) is not stepped over
@@ -138,7 +203,9 @@ def test_segmentation_bridges_up_to_bridge_pixels_empty_pixels():
         for gap in (2, 4):
             scan, obj = _two_boxes_with_gap(gap, vertical)
             for limit in (1, 2, 4, 6):
-                _, _, seg = _segment(scan, SegmentationConfig(bridge_pixels=limit))
+                key = "bridge_vertical" if vertical else "bridge_horizontal"
+                cfg = SegmentationConfig(**{key: limit}, merge_pixels=0, occluder_pixels=0)
+                _, _, seg = _segment(scan, cfg)
                 assert (len(np.unique(seg.point[obj])) == 1) == (gap <= limit), (vertical, gap, limit)
 
 

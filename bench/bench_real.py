@@ -1,0 +1,165 @@
+"""Perception on real recordings (../shared/data/real): quality, speed, tracks and threads.
+
+kitti_seq00 (SemanticKITTI sequence 00, HDL-64E, 60 frames, labels for frames 0-2):
+- quality with the defaults, through `run_process` and `evaluate_folder` as `tracklabel process`
+  and `evaluate` run them (pipeline.evaluation.quality_summary on frames 0-2): purity, thing
+  cover, link precision, thing link recall; the purity and cover of DBSCAN (eps 0.3 m) and
+  HDBSCAN (min cluster 20) on the pipeline's non-ground points, their clusters kept by the same
+  validity rule as segments (when scikit-learn is installed);
+- speed: projection + ground + segmentation per frame with one numba thread (median, p95), and
+  `process` frames/s with 64 x 64 samples (one worker);
+- tracks over the 60 frames: spanning >= 10 / 30 / all frames, and the reviews (longest tracks
+  first) that cover 50 / 90 % of the tracked points.
+kitti_seq09 (frames 10-14): frames/s and tracks.
+threads: the stages' ms per frame with 1 and 2 numba threads, as the machine is and with both
+cores kept busy by two spinning processes.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.real_data import REAL, kitti_seq09
+
+TARGETS = {"purity": 0.95, "thing_cover": 0.88, "link_precision": 0.99, "thing_link_recall": 0.90}
+MS_TARGET = 10.0
+FPS_TARGET = 20.0
+
+
+def _stage_ms(scans: list, sensor, config, threads: int, reps: int = 2) -> dict:
+    """ms per frame of projection, ground and segmentation (the last `reps - 1` passes)."""
+    import numba
+
+    from pipeline.ground import estimate_ground
+    from pipeline.range_image import project
+    from pipeline.segmentation import segment
+
+    numba.set_num_threads(threads)
+    total = []
+    for rep in range(reps):
+        for scan in scans:
+            t0 = time.perf_counter()
+            image = project(scan, sensor, config.range_image)
+            g = estimate_ground(scan, image, config.ground)
+            segment(image, g.ground, sensor, config.segmentation)
+            if rep:
+                total.append(1e3 * (time.perf_counter() - t0))
+    return {"median": round(float(np.median(total)), 2), "p95": round(float(np.percentile(total, 95)), 2)}
+
+
+def _spin() -> None:  # pragma: no cover - a child process
+    while True:
+        pass
+
+
+def _threads(scans: list, sensor, config) -> dict:
+    """Stage ms with 1 and 2 numba threads, as the machine is and with two spinning processes."""
+    out = {"as_is": {t: _stage_ms(scans, sensor, config, t) for t in (1, 2)}}
+    ctx = multiprocessing.get_context("spawn")
+    spinners = [ctx.Process(target=_spin, daemon=True) for _ in range(2)]
+    for p in spinners:
+        p.start()
+    try:
+        time.sleep(1.0)
+        out["busy"] = {t: _stage_ms(scans, sensor, config, t) for t in (1, 2)}
+    finally:
+        for p in spinners:
+            p.terminate()
+            p.join()
+    return out
+
+
+def _cluster_quality(seq: Path, frames: int, config) -> dict:
+    """Purity and thing cover of DBSCAN and HDBSCAN clusters of the pipeline's non-ground points."""
+    try:
+        from sklearn.cluster import DBSCAN, HDBSCAN
+    except ImportError:
+        return {"skipped": "scikit-learn is not installed"}
+    from pipeline.evaluation import FrameTruth, object_keys, quality_summary
+    from pipeline.ground import estimate_ground
+    from pipeline.range_image import project
+    from pipeline.samples import is_valid
+
+    source, sensor = _open(seq)
+    methods = {"dbscan_eps0.3": DBSCAN(eps=0.3, min_samples=5), "hdbscan_min20": HDBSCAN(min_cluster_size=20)}
+    truth: dict[str, list] = {name: [] for name in methods}
+    for i in range(frames):
+        scan = source.frame(i)
+        image = project(scan, sensor, config.range_image)
+        g = estimate_ground(scan, image, config.ground)
+        keep = image.kept & ~g.ground
+        key, inst = object_keys(scan.semantic, scan.instance)
+        for name, method in methods.items():
+            labels = np.full(len(scan), -1, np.int64)
+            labels[keep] = method.fit_predict(scan.points[keep])
+            ids, counts = np.unique(labels[labels >= 0], return_counts=True)
+            centroid_range = np.array([np.linalg.norm(scan.points[labels == k].mean(0)) for k in ids])
+            valid = ids[is_valid(counts, centroid_range, config.samples)]
+            track = np.where(np.isin(labels, valid), labels + 1, 0).astype(np.uint32)
+            truth[name].append(FrameTruth(track, key, inst, scan.points))
+    return {name: {k: quality_summary(f, [])[k] for k in ("purity", "thing_cover")} for name, f in truth.items()}
+
+
+def _open(seq: Path):
+    from pipeline.io import open_sequence
+    from pipeline.pipeline import resolve_sensor
+
+    source = open_sequence(seq)
+    return source, resolve_sensor(source, "auto")
+
+
+def run(out_dir: Path, quick: bool) -> dict:
+    from pipeline.config import PipelineConfig
+    from pipeline.pipeline import evaluate_folder, run_process
+
+    seq = REAL / "kitti_seq00"
+    if not (seq / "velodyne").is_dir():
+        return {"skipped": f"{REAL / 'kitti_seq00'} is absent"}
+    import numba
+
+    numba.set_num_threads(1)
+    config = PipelineConfig()
+    result: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        run_process(seq, tmp / "warm", config, samples=False)  # numba compile / cache load
+        summary = run_process(seq, tmp / "k00", config)
+        evaluation = evaluate_folder(seq, tmp / "k00")
+        result["kitti_seq00"] = {
+            "quality": evaluation["summary"],
+            "labelled_frames": evaluation["frames"],
+            "per_class_purity": {k: v["purity"] for k, v in evaluation["per_class"].items()},
+            "frames_per_second": summary["frames_per_second"],
+            "ms": summary["ms"],
+            "tracks": summary["track_statistics"],
+        }
+        seq09 = kitti_seq09(tmp / "seq09")
+        if seq09 is not None:
+            s9 = run_process(seq09, tmp / "k09", config)
+            result["kitti_seq09"] = {"frames_per_second": s9["frames_per_second"], "tracks": s9["track_statistics"]}
+        source, sensor = _open(seq)
+        scans = [source.frame(i) for i in range(0, 60, 6 if quick else 2)]
+        result["stage_ms_1_thread"] = _stage_ms(scans, sensor, config, 1, reps=3)
+        result["threads"] = _threads(scans[:10], sensor, config)
+        result["baselines"] = {} if quick else _cluster_quality(seq, 3, config)
+    q = result["kitti_seq00"]["quality"]
+    targets = {name: {"value": q[name], "target": t, "met": q[name] is not None and q[name] >= t}
+               for name, t in TARGETS.items()}
+    for name, base in result["baselines"].items():
+        if isinstance(base, dict):
+            for k in ("purity", "thing_cover"):
+                targets[f"{k}_vs_{name}"] = {"value": q[k], "target": base[k], "met": q[k] >= base[k]}
+    ms = result["stage_ms_1_thread"]["median"]
+    fps = result["kitti_seq00"]["frames_per_second"]
+    targets["ms_project_ground_segment"] = {"value": ms, "target": MS_TARGET, "met": ms <= MS_TARGET}
+    targets["process_frames_per_second"] = {"value": fps, "target": FPS_TARGET, "met": fps >= FPS_TARGET}
+    result["targets"] = targets
+    result["headline"] = (f"kitti_seq00: purity {q['purity']:.3f}, thing cover {q['thing_cover']:.3f}, "
+                          f"link precision {q['link_precision']:.3f}, thing recall {q['thing_link_recall']:.2f}; "
+                          f"{ms} ms/frame (1 thread), process {fps} frames/s")
+    return result
