@@ -53,7 +53,7 @@ def _pgs_isolated(seq: Path) -> dict:
         w0, c0 = time.perf_counter(), time.process_time()
         image = project(scan, sensor, cfg.range_image)
         g = estimate_ground(scan, image, cfg.ground)
-        segment(image, g.ground, sensor, cfg.segmentation)
+        segment(image, scan.points, g.ground, sensor, cfg.segmentation)
         cpu.append(1e3 * (time.process_time() - c0))
         wall.append(1e3 * (time.perf_counter() - w0))
     return {

@@ -46,7 +46,7 @@ def _stage_ms(scans: list, sensor, config, threads: int, reps: int = 2) -> dict:
             t0 = time.perf_counter()
             image = project(scan, sensor, config.range_image)
             g = estimate_ground(scan, image, config.ground)
-            segment(image, g.ground, sensor, config.segmentation)
+            segment(image, scan.points, g.ground, sensor, config.segmentation)
             if rep:
                 total.append(1e3 * (time.perf_counter() - t0))
     return {"median": round(float(np.median(total)), 2), "p95": round(float(np.percentile(total, 95)), 2)}

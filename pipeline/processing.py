@@ -127,7 +127,7 @@ def process_scan(
     t1 = time.perf_counter()
     g = estimate_ground(scan, image, config.ground)
     t2 = time.perf_counter()
-    seg = segment(image, g.ground, sensor, config.segmentation)
+    seg = segment(image, scan.points, g.ground, sensor, config.segmentation)
     t3 = time.perf_counter()
     table = segment_table(scan.points, seg.point, seg.count, config.samples)
     if samples:

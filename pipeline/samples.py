@@ -46,16 +46,29 @@ class SegmentTable:
 
 def segment_table(points: np.ndarray, seg_point: np.ndarray, count: int, config: SampleConfig) -> SegmentTable:
     """Statistics of `count` segments from (N, 3) points and their (N,) segment ids (-1 = none)."""
-    m = seg_point >= 0
-    ids = seg_point[m]
-    n = np.bincount(ids, minlength=count).astype(np.int32)
-    cen = np.zeros((count, 3), dtype=np.float32)
-    if count:
-        for k in range(3):
-            cen[:, k] = np.bincount(ids, weights=points[m, k], minlength=count) / np.maximum(n, 1)
+    n, cen = _counts_and_centroids(points, seg_point, count)
     dist = np.linalg.norm(cen, axis=1).astype(np.float32)
     valid = is_valid(n, dist, config)
     return SegmentTable(n_points=n, centroid=cen, range=dist, valid=valid)
+
+
+@njit(cache=True)
+def _counts_and_centroids(points, seg_point, count):  # pragma: no cover - numba
+    """(count,) int32 points per segment and (count, 3) float32 centroids, in one pass."""
+    n = np.zeros(count, dtype=np.int32)
+    sums = np.zeros((count, 3), dtype=np.float64)
+    for i in range(seg_point.shape[0]):
+        s = seg_point[i]
+        if s >= 0:
+            n[s] += 1
+            for k in range(3):
+                sums[s, k] += points[i, k]
+    cen = np.zeros((count, 3), dtype=np.float32)
+    for s in range(count):
+        if n[s]:
+            for k in range(3):
+                cen[s, k] = sums[s, k] / n[s]
+    return n, cen
 
 
 def is_valid(n_points: np.ndarray, distance: np.ndarray, config: SampleConfig) -> np.ndarray:

@@ -3,7 +3,8 @@
 1. **Texture.** A pixel's roughness is the RMS residual of a line fitted to the ranges of the
    pixels of its row within `TEXTURE_HALF` columns that lie within the horizontal threshold of it.
    It is rough when most pixels of the `TEXTURE_WINDOW` window around it have a residual over
-   `texture_threshold` (the window's median thresholded: a majority vote, counted with box sums).
+   `texture_base` + `texture_slope` x range (the window's median thresholded: a majority vote,
+   counted with box sums).
    Foliage scatters its returns, walls and car bodies do not: on SemanticKITTI frames the residual's
    median is 5.4 cm on vegetation against 1.1 cm on buildings and 1.2 cm on cars.
 2. **Joins.** Two neighbours join when their range difference is under a threshold that grows with
@@ -47,10 +48,10 @@ class Segmentation:
 
 
 @njit(cache=True, parallel=True, fastmath=True)
-def _rough_pixels(rng, ok, hb, hs, threshold):  # pragma: no cover - numba
+def _rough_pixels(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
     """(H, W + 2 * half) uint8, padded by `half` wrapped columns on each side: 1 where the RMS
-    residual of the pixel's line fit along its row exceeds `threshold` m (fewer than 4 fitting
-    pixels: 0)."""
+    residual of the pixel's line fit along its row exceeds tb + ts * range m (fewer than 4
+    fitting pixels: 0)."""
     h, w = rng.shape
     p = TEXTURE_HALF
     half = TEXTURE_WINDOW[1] // 2
@@ -62,7 +63,6 @@ def _rough_pixels(rng, ok, hb, hs, threshold):  # pragma: no cover - numba
             cc = cc + w if cc < 0 else (cc - w if cc >= w else cc)
             pr[r, c] = rng[r, cc] if ok[r, cc] else np.float32(-1.0)
     out = np.zeros((h, w + 2 * half), dtype=np.uint8)
-    thr2 = threshold * threshold
     for r in prange(h):
         for c in range(w):
             if not ok[r, c]:
@@ -90,7 +90,8 @@ def _rough_pixels(rng, ok, hb, hs, threshold):  # pragma: no cover - numba
             a = (sy - b * sx) / n
             # sum of squared residuals of y = a + b k, expanded
             ss = syy - 2.0 * a * sy - 2.0 * b * sxy + n * a * a + 2.0 * a * b * sx + b * b * sxx
-            out[r, c + half] = 1 if ss > thr2 * (n - 2) else 0
+            thr = tb + ts * d0
+            out[r, c + half] = 1 if ss > thr * thr * (n - 2) else 0
         for k in range(half):  # wrap the padding
             out[r, k] = out[r, w + k]
             out[r, w + half + k] = out[r, half + k]
@@ -98,12 +99,12 @@ def _rough_pixels(rng, ok, hb, hs, threshold):  # pragma: no cover - numba
 
 
 @njit(cache=True, parallel=True)
-def _texture(rng, ok, hb, hs, threshold):  # pragma: no cover - numba
+def _texture(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
     """(H, W) uint8: 2 = rough, 1 = smooth, 0 = not ok (see the module docstring, step 1).
 
     Pixels without a residual vote smooth, so holes do not make a surface rough."""
     h, w = rng.shape
-    rough = _rough_pixels(rng, ok, hb, hs, threshold)
+    rough = _rough_pixels(rng, ok, hb, hs, tb, ts)
     wr, wc = TEXTURE_WINDOW
     hr = wr // 2
     cols = np.zeros((h, w), dtype=np.int32)  # rough pixels in each row's wc-column window
@@ -497,13 +498,13 @@ def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover 
 
 
 @njit(cache=True, parallel=True)
-def _reclaim_feet(labels, index, rng, vb, vs, tan_beta, v_cos, v_sin, sin_el, foot):  # pragma: no cover - numba
+def _reclaim_feet(labels, index, points, foot):  # pragma: no cover - numba
     """(H, W) bool: ground pixels taken back by the segment above them, in place in `labels`.
 
-    Walking down a column from a segment's lowest pixel, ground pixels that join it by the
-    vertical rules (range and angle: the surface between them is steep, a wheel or the foot of a
-    wall, not the road seen at a grazing angle in front of it) join the segment, down to `foot` m
-    below the segment's lowest pixel: the ground step's height band cuts the feet off objects."""
+    Walking down a column from a segment's lowest pixel, ground pixels join the segment while the
+    step to them is steeper than 45 degrees (a wheel, the foot of a wall or a person; the road in
+    front of them is flat) and they lie within `foot` m below that lowest pixel: the ground step's
+    height band cuts the feet off objects."""
     h, w = labels.shape
     taken = np.zeros((h, w), dtype=np.bool_)
     for c in prange(w):
@@ -511,16 +512,13 @@ def _reclaim_feet(labels, index, rng, vb, vs, tan_beta, v_cos, v_sin, sin_el, fo
             seg = labels[r, c]
             if seg < 0 or labels[r + 1, c] >= 0 or index[r + 1, c] < 0:
                 continue
-            z0 = rng[r, c] * sin_el[r]
+            z0 = points[index[r, c], 2]
             k = r
             while k + 1 < h and labels[k + 1, c] < 0 and index[k + 1, c] >= 0:
-                d1 = rng[k, c]
-                d2 = rng[k + 1, c]
-                dmin = min(d1, d2)
-                dmax = max(d1, d2)
-                if dmax - dmin > vb + vs * dmin or (tan_beta > 0.0 and _angle_cuts(dmin, dmax, v_cos[k], v_sin[k], tan_beta)):
-                    break
-                if z0 - d2 * sin_el[k + 1] > foot:
+                i, j = index[k, c], index[k + 1, c]
+                dz = points[i, 2] - points[j, 2]
+                dxy = abs(np.hypot(points[i, 0], points[i, 1]) - np.hypot(points[j, 0], points[j, 1]))
+                if dz < dxy or z0 - points[j, 2] > foot:
                     break
                 labels[k + 1, c] = seg
                 taken[k + 1, c] = True
@@ -562,7 +560,7 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
 @njit(cache=True)
 def _segment_kernel(
     index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_, thin_w, thin_h, wide_w, wide_ratio,
-    tan_beta, v_alpha, sin_el, col_angle, bridge_h, bridge_v, occ, tex_threshold, merge_pixels, foot, min_points,
+    tan_beta, v_alpha, points, col_angle, bridge_h, bridge_v, occ, tex_base, tex_slope, merge_pixels, foot, min_points,
 ):  # pragma: no cover - numba
     """Masks, texture, joins, components, merge and point labels in one call (no Python between)."""
     h, w = index.shape
@@ -575,8 +573,8 @@ def _segment_kernel(
                 empty[r, c] = True
             elif not ground[i]:
                 ok[r, c] = True
-    if tex_threshold > 0.0:
-        tex = _texture(rng, ok, hb, hs, tex_threshold)
+    if tex_base > 0.0:
+        tex = _texture(rng, ok, hb, hs, tex_base, tex_slope)
     else:
         tex = ok.astype(np.uint8)
     if thin_w > 0.0:
@@ -593,7 +591,7 @@ def _segment_kernel(
     if merge_pixels > 0:
         labels, sizes, count = _merge_small(labels, sizes, count, right, down, merge_pixels)
     if foot > 0.0:
-        taken = _reclaim_feet(labels, index, rng, vb, vs, tan_beta, np.cos(v_alpha), np.sin(v_alpha), sin_el, foot)
+        taken = _reclaim_feet(labels, index, points, foot)
     else:
         taken = np.zeros((h, w), dtype=np.bool_)
     return _finish(labels, sizes, count, min_points, row, col, point_range, rng, kept, ground, taken, hb, hs)
@@ -601,11 +599,13 @@ def _segment_kernel(
 
 def segment(
     image: RangeImage,
+    points: np.ndarray,
     ground: np.ndarray,
     sensor: SensorModel,
     config: SegmentationConfig | None = None,
 ) -> Segmentation:
-    """Segment the non-ground pixels of `image`; `ground` is the (N,) per-point ground mask."""
+    """Segment the non-ground pixels of `image` of the (N, 3) `points`; `ground` is the (N,)
+    per-point ground mask (points taken back from it get a segment)."""
     config = config or SegmentationConfig()
     h, w = image.shape
     pixel, point, count = _segment_kernel(
@@ -614,17 +614,11 @@ def segment(
         float(config.horizontal_slope), float(config.overhang_base), float(config.overhang_slope),
         np.float32(config.thin_width), np.float32(config.thin_min_height), np.float32(config.wide_width),
         np.float32(config.wide_ratio), float(np.tan(np.deg2rad(config.angle_threshold_deg))),
-        _beam_steps(sensor, h), _sin_elevations(sensor, h), 2.0 * np.pi / w, int(config.bridge_horizontal),
-        int(config.bridge_vertical), int(config.occluder_pixels), float(config.texture_threshold),
+        _beam_steps(sensor, h), points, 2.0 * np.pi / w, int(config.bridge_horizontal),
+        int(config.bridge_vertical), int(config.occluder_pixels), float(config.texture_base), float(config.texture_slope),
         int(config.merge_pixels), float(config.foot_height), max(1, config.min_points),
     )
     return Segmentation(pixel=pixel, point=point, count=int(count))
-
-
-def _sin_elevations(sensor: SensorModel, h: int) -> np.ndarray:
-    """(H,) float64 sine of each row's beam elevation (0 when the sensor has another row count)."""
-    el = sensor.elevations_rad()
-    return np.sin(el) if len(el) == h else np.zeros(h)
 
 
 _BEAM_STEPS: dict[tuple, np.ndarray] = {}

@@ -68,8 +68,8 @@ def test_association_static_objects_link_across_frames():
 def test_association_merge_does_not_link_different_objects():
     # two objects (the first clearly the larger) with a gap wider than the bridged dropouts, then
     # touching (one merged segment), then apart again
-    frames = [[(100, 108, 12.0), (111, 116, 12.2)], [(100, 108, 12.0), (108, 113, 12.2)],
-              [(100, 108, 12.0), (111, 116, 12.2)]]
+    frames = [[(100, 108, 12.0), (112, 117, 12.2)], [(100, 108, 12.0), (108, 113, 12.2)],
+              [(100, 108, 12.0), (112, 117, 12.2)]]
     results, gts = _run(frames)
     assert int(results[1].segments.valid.sum()) == 1  # the touching objects form one segment
     assert all(a == b for a, b in _links(results, gts))
@@ -77,7 +77,7 @@ def test_association_merge_does_not_link_different_objects():
 
 def test_association_split_links_only_the_larger_piece():
     # merged first (one segment dominated by object 1), then apart: object 2's piece must not link
-    frames = [[(100, 110, 12.0), (110, 116, 12.2)], [(100, 110, 12.0), (113, 119, 12.2)]]
+    frames = [[(100, 110, 12.0), (110, 116, 12.2)], [(100, 110, 12.0), (114, 120, 12.2)]]
     results, gts = _run(frames)
     assert int(results[0].segments.valid.sum()) == 1 and int(results[1].segments.valid.sum()) == 2
     links = _links(results, gts)
