@@ -297,16 +297,16 @@ def associate(
             d = np.where((dz < 0.3) & (rat < 1.5) & (rat > 1 / 1.5), d, np.inf)
             near_b = np.argmin(d, axis=1)
             near_a = np.argmin(d, axis=0)
-            for i, j in enumerate(near_b):
-                dij = d[i, j]
-                if not np.isfinite(dij) or dij > config.max_centroid_distance or near_a[j] != i:
-                    continue
-                second = min(np.partition(d[i], 1)[1] if d.shape[1] > 1 else np.inf,
-                             np.partition(d[:, j], 1)[1] if d.shape[0] > 1 else np.inf)
-                if second < 2.0 * dij + 0.5:
-                    continue  # another candidate is nearly as close: ambiguous
-                links.prev[va[free_a[i]]] = vb[free_b[j]]
-                links.score[va[free_a[i]]] = float(1.0 - dij / config.max_centroid_distance) * 0.5
+            # the second nearest candidate of each row and column: a match is ambiguous when
+            # another one is nearly as close
+            second_b = np.partition(d, 1, axis=1)[:, 1] if d.shape[1] > 1 else np.full(len(d), np.inf)
+            second_a = np.partition(d, 1, axis=0)[1] if d.shape[0] > 1 else np.full(d.shape[1], np.inf)
+            i = np.arange(len(near_b))
+            dij = d[i, near_b]
+            take = (np.isfinite(dij) & (dij <= config.max_centroid_distance) & (near_a[near_b] == i)
+                    & (np.minimum(second_b, second_a[near_b]) >= 2.0 * dij + 0.5))
+            links.prev[va[free_a[take]]] = vb[free_b[near_b[take]]]
+            links.score[va[free_a[take]]] = (1.0 - dij[take] / config.max_centroid_distance) * 0.5
     return _with_fragments(links, votes, n_a, n_b, va, vb, config.fragment_min_share)
 
 

@@ -60,8 +60,8 @@ class Track:
             "id": self.id,
             "frames": self.frames,
             "points": self.points,
-            "centroids": [[round(v, 3) for v in c] for c in self.centroids],
-            "scores": [round(s, 4) for s in self.scores],
+            "centroids": np.round(np.asarray(self.centroids, np.float64), 3).tolist(),
+            "scores": np.round(np.asarray(self.scores, np.float64), 4).tolist(),
         }
 
 
