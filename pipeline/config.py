@@ -68,23 +68,14 @@ class SegmentationConfig(_Section):
     # A vertical surface steps by ~0 m between rings; overhang_slope <= 0 disables the rule.
     overhang_base: float = 0.05
     overhang_slope: float = 0.01
-    # Trunk under a crown: a vertical pair does not join when the lower pixel lies on a thin
-    # vertical structure (its row run narrower than thin_width m, stacked over at least
-    # thin_min_height m) and the upper pixel's row run is wide (>= wide_width m and >= wide_ratio x).
-    # thin_width <= 0 disables the rule.
-    thin_width: float = 1.0
-    thin_min_height: float = 1.0
-    wide_width: float = 1.5
-    wide_ratio: float = 2.0
     min_points: int = 3  # segments smaller than this are dropped (label 0)
 
 
 class SampleConfig(_Section):
     # valid when n > sigma and n / distance > rho. The paper's sigma=8, rho=30 (or swapped, 30/8)
     # keeps far too few segments of an HDL-32E: on 40 simulated frames association recall was
-    # 0.40 with (30, 8), 0.58 with (8, 3) and 0.85 with (8, 0.5) at equal purity (0.983) and
-    # precision 0.99. With the overhang and thin-trunk cuts, rho 0.25 beats 0.5 on 200 frames of two
-    # simulator seeds (recall +3 points, precision unchanged); see README "Choosing sigma and rho".
+    # 0.40 with (30, 8), 0.58 with (8, 3) and 0.85 with (8, 0.5) at equal purity and precision
+    # 0.99 (docs/perception.md).
     sigma: int = 8
     rho: float = 0.25
     size: int = 64  # canvas side S (paper: 256)

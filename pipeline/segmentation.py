@@ -132,13 +132,6 @@ def _texture(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
 
 
 @njit(cache=True, inline="always")
-def _thin_meets_wide(run_w, thin_below, tr, tc, wr, wc, thin_w, thin_h, wide_w, wide_ratio):  # pragma: no cover
-    """Pixel (tr, tc) lies on a thin vertical structure and pixel (wr, wc) on a wide row run."""
-    wt = run_w[tr, tc]
-    return wt < thin_w and thin_below[tr, tc] >= thin_h and run_w[wr, wc] >= max(wide_w, wide_ratio * wt)
-
-
-@njit(cache=True, inline="always")
 def _angle_cuts(dmin, dmax, cos_a, sin_a, tan_beta):  # pragma: no cover - numba
     """depth_clustering's criterion fails: beta = atan2(d2 sin a, d1 - d2 cos a) under the threshold."""
     den = dmax - dmin * cos_a
@@ -156,8 +149,8 @@ def _skippable(ok, empty, rng, r, c, d1, margin_base, margin_slope):  # pragma: 
 
 
 @njit(cache=True, parallel=True)
-def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w,
-                wide_ratio, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v, occ):  # pragma: no cover - numba
+def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v,
+                occ):  # pragma: no cover - numba
     """Which neighbours join, decided once per pixel pair: right[r, c] and down[r, c] are 0 (no
     join) or the distance (1 + pixels stepped over) to the right-hand (column wraps at W-1 -> 0)
     and the lower neighbour that (r, c) joins, or'ed with TEXTURE_CUT when only the texture test
@@ -166,7 +159,6 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, run_w, thin_below,
     h, w = rng.shape
     right = np.zeros((h, w), dtype=np.uint8)
     down = np.zeros((h, w), dtype=np.uint8)
-    thin = thin_w > 0.0
     over = os_ > 0.0
     use_angle = tan_beta > 0.0
     # the angle between the beams of a pair, by step (columns) and by upper row (rows, one step)
@@ -196,12 +188,6 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, run_w, thin_below,
                 dmin = min(d1, d2)
                 dmax = max(d1, d2)
                 join = dmax - dmin <= hb + hs * dmin
-                if join and thin:
-                    # a trunk seen through the holes of its crown: a thin pixel beside a wide run
-                    join = not (
-                        _thin_meets_wide(run_w, thin_below, r, c, r, c1, thin_w, thin_h, wide_w, wide_ratio)
-                        or _thin_meets_wide(run_w, thin_below, r, c1, r, c, thin_w, thin_h, wide_w, wide_ratio)
-                    )
                 if join and use_angle and _angle_cuts(dmin, dmax, h_cos[step], h_sin[step], tan_beta):
                     join = False
                 if join:
@@ -225,9 +211,6 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, run_w, thin_below,
                 dmin = min(d1, d2)
                 dmax = max(d1, d2)
                 join = dmax - dmin <= vb + vs * dmin
-                if join and thin and d1 <= d2 + 0.1:
-                    # a crown over a trunk: the lower pixel thin, the upper one wide and not behind
-                    join = not _thin_meets_wide(run_w, thin_below, r1, c, r, c, thin_w, thin_h, wide_w, wide_ratio)
                 if join and over and d2 - d1 > ob + os_ * dmax:
                     join = False  # the upper pixel nearer by more than the overhang allows
                 if join and use_angle:
@@ -405,99 +388,6 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no
 
 
 @njit(cache=True, parallel=True)
-def _row_runs(rng, ok, hb, hs, col_angle, max_gap):  # pragma: no cover - numba
-    """(H, W) float32 width in metres of the row run each ok pixel belongs to (0 elsewhere).
-
-    A row run chains ok pixels left to right whose range stays within the horizontal threshold of
-    the run's previous pixel, stepping over up to `max_gap` other pixels (holes of a porous crown,
-    noisy returns, dropouts). Its width is its column span times the mean range times the column
-    angle. Runs cannot cross a longer gap, so rows are scanned from one (labels stay invariant to
-    column rotation).
-    """
-    h, w = rng.shape
-    run_w = np.zeros((h, w), dtype=np.float32)
-    half = (h + 1) // 2
-    for kk in prange(h):
-        # even rows first, then odd ones: each thread gets rows from top to bottom (objects crowd
-        # some rows, so contiguous blocks of rows would leave one thread idle)
-        r = 2 * kk if kk < half else 2 * (kk - half) + 1
-        members = np.empty(w, dtype=np.int32)
-        done = np.zeros(w, dtype=np.bool_)
-        # start right after a stretch of more than max_gap non-ok pixels
-        start = 0
-        gap = 0
-        found = False
-        for k in range(2 * w):
-            c = k if k < w else k - w  # (k mod w without an integer division)
-            if ok[r, c]:
-                if gap > max_gap:
-                    start = c
-                    found = True
-                    break
-                gap = 0
-            else:
-                gap += 1
-                if gap > w:
-                    break
-        if not found:
-            if gap > w:
-                continue  # no ok pixel in the row
-            start = 0  # no long gap anywhere: the row is nearly full, the seam is as good as any
-        for k in range(w):
-            c0 = start + k
-            if c0 >= w:
-                c0 -= w
-            if not ok[r, c0] or done[c0]:
-                continue
-            n = 0
-            members[n] = c0
-            n += 1
-            done[c0] = True
-            total = rng[r, c0]
-            last_k = k
-            last_d = rng[r, c0]
-            j = k + 1
-            while j < w and j - last_k - 1 <= max_gap:
-                cj = start + j
-                if cj >= w:
-                    cj -= w
-                if ok[r, cj] and not done[cj]:
-                    d = rng[r, cj]
-                    if abs(d - last_d) <= hb + hs * min(d, last_d):
-                        members[n] = cj
-                        n += 1
-                        done[cj] = True
-                        total += d
-                        last_k = j
-                        last_d = d
-                j += 1
-            width = np.float32((last_k - k + 1) * col_angle * total / n)
-            for m in range(n):
-                run_w[r, members[m]] = width
-    return run_w
-
-
-@njit(cache=True, parallel=True)
-def _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha):  # pragma: no cover - numba
-    """(H, W) float32 metres of the thin vertical structure from each pixel down (a pixel is thin
-    when its row run is narrower than `thin_w`; the chain follows the vertical criterion)."""
-    h, w = rng.shape
-    below = np.zeros((h, w), dtype=np.float32)
-    for c in prange(w):
-        for r in range(h - 1, -1, -1):
-            if not ok[r, c] or run_w[r, c] >= thin_w:
-                continue
-            own = v_alpha[min(r, h - 2)] * rng[r, c]
-            if r + 1 < h and below[r + 1, c] > 0.0:
-                d1 = rng[r, c]
-                d2 = rng[r + 1, c]
-                if abs(d1 - d2) <= vb + vs * min(d1, d2):
-                    own += below[r + 1, c]
-            below[r, c] = own
-    return below
-
-
-@njit(cache=True, parallel=True)
 def _reclaim_feet(labels, index, points, foot):  # pragma: no cover - numba
     """(H, W) bool: ground pixels taken back by the segment above them, in place in `labels`.
 
@@ -559,7 +449,7 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
 
 @njit(cache=True)
 def _segment_kernel(
-    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_, thin_w, thin_h, wide_w, wide_ratio,
+    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_,
     tan_beta, v_alpha, points, col_angle, bridge_h, bridge_v, occ, tex_base, tex_slope, merge_pixels, foot, min_points,
 ):  # pragma: no cover - numba
     """Masks, texture, joins, components, merge and point labels in one call (no Python between)."""
@@ -577,15 +467,8 @@ def _segment_kernel(
         tex = _texture(rng, ok, hb, hs, tex_base, tex_slope)
     else:
         tex = ok.astype(np.uint8)
-    if thin_w > 0.0:
-        run_w = _row_runs(rng, ok, hb, hs, col_angle, 3)
-        thin_below = _thin_heights(rng, ok, run_w, vb, vs, thin_w, v_alpha)
-    else:
-        run_w = np.zeros((1, 1), dtype=np.float32)
-        thin_below = run_w
     right, down = _join_edges(
-        rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, run_w, thin_below, thin_w, thin_h, wide_w, wide_ratio,
-        tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
+        rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
     )
     labels, sizes, count = _label_components(ok, right, down)
     if merge_pixels > 0:
@@ -612,8 +495,7 @@ def segment(
         image.index, image.range, ground, image.row, image.col, image.point_range, image.kept,
         float(config.vertical_base), float(config.vertical_slope), float(config.horizontal_base),
         float(config.horizontal_slope), float(config.overhang_base), float(config.overhang_slope),
-        np.float32(config.thin_width), np.float32(config.thin_min_height), np.float32(config.wide_width),
-        np.float32(config.wide_ratio), float(np.tan(np.deg2rad(config.angle_threshold_deg))),
+        float(np.tan(np.deg2rad(config.angle_threshold_deg))),
         _beam_steps(sensor, h), points, 2.0 * np.pi / w, int(config.bridge_horizontal),
         int(config.bridge_vertical), int(config.occluder_pixels), float(config.texture_base), float(config.texture_slope),
         int(config.merge_pixels), float(config.foot_height), max(1, config.min_points),

@@ -228,19 +228,13 @@ def _joined(seg, a: np.ndarray, b: np.ndarray) -> bool:
     return bool(ids_a[0] == ids_b[0])
 
 
-def test_segmentation_cuts_a_thin_trunk_from_the_wide_crown_above_it():
-    scan, trunk, crown = _tree(12.0)  # same range: only the thin-under-wide rule can cut
-    assert not _joined(_segment(scan)[2], trunk, crown)
-    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
-
-
 def test_segmentation_cuts_an_overhang():
     scan, trunk, crown = _tree(11.6)  # the crown 0.4 m nearer: within the vertical threshold, an overhang
-    assert not _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
-    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0, overhang_slope=0.0))[2], trunk, crown)
+    assert not _joined(_segment(scan)[2], trunk, crown)
+    assert _joined(_segment(scan, SegmentationConfig(overhang_slope=0.0))[2], trunk, crown)
     # a wall stepping back above (upper pixel farther) is not an overhang
     scan, trunk, crown = _tree(12.4)
-    assert _joined(_segment(scan, SegmentationConfig(thin_width=0.0))[2], trunk, crown)
+    assert _joined(_segment(scan)[2], trunk, crown)
 
 
 @settings(max_examples=60, deadline=None)
