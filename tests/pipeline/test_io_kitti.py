@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.io.kitti import KittiSequence
 from pipeline.io.semantickitti import (
     read_bin,
@@ -57,7 +57,7 @@ def write_sequence(
 
 def test_kitti_round_trip_points_labels_poses(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq")
-    seq = open_sequence(root)
+    seq = open_reader(root)
     assert isinstance(seq, SequenceSource) and seq.format == "kitti"
     assert len(seq) == 3 and seq.frame_name(1) == "000001"
     assert seq.sensor.name == "hdl32e"
@@ -104,7 +104,7 @@ def test_kitti_nan_rows_dropped_and_labels_aligned(tmp_path: Path) -> None:
 
 def test_kitti_single_bin_file_reads_sibling_label(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq", frames=2)
-    seq = open_sequence(root / "velodyne" / "000001.bin")
+    seq = open_reader(root / "velodyne" / "000001.bin")
     assert len(seq) == 1 and seq.poses is None and seq.frame_name(0) == "000001"
     assert seq.frame(0).semantic is not None
 
@@ -133,7 +133,7 @@ def test_kitti_poses_with_time_column(tmp_path: Path) -> None:
 def test_kitti_explicit_poses_file(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq", frames=2, poses=False, labels=False)
     write_poses(tmp_path / "other.txt", np.stack([pose(0.0), pose(3.0)]))
-    seq = open_sequence(root, poses=tmp_path / "other.txt")
+    seq = open_reader(root, poses=tmp_path / "other.txt")
     np.testing.assert_allclose(seq.poses[1][0, 3], 3.0)
 
 
@@ -173,7 +173,7 @@ def test_kitti_metadata_unknown_sensor_names_file(tmp_path: Path) -> None:
 
 
 def test_kitti_seq09_real_poses_and_rings(kitti_seq09: Path) -> None:
-    seq = open_sequence(kitti_seq09)
+    seq = open_reader(kitti_seq09)
     assert len(seq) == 5 and seq.sensor.name == "hdl64e"
     assert seq.poses.shape == (5, 4, 4)
     steps = [
@@ -188,6 +188,6 @@ def test_kitti_seq09_real_poses_and_rings(kitti_seq09: Path) -> None:
 
 
 def test_kitti_real_single_file(real_data: Path) -> None:
-    seq = open_sequence(real_data / "kitti_seq09" / "velodyne" / "000003.bin")
+    seq = open_reader(real_data / "kitti_seq09" / "velodyne" / "000003.bin")
     assert len(seq) == 1 and seq.sensor.name == "hdl64e"
     assert len(seq.frame(0)) == 2027200 // 16

@@ -8,7 +8,7 @@ from plyfile import PlyData, PlyElement
 from pypcd4 import Encoding, PointCloud
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.io.pointfiles import PcdSequence, PlySequence
 from pipeline.io.semantickitti import pack_label
 from tests.pipeline.test_rings import beam_scan
@@ -42,7 +42,7 @@ def test_pcd_ring_field_bottom_first_and_uint8_intensity(tmp_path: Path) -> None
     cols = xyz_columns(pts)
     cols["intensity"] = np.full(len(pts), 51, np.uint8)
     cols["ring"] = (31 - rows).astype(np.uint16)  # Velodyne driver numbering: 0 = lowest beam
-    seq = open_sequence(write_pcd(tmp_path / "a.pcd", cols))
+    seq = open_reader(write_pcd(tmp_path / "a.pcd", cols))
     assert seq.format == "pcd" and seq.sensor.name == "hdl32e"
     scan = seq.frame(0)
     np.testing.assert_array_equal(scan.ring, rows)
@@ -94,7 +94,7 @@ def test_pcd_folder_is_sequence(tmp_path: Path) -> None:
     for i in range(3):
         pts, _ = beam_scan("hdl32e", cols=90, seed=i)
         write_pcd(tmp_path / f"{i:04d}.pcd", xyz_columns(pts))
-    seq = open_sequence(tmp_path)
+    seq = open_reader(tmp_path)
     assert seq.format == "pcd" and len(seq) == 3 and seq.frame_name(2) == "0002"
     assert seq.poses is None and any("no intensity" in w for w in seq.warnings)
 
@@ -116,7 +116,7 @@ def test_ply_round_trip_with_float_intensity(tmp_path: Path) -> None:
     pts, rows = beam_scan("hdl32e", cols=90)
     cols = xyz_columns(pts)
     cols["scalar_intensity"] = np.full(len(pts), 0.25, np.float32)
-    seq = open_sequence(write_ply(tmp_path / "a.ply", cols))
+    seq = open_reader(write_ply(tmp_path / "a.ply", cols))
     assert seq.format == "ply" and seq.sensor.name == "hdl32e"
     scan = seq.frame(0)
     np.testing.assert_array_equal(scan.points, pts)
