@@ -17,7 +17,7 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -30,13 +30,14 @@ from app.core.errors import Conflict, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
+from app.schemas import IngestPoses
 
 
 class IngestParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     force: bool = False  # re-ingest a ready sequence (drops its reviews)
-    poses: Literal["file", "icp"] = "file"  # the sequence's own poses, or estimated (KISS-ICP)
+    poses: IngestPoses = "file"  # the sequence's own poses, or estimated (KISS-ICP)
 
 
 class FrameProcessor(Protocol):
