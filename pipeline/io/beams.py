@@ -15,13 +15,16 @@ block. So the beams are counted locally:
    it cut each sector into clusters, one per laser that returned there.
 3. **Count**: a sector is *regular* when every gap between its clusters is within [0.5, 1.5] x the
    typical spacing at that elevation (no laser missing in the middle, none split in two). Sectors
-   miss lasers at the top (sky) and bottom (the car), never add any, so the beam count B is the
-   largest cluster count that at least `MIN_SUPPORT` regular sectors show; the beams' elevations
-   are the per-rank medians over those sectors.
+   miss lasers at the top (sky) and bottom (the car) and rarely add one, so the beam count B is
+   the largest cluster count that enough regular sectors show (`MIN_SUPPORT`, `SUPPORT_SHARE`);
+   the beams' elevations are the per-rank medians over those sectors.
 
-`beam_rows` assigns the points of any frame to such beams: per sector, its clusters are matched in
-order to the beams (a monotone alignment), so a sector that misses its top beams still gets the
-right rows.
+`beam_rows` assigns the points of any frame to such beams: per 0.5 deg sector, its clusters are
+matched in order to the beams (a monotone alignment that matches the gaps between clusters to the
+gaps between beams, `_align`) as they lie in the nearest sectors that show every beam, so a
+sector that misses its top beams still gets the right rows. Measured on the 66 real HDL-64E
+frames here, shuffled: 64 beams in every frame and 0.96 of the points (median 0.97) in the row of
+their laser (scan order); 0.99 on the Ouster captures, 0.99 on nuScenes beyond 1 m.
 """
 
 from __future__ import annotations
@@ -37,8 +40,14 @@ from pipeline.io.rings import segment_medians
 MIN_RHO = 1.0  # metres: returns from the car, the mount and placeholder points lie closer
 MIN_POINTS = 200
 MIN_SUPPORT = 3  # regular sectors that must show the beam count
+# ... and at least this share of the most common count's sectors: a stray return below the lowest
+# beam (the car's hood, a kerb at 2 m) makes a few KITTI sectors show 65 clusters, 3-5 of 180
+SUPPORT_SHARE = 0.2
 HEIGHTS = np.round(np.arange(-0.5, 0.501, 0.02), 3)  # candidate origin heights, metres
 MAX_SKIP = 12  # beams one gap between two clusters of a sector may skip
+# sectors that rows are aligned in: narrow, so that few hold an object's edge (a laser at two
+# ranges, two clusters); on KITTI 0.5 deg put 0.960 of points in their laser's row, 1 deg 0.954
+ROW_SECTOR_DEG = 0.5
 SAMPLE = 40_000  # points used to find the origin height
 LOG_BINS = np.arange(-5.0, 2.0, 0.05)  # log10 of elevation gaps in degrees
 
@@ -101,23 +110,21 @@ def origin_height(points: np.ndarray, seed: int = 0) -> float:
 
 
 def _gap_threshold(gaps: np.ndarray) -> float | None:
-    """Degrees between the two modes of the log-gap histogram (within a laser, between lasers)."""
+    """Degrees that separate gaps within a laser from gaps between lasers (see the module docstring).
+
+    The gaps between lasers are the mode of the log-gap histogram weighted by gap size (gaps
+    within a laser are many but tiny, and a simulated laser repeats one elevation exactly); the
+    threshold is the least populated gap size from 1.3 to 0.2 decades below that mode.
+    """
+    gaps = gaps[gaps > 0]
     if len(gaps) < 20:
         return None
-    # exact repeats (a simulated laser has one elevation) fall into the first bin
-    counts, edges = np.histogram(np.log10(np.clip(gaps, 10.0 ** LOG_BINS[0], None)), LOG_BINS)
-    smooth = np.pad(gaussian_filter1d(counts.astype(np.float64), 2.0, mode="constant"), 1)
-    peaks = [i - 1 for i in range(1, len(smooth) - 1) if smooth[i] >= smooth[i - 1] and smooth[i] > smooth[i + 1]]
-    smooth = smooth[1:-1]
-    best: tuple[float, int] | None = None
-    for a in peaks:  # the two strongest modes at least 0.7 decades apart
-        for b in peaks:
-            if b - a >= 14:
-                valley = a + int(np.argmin(smooth[a : b + 1]))
-                score = min(smooth[a], smooth[b]) - smooth[valley]
-                if best is None or score > best[0]:
-                    best = (score, valley)
-    return None if best is None else float(10.0 ** edges[best[1] + 1])
+    logs = np.log10(gaps)
+    weighted, edges = np.histogram(logs, LOG_BINS, weights=gaps)
+    mode = int(np.argmax(gaussian_filter1d(weighted, 2.0)))
+    counts = gaussian_filter1d(np.histogram(logs, LOG_BINS)[0].astype(np.float64), 2.0)
+    lo, hi = max(mode - 26, 0), max(mode - 4, 1)  # 0.05-decade bins
+    return float(10.0 ** edges[lo + int(np.argmin(counts[lo:hi]))])
 
 
 def _clusters(el: np.ndarray, az: np.ndarray, width_deg: float, threshold: float | None = None) -> _Clusters | None:
@@ -199,7 +206,8 @@ def find_beams(points: np.ndarray) -> BeamLayout | None:
         return None
     ids, counts = _regular_sectors(clusters)
     values, support = np.unique(counts, return_counts=True)
-    shown = values[(support >= MIN_SUPPORT) & (values >= 2)]
+    needed = max(MIN_SUPPORT, SUPPORT_SHARE * support.max()) if len(support) else MIN_SUPPORT
+    shown = values[(support >= needed) & (values >= 2)]
     if len(shown) == 0:
         return None
     n_beams = int(shown.max())
@@ -224,7 +232,7 @@ def _align(cluster_el, beam_el, max_skip):  # pragma: no cover - numba
     spacing = np.empty(b)
     for k in range(b):
         lo, hi = max(k - 1, 0), min(k + 1, b - 1)
-        spacing[k] = (beam_el[lo] - beam_el[hi]) / max(hi - lo, 1)
+        spacing[k] = max(abs(beam_el[lo] - beam_el[hi]) / max(hi - lo, 1), 1e-3)
     big = 1e18
     cost = np.full((c, b), big)
     back = np.full((c, b), -1, dtype=np.int64)
@@ -249,23 +257,12 @@ def _align(cluster_el, beam_el, max_skip):  # pragma: no cover - numba
     return out
 
 
-@njit(cache=True)
-def _align_sectors(sector, elevation, reference, max_skip):  # pragma: no cover - numba
-    """Beam of every cluster (K,), sector by sector (clusters sorted by sector, elevation
-    descending; reference (S, B) the beams' elevations in each sector)."""
-    out = np.empty(len(sector), dtype=np.int64)
-    start = 0
-    for i in range(1, len(sector) + 1):
-        if i == len(sector) or sector[i] != sector[start]:
-            out[start:i] = _align(elevation[start:i], reference[sector[start]], max_skip)
-            start = i
-    return out
-
-
 def _sector_reference(clusters: _Clusters, beams: np.ndarray, n_sectors: int, k: int = 3) -> np.ndarray:
     """(S, B) beam elevations per sector: the median of the `k` nearest sectors (in azimuth) that
     show all B beams regularly, else `beams`. The beams' elevations drift with azimuth (a tilted
-    mount, ego-motion compensation, parallax of the ground), by up to a beam spacing on nuScenes."""
+    mount, ego-motion compensation, the parallax of the road), by up to a beam spacing on nuScenes
+    and KITTI. (Chaining each sector to its aligned neighbour instead follows the drift too, but
+    carries one sector's misalignment on: 0.930 against 0.960 of KITTI points in their laser's row.)"""
     n_beams = len(beams)
     ids, counts = _regular_sectors(clusters)
     full = ids[counts == n_beams]
@@ -277,8 +274,21 @@ def _sector_reference(clusters: _Clusters, beams: np.ndarray, n_sectors: int, k:
     centre = np.arange(n_sectors)
     dist = np.abs(centre[:, None] - full[None, :])
     dist = np.minimum(dist, n_sectors - dist)  # azimuth wraps
-    nearest = np.argsort(dist, axis=1, kind="stable")[:, : min(k, len(full))]  # (S, k)
+    nearest = np.argsort(dist, axis=1, kind="stable")[:, : min(k, len(full))]
     return np.median(profiles[nearest], axis=1)
+
+
+@njit(cache=True)
+def _align_sectors(sector, elevation, reference, max_skip):  # pragma: no cover - numba
+    """Beam of every cluster (K,), sector by sector (clusters sorted by sector, elevation
+    descending; reference (S, B) the beams' elevations in each sector)."""
+    out = np.empty(len(sector), dtype=np.int64)
+    start = 0
+    for i in range(1, len(sector) + 1):
+        if i == len(sector) or sector[i] != sector[start]:
+            out[start:i] = _align(elevation[start:i], reference[sector[start]], max_skip)
+            start = i
+    return out
 
 
 def nearest_beam(elevation_deg: np.ndarray, beams_deg: np.ndarray) -> np.ndarray:
@@ -299,9 +309,9 @@ def beam_rows(points: np.ndarray, beams_deg: np.ndarray, origin_height: float = 
     far = np.hypot(points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)) >= MIN_RHO
     spacing = float(np.median(-np.diff(beams)))
     if far.sum() >= MIN_POINTS:
-        clusters = _clusters(el[far], az[far], 1.0, threshold=0.3 * spacing)
+        clusters = _clusters(el[far], az[far], ROW_SECTOR_DEG, threshold=0.3 * spacing)
         assert clusters is not None
-        reference = _sector_reference(clusters, beams, 360)
+        reference = _sector_reference(clusters, beams, int(round(360.0 / ROW_SECTOR_DEG)))
         beam = _align_sectors(clusters.sector, clusters.elevation, reference, MAX_SKIP)
         rows[far] = beam[clusters.point_cluster]
     return rows.astype(np.int16)
