@@ -22,6 +22,7 @@ import numpy as np
 
 from pipeline.errors import DataError
 from pipeline.io import open_reader
+from pipeline.io.beams import MIN_RHO
 from pipeline.scan import Scan, SequenceSource
 from pipeline.sensors import SensorModel
 
@@ -60,11 +61,14 @@ def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
 
     A sensor spinning faster than its preset (nuScenes runs the HDL-32E at 20 Hz) gives fewer
     points per ring; a too-wide image would leave every other column empty and cut every object
-    into slivers.
+    into slivers. Rings lose returns (sky) but never gain any, so the 95th percentile of the
+    points per ring counts the columns; points within MIN_RHO of the axis are left out (the car,
+    and the placeholders nuScenes writes for missing returns, a quarter of a sweep).
     """
     if len(scan) == 0:
         return sensor
-    per_ring = np.bincount(scan.ring[scan.ring >= 0].astype(np.int64), minlength=sensor.n_rings)
+    far = (np.hypot(scan.points[:, 0], scan.points[:, 1]) >= MIN_RHO) & (scan.ring >= 0)
+    per_ring = np.bincount(scan.ring[far].astype(np.int64), minlength=sensor.n_rings)
     most = int(np.percentile(per_ring, 95))
     if most >= 0.75 * sensor.width or most < 64:
         return sensor

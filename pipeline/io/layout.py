@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.io.beams import beam_rows, find_beams
+from pipeline.io.beams import MIN_RHO, beam_rows, find_beams
 from pipeline.io.organized import organized_rows, organized_shape, returns
 from pipeline.io.rings import scan_order_rings, segment_medians
 from pipeline.sensors import PRESETS, SensorModel, sensor_from_elevations
@@ -90,10 +90,14 @@ class Layout:
 
 
 def _elevations(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
-    """(R,) median elevation (degrees) of each row's points, NaN for an empty row."""
+    """(R,) median elevation (degrees) of each row's points at least MIN_RHO from the axis (nearer
+    ones are the car, the mount or placeholders: nuScenes puts a quarter of a sweep's points at
+    the sensor), NaN for a row without such points."""
     p = points.astype(np.float64)
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    return segment_medians(el, rows.astype(np.int64), n_rows)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    far = rho >= MIN_RHO
+    el = np.degrees(np.arctan2(p[far, 2], rho[far]))
+    return segment_medians(el, rows[far].astype(np.int64), n_rows)
 
 
 def measured_sensor(

@@ -138,3 +138,35 @@ def test_ply_corrupt_file_names_it(tmp_path: Path) -> None:
     )
     with pytest.raises(DataError, match="bad.ply"):
         PlySequence(f)
+
+
+def test_pcd_folder_frames_in_natural_order(tmp_path: Path) -> None:
+    for i in range(12):  # 0.pcd .. 11.pcd: a plain sort puts 10 and 11 before 2
+        pts, _ = beam_scan("vlp16", cols=90, seed=i)
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(pts + np.float32(i)))
+    seq = open_reader(tmp_path)
+    assert [seq.frame_name(k) for k in range(12)] == [str(i) for i in range(12)]
+    assert seq.frame(10).points[0, 0] == pytest.approx(beam_scan("vlp16", cols=90, seed=10)[0][0, 0] + 10)
+
+
+def test_pcd_unordered_cloud_beams_from_elevation_histogram(tmp_path: Path) -> None:
+    pts, rows = beam_scan("vlp16", cols=1000)
+    perm = np.random.default_rng(0).permutation(len(pts))
+    seq = PcdSequence(write_pcd(tmp_path / "a.pcd", xyz_columns(pts[perm])))
+    assert (seq.sensor.name, seq.sensor_from) == ("vlp16", "elevation histogram")
+    np.testing.assert_array_equal(seq.frame(0).ring, rows[perm])
+
+
+@pytest.mark.real_data
+def test_pcd_real_nuscenes_keyframes_without_ring_are_32_beams(real_data: Path, tmp_path: Path) -> None:
+    """nuScenes HDL-32E sweeps as x y z PCD keyframes in shuffled order: the histogram finds the
+    32 beams (the HDL-32E preset), fitted by process to the sweep's 20 Hz width."""
+    from pipeline.sequence import open_sequence
+
+    raw = np.fromfile(next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin")), np.float32).reshape(-1, 5)
+    for i in range(2):
+        perm = np.random.default_rng(i).permutation(len(raw))
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(np.ascontiguousarray(raw[perm, :3])))
+    seq = open_sequence(tmp_path)
+    assert (seq.sensor.name, seq.sensor.n_rings, seq.sensor_from) == ("hdl32e", 32, "elevation histogram")
+    assert 1070 <= seq.sensor.width < 1100  # ~1,080 columns at 20 Hz
