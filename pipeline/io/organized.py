@@ -27,16 +27,17 @@ def returns(points: np.ndarray) -> np.ndarray:
 
 
 def _column_error(az: np.ndarray, hit: np.ndarray, width: int) -> float:
-    """How far (H, W) azimuths (radians) stray from their columns: the 90th percentile, in
-    columns, of the returns' deviation from their row's offset, for the better of counter-clockwise
-    and clockwise rows (inf when no row has MIN_RETURNS returns)."""
+    """How far (H, C) azimuths (radians) of the first C columns of rows `width` wide stray from
+    their columns: the 90th percentile, in columns, of the returns' deviation from their row's
+    offset, for the better of counter-clockwise and clockwise rows (inf when no row has
+    MIN_RETURNS returns)."""
     judged = hit.sum(axis=1) >= MIN_RETURNS
     if not judged.any():
         return np.inf
-    col = np.arange(width) * (2.0 * np.pi / width)
+    col = np.arange(az.shape[1]) * (2.0 * np.pi / width)  # the first columns of a width-W row
     best = np.inf
     for sign in (1.0, -1.0):
-        phase = np.where(hit, np.exp(1j * (az - sign * col[None, :])), 0.0)[judged]  # (R, W)
+        phase = np.where(hit, np.exp(1j * (az - sign * col[None, :])), 0.0)[judged]  # (R, C)
         offset = np.exp(-1j * np.angle(phase.sum(axis=1)))  # (R,) the row's circular mean offset
         dev = np.abs(np.angle((phase * offset[:, None])[hit[judged]])) * width / (2 * np.pi)
         best = min(best, float(np.percentile(dev, 90)))
@@ -75,8 +76,14 @@ def organized_shape(points: np.ndarray) -> tuple[int, int, bool] | None:
         if n % h or n // h < MIN_COLUMNS:
             continue
         w = n // h
-        hit = hit_all.reshape(h, w)
-        error = _column_error(az_all.reshape(h, w), hit, w)
+        hit, az = hit_all.reshape(h, w), az_all.reshape(h, w)
+        # a few rows' first columns first: most splits fail there (a row's azimuths do not follow
+        # its columns from the start), which keeps the search at ~10 ms for an unorganized cloud
+        probe = np.linspace(0, h - 1, min(h, 8)).astype(np.int64)
+        span = min(w, 1024)
+        if _column_error(az[probe, :span], hit[probe, :span], w) > COLUMN_TOLERANCE:
+            continue
+        error = _column_error(az, hit, w)
         if error > COLUMN_TOLERANCE or (best is not None and error >= best[0]):
             continue
         direction = _monotonic_rows(el_all.reshape(h, w), hit)
