@@ -67,7 +67,8 @@ def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
     """
     if len(scan) == 0:
         return sensor
-    far = (np.hypot(scan.points[:, 0], scan.points[:, 1]) >= MIN_RHO) & (scan.ring >= 0)
+    xy = scan.points[:, :2].astype(np.float64)  # float64: float32's largest values overflow hypot
+    far = (np.hypot(xy[:, 0], xy[:, 1]) >= MIN_RHO) & (scan.ring >= 0)
     per_ring = np.bincount(scan.ring[far].astype(np.int64), minlength=sensor.n_rings)
     most = int(np.percentile(per_ring, 95))
     if most >= 0.75 * sensor.width or most < 64:
