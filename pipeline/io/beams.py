@@ -11,8 +11,9 @@ block. So the beams are counted locally:
 2. **Sectors**: in a narrow azimuth sector the points of one laser lie at nearly one range, so
    their elevations agree to a few hundredths of a degree whatever the parallax, while two lasers
    lie a beam spacing apart. Sorted by elevation, a sector's gaps fall into two groups (within a
-   laser, between lasers); the valley of the log-gap histogram separates them, and the gaps above
-   it cut each sector into clusters, one per laser that returned there.
+   laser, between lasers); the valley of the log-gap histogram below the between-laser mode
+   separates them, and the gaps above it cut each sector into clusters, one per laser that
+   returned there.
 3. **Count**: a sector is *regular* when every gap between its clusters is within [0.5, 1.5] x the
    typical spacing at that elevation (no laser missing in the middle, none split in two). Sectors
    miss lasers at the top (sky) and bottom (the car) and rarely add one, so the beam count B is
@@ -87,7 +88,6 @@ class _Clusters:
     size: np.ndarray
     azimuth_span: np.ndarray
     point_cluster: np.ndarray
-    width_deg: float
 
 
 def _elevation_deg(points: np.ndarray, h: float) -> np.ndarray:
@@ -152,7 +152,6 @@ def _clusters(el: np.ndarray, az: np.ndarray, width_deg: float, threshold: float
         size=size,
         azimuth_span=np.maximum.reduceat(a, first) - np.minimum.reduceat(a, first) if len(first) else size * 0.0,
         point_cluster=point_cluster,
-        width_deg=360.0 / n_sec,
     )
 
 

@@ -143,14 +143,24 @@ class KittiSequence:
         else:
             chosen = _metadata_sensor(self.root)
             self.sensor_from = "metadata"
-        first = read_bin(self._files[0])[:, :3]
+        name, first = self._first_readable()
         if chosen is not None:
             return known_layout(chosen, first)
         layout = detect_layout(first, "kitti")
         self.sensor_from = layout.how
         if layout.how == "default":
-            self.warnings.append(f"{self._files[0]}: no beams show in the first frame; rows use {layout.sensor.name} elevations")
+            self.warnings.append(f"{name}: no beams show in this frame; rows use {layout.sensor.name} elevations")
         return layout
+
+    def _first_readable(self) -> tuple[Path, np.ndarray]:
+        """(file, (N, 3) points) of the first of the first three frames that reads; a corrupt
+        frame is the pipeline's to skip, the sequence still opens."""
+        for f in self._files[:3]:
+            try:
+                return f, read_bin(f)[:, :3]
+            except DataError as exc:
+                error = exc
+        raise error
 
     def __len__(self) -> int:
         return len(self._files)

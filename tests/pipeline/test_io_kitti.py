@@ -191,3 +191,23 @@ def test_kitti_real_single_file(real_data: Path) -> None:
     seq = open_reader(real_data / "kitti_seq09" / "velodyne" / "000003.bin")
     assert len(seq) == 1 and seq.sensor.name == "hdl64e"
     assert len(seq.frame(0)) == 2027200 // 16
+
+
+def test_kitti_corrupt_first_frame_opens_and_names_it_when_read(tmp_path: Path) -> None:
+    """The sensor and layout come from the first frame that reads; the corrupt one fails alone."""
+    root = write_sequence(tmp_path / "seq", frames=3, sensor=None, labels=False, cols=100)
+    bad = root / "velodyne" / "000000.bin"
+    bad.write_bytes(bad.read_bytes()[:-3])
+    seq = KittiSequence(root)
+    assert seq.sensor.name == "hdl64e" and len(seq.frame(1)) == 6400
+    with pytest.raises(DataError, match="000000.bin"):
+        seq.frame(0)
+
+
+def test_kitti_folder_frames_in_natural_order(tmp_path: Path) -> None:
+    (tmp_path / "velodyne").mkdir()
+    for i in range(11):
+        pts, _ = beam_scan("hdl32e", cols=100, seed=i)
+        write_bin(tmp_path / "velodyne" / f"{i}.bin", pts, np.zeros(len(pts), np.float32))
+    seq = KittiSequence(tmp_path)
+    assert [seq.frame_name(k) for k in range(11)] == [str(i) for i in range(11)]
