@@ -134,26 +134,53 @@ def known_layout(sensor: SensorModel, xyz: np.ndarray) -> Layout:
     return Layout(sensor, "given", shape, np.asarray(sensor.elevations_deg))
 
 
+def _shown(points: np.ndarray, rows: np.ndarray, n_rows: int) -> bool:
+    """Whether at least two rows hold points to measure (beyond MIN_RHO)."""
+    return int(np.sum(~np.isnan(_elevations(points, rows, n_rows)))) >= 2
+
+
+def _organized(xyz: np.ndarray, name: str) -> Layout | None:
+    shape = organized_shape(xyz)
+    if shape is None:
+        return None
+    h, w, top_first = shape
+    hit = returns(xyz)
+    rows = organized_rows(h, w, top_first)[hit]
+    if not _shown(xyz[hit], rows, h):
+        return None
+    sensor = measured_sensor(f"{name}-{h}beam", xyz[hit], rows, h, w)
+    return Layout(sensor, "organized layout", shape, np.asarray(sensor.elevations_deg))
+
+
+def _scan_order(points: np.ndarray, name: str) -> Layout | None:
+    rows, found = scan_order_rings(points, None)
+    if rows is None or found < 2 or not _shown(points, rows, found):
+        return None
+    sensor = measured_sensor(f"{name}-{found}beam", points, rows, found)
+    return Layout(sensor, "scan order", None, _measured_beams(points, rows, found))
+
+
+def _histogram(points: np.ndarray, name: str) -> Layout | None:
+    beams = find_beams(points)
+    if beams is None:
+        return None
+    rows = beam_rows(points, beams.elevations_deg, beams.origin_height)
+    if not _shown(points, rows, beams.n_beams):
+        return None
+    el = _elevations(points, rows, beams.n_beams)
+    sensor = sensor_from_elevations(f"{name}-{beams.n_beams}beam", el, beams.width)
+    return Layout(sensor, "elevation histogram", None, beams.elevations_deg, beams.origin_height)
+
+
 def detect_layout(xyz: np.ndarray, name: str) -> Layout:
     """The layout and sensor of a sequence from its first frame's (N, 3) points (see the module
     docstring); `name` prefixes the name of a sensor that matches no preset."""
-    shape = organized_shape(xyz)
-    if shape is not None:
-        h, w, top_first = shape
-        hit = returns(xyz)
-        sensor = measured_sensor(f"{name}-{h}beam", xyz[hit], organized_rows(h, w, top_first)[hit], h, w)
-        return Layout(sensor, "organized layout", shape, np.asarray(sensor.elevations_deg))
+    layout = _organized(xyz, name)
+    if layout is not None:
+        return layout
     points = np.ascontiguousarray(xyz[np.isfinite(xyz).all(axis=1)], dtype=np.float32)
-    rows, found = scan_order_rings(points, None)
-    if rows is not None and found >= 2:
-        sensor = measured_sensor(f"{name}-{found}beam", points, rows, found)
-        return Layout(sensor, "scan order", None, _measured_beams(points, rows, found))
-    beams = find_beams(points)
-    if beams is not None:
-        rows = beam_rows(points, beams.elevations_deg, beams.origin_height)
-        sensor = sensor_from_elevations(
-            f"{name}-{beams.n_beams}beam", _elevations(points, rows, beams.n_beams), beams.width
-        )
-        return Layout(sensor, "elevation histogram", None, beams.elevations_deg, beams.origin_height)
+    layout = _scan_order(points, name) or _histogram(points, name)
+    if layout is not None:
+        return layout
     sensor = PRESETS[DEFAULT_SENSOR]
     return Layout(sensor, "default", None, np.asarray(sensor.elevations_deg))
