@@ -9,6 +9,9 @@ A frame row stores the path relative to the artifact root. Layout of a frame fil
     track          (N,)   int64    database track id of the point's segment, 0 = none
     samples        (V, C, S, S) uint8  the frame's samples (see pipeline/config.py SampleConfig)
     sample_segment (V,)   int32    local segment id of each sample
+    input_rows     (N_input,) bool the input rows of the scan file that are these points (absent
+                                   when every row is one: no NaN, inf or no-return rows); exports
+                                   spread per-point values back to the input rows with it
 
 Files are `.npz` archives readable by `numpy.load`: points and intensity stored, the rest deflated
 (see STORED_ARRAYS). They are written to a temporary name and renamed, so a reader never sees a
@@ -41,6 +44,7 @@ class FrameArtifact:
     track: np.ndarray
     samples: np.ndarray
     sample_segment: np.ndarray
+    input_rows: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -51,6 +55,8 @@ class FrameArtifact:
         assert self.track.shape == (n,) and self.track.dtype == np.int64
         assert self.samples.ndim == 4 and self.samples.dtype == np.uint8, self.samples.shape
         assert self.sample_segment.shape == (len(self.samples),) and self.sample_segment.dtype == np.int32
+        rows = self.input_rows
+        assert rows is None or (rows.ndim == 1 and rows.dtype == np.bool_ and int(rows.sum()) == n)
 
 
 # Coordinates and intensities are float noise to deflate (it saves ~10 % and costs most of a
@@ -88,6 +94,8 @@ class ArtifactStore:
         tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")
         with zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
             for name, arr in frame.__dict__.items():
+                if arr is None:
+                    continue
                 buf = io.BytesIO()
                 np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
                 stored = name in STORED_ARRAYS
@@ -102,13 +110,13 @@ class ArtifactStore:
 
     def read_frame(self, relpath: str) -> FrameArtifact:
         with np.load(self.path(relpath)) as z:
-            return FrameArtifact(**{k: z[k] for k in FrameArtifact.__dataclass_fields__})
+            return FrameArtifact(**{k: z[k] for k in FrameArtifact.__dataclass_fields__ if k in z.files})
 
     def read_arrays(self, relpath: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-        """Only the named arrays of a frame (npz members are decompressed lazily)."""
+        """Only the named arrays of a frame that it holds (npz members are decompressed lazily)."""
         try:
             with np.load(self.path(relpath)) as z:
-                return {k: z[k] for k in names}
+                return {k: z[k] for k in names if k in z.files}
         except FileNotFoundError:
             raise ArtifactMissing(f"artifact {relpath} is missing") from None
 

@@ -85,16 +85,18 @@ def simulate(
 def inspect(
     path: Annotated[Path, typer.Argument(help="A sequence folder or a LiDAR file.")],
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
+    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
 ) -> None:
-    """Print format, sensor, frame count, points per frame, poses and class histogram."""
+    """Print format, sensor (beams x columns, and how it was decided), frame count, points per
+    frame, poses and class histogram."""
     from pipeline.inspection import inspect_sequence
 
-    info = inspect_sequence(path, fmt=fmt)
+    info = inspect_sequence(path, fmt=fmt, sensor=sensor)
     for w in info.warnings:
         typer.echo(f"warning: {w}", err=True)
     typer.echo(f"path:    {info.path}")
     typer.echo(f"format:  {info.format}")
-    typer.echo(f"sensor:  {info.sensor}")
+    typer.echo(f"sensor:  {info.sensor} ({info.beams} beams x {info.columns} columns), from {info.sensor_from}")
     typer.echo(f"frames:  {info.frames}")
     typer.echo(
         f"points:  min {info.points_min}  median {info.points_median:.0f}  max {info.points_max} per frame"

@@ -213,8 +213,16 @@ def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
     tar.addfile(info, io.BytesIO(data))
 
 
+def _spread(values: np.ndarray, input_rows: np.ndarray) -> np.ndarray:
+    """(N_input,) `values` (N,) of a frame's points at their input rows, 0 elsewhere."""
+    out = np.zeros(len(input_rows), values.dtype)
+    out[input_rows] = values
+    return out
+
+
 def semantickitti_tar(plan: SemanticKittiPlan, artifacts: ArtifactStore) -> Iterator[bytes]:
-    """Stream `sequences/<name>/labels/<frame>.label` (uint32: semantic | instance << 16) per frame."""
+    """Stream `sequences/<name>/labels/<frame>.label` (uint32: semantic | instance << 16) per frame,
+    one label per row of the frame's scan file (0 for rows that are no point: NaN, inf, no return)."""
     from pipeline.classes import SEMANTICKITTI_WRITE_ID
 
     instances, chunk_map = _instances(plan)
@@ -224,7 +232,7 @@ def semantickitti_tar(plan: SemanticKittiPlan, artifacts: ArtifactStore) -> Iter
     tar = tarfile.open(fileobj=sink, mode="w|")
     prefix = f"sequences/{plan.sequence_name}"
     for index, name, art in plan.frames:
-        a = artifacts.read_arrays(art, ("track", "ground"))
+        a = artifacts.read_arrays(art, ("track", "ground", "input_rows"))
         track = a["track"]
         label = np.zeros(len(track), np.uint32)
         if plan.include_ground:
@@ -238,6 +246,9 @@ def semantickitti_tar(plan: SemanticKittiPlan, artifacts: ArtifactStore) -> Iter
             sem = np.array([sem_of[i] for i in ids], np.uint32)
             ins = np.array([inst[i] for i in ids], np.uint32)
             label[hit] = sem[pos[hit]] | (ins[pos[hit]] << 16)
+        rows = a.get("input_rows")
+        if rows is not None:
+            label = _spread(label, rows)
         _add(tar, f"{prefix}/labels/{name}.label", label.tobytes())
         yield sink.drain()
     if chunk_map is not None:

@@ -48,6 +48,9 @@ class UserWithToken(BaseModel):
 
 
 # ----------------------------------------------------------------------------- datasets
+IngestPoses = Literal["file", "icp"]
+POSES_HELP = "Poses for ingest: file (the sequence's own; none links no tracks) or icp (estimated by KISS-ICP)."
+
 class DatasetBase(_Request):
     path: str = Field(min_length=1, max_length=4096, description="A sequence path under a configured data root.")
     name: str | None = Field(default=None, max_length=128)
@@ -57,6 +60,7 @@ class DatasetBase(_Request):
 class DatasetCreate(DatasetBase):
     ingest: bool = Field(default=True, description="Queue the ingest job right away.")
     config: dict[str, Any] | None = Field(default=None, description="Pipeline config overrides for ingest.")
+    poses: IngestPoses = Field(default="file", description=POSES_HELP)
 
 
 class SequencePublic(_Public):
@@ -96,6 +100,7 @@ class DatasetDetail(DatasetPublic):
 
 class IngestRequest(_Request):
     force: bool = Field(default=False, description="Re-ingest a ready sequence, dropping its reviews.")
+    poses: IngestPoses = Field(default="file", description=POSES_HELP)
 
 
 # ----------------------------------------------------------------------------- frames

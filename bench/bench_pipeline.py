@@ -39,13 +39,12 @@ def _pgs_isolated(seq: Path) -> dict:
     """Projection + ground + segmentation alone over every frame (scans read beforehand), wall
     and process CPU time (every thread) per frame."""
     from pipeline.ground import estimate_ground
-    from pipeline.io import open_sequence
-    from pipeline.pipeline import resolve_sensor
     from pipeline.range_image import project
     from pipeline.segmentation import segment
+    from pipeline.sequence import open_sequence
 
-    source = open_sequence(seq)
-    sensor = resolve_sensor(source, "auto")
+    opened = open_sequence(seq)
+    source, sensor = opened.source, opened.sensor
     cfg = PipelineConfig()
     scans = [source.frame(i) for i in range(len(source))]
     wall, cpu = [], []

@@ -106,11 +106,10 @@ def _cluster_quality(seq: Path, frames: int, config) -> dict:
 
 
 def _open(seq: Path):
-    from pipeline.io import open_sequence
-    from pipeline.pipeline import resolve_sensor
+    from pipeline.sequence import open_sequence
 
-    source = open_sequence(seq)
-    return source, resolve_sensor(source, "auto")
+    opened = open_sequence(seq)
+    return opened.source, opened.sensor
 
 
 def run(out_dir: Path, quick: bool) -> dict:

@@ -5,6 +5,9 @@
    `max_slope_deg` (the first one is compared with the ground under the sensor).
 2. A ground surface on a `grid_cell` grid (mean z of ground points per cell, empty cells filled
    from the nearest filled cell by an 8-neighbour breadth-first fill, bilinear lookup) gives every point its height above ground.
+   The grid spans the walk's ground points only (pixels of the range image, so within
+   `max_range`): its memory is bounded by the range, never by a stray point at 1e9 m, which takes
+   the height above the surface's nearest edge.
 3. Non-ground points within `ground_band` of that surface are ground too (curbs, low grass).
 """
 
@@ -123,11 +126,12 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
     lo1 = np.inf
     hi0 = -np.inf
     hi1 = -np.inf
-    for i in prange(n):
-        lo0 = min(lo0, points[i, 0])
-        lo1 = min(lo1, points[i, 1])
-        hi0 = max(hi0, points[i, 0])
-        hi1 = max(hi1, points[i, 1])
+    for i in range(n):  # the grid spans the ground points (pixels, so within max_range)
+        if walk[i]:
+            lo0 = min(lo0, points[i, 0])
+            lo1 = min(lo1, points[i, 1])
+            hi0 = max(hi0, points[i, 0])
+            hi1 = max(hi1, points[i, 1])
     lo0 = lo0 - cell
     lo1 = lo1 - cell
     inv = 1.0 / cell
@@ -188,13 +192,14 @@ def _surface_and_band(points, walk, kept, sensor_h, cell, band):  # pragma: no c
                 tail += 1
     grid = padded.reshape(g0 + 2, p1)[1 : g0 + 1, 1 : g1 + 1]
     for i in prange(n):
-        # u, v >= 0.5: every point lies at least one cell inside the grid, so int() is floor()
-        u = (points[i, 0] - lo0) * inv - 0.5
-        v = (points[i, 1] - lo1) * inv - 0.5
+        # clamped to the grid: a point beyond it (off the ground points' extent) takes the height
+        # above the nearest edge; clamping before int() also keeps 1e9 m points in range
+        u = min(max((points[i, 0] - lo0) * inv - 0.5, 0.0), g0 - 1.0)
+        v = min(max((points[i, 1] - lo1) * inv - 0.5, 0.0), g1 - 1.0)
         a = min(int(u), g0 - 2)
         b = min(int(v), g1 - 2)
-        fu = min(u - a, 1.0)
-        fv = min(v - b, 1.0)
+        fu = u - a
+        fv = v - b
         z0 = grid[a, b] + (grid[a, b + 1] - grid[a, b]) * fv
         z1 = grid[a + 1, b] + (grid[a + 1, b + 1] - grid[a + 1, b]) * fv
         hgt = np.float32(points[i, 2] - (z0 + (z1 - z0) * fu))

@@ -1,4 +1,8 @@
-"""`inspect_sequence`: what a sequence holds, read frame by frame (what `tracklabel inspect` prints)."""
+"""`inspect_sequence`: what a sequence holds, read frame by frame (what `tracklabel inspect` prints).
+
+The sequence is opened as `tracklabel process` opens it (`pipeline.sequence.open_sequence`), so the
+sensor shown, its beams and columns and how it was decided are the ones processing uses.
+"""
 
 from __future__ import annotations
 
@@ -7,9 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.classes import POINT_CLASSES, UNLABELLED, to_ours
-from pipeline.errors import DataError
-from pipeline.io.registry import open_sequence
 from pipeline.scan import SequenceInfo, SequenceSource
+from pipeline.sequence import open_sequence
 
 
 def pose_status(source: SequenceSource) -> str:
@@ -19,12 +22,11 @@ def pose_status(source: SequenceSource) -> str:
     return "estimable" if len(source) >= 2 else "absent"
 
 
-def inspect_sequence(path: str | Path, fmt: str = "auto") -> SequenceInfo:
+def inspect_sequence(path: str | Path, fmt: str = "auto", sensor: str = "auto") -> SequenceInfo:
     """Open and read every frame of `path`; raises DataError naming the first bad file."""
-    source = open_sequence(path, fmt)
+    opened = open_sequence(path, fmt, sensor=sensor)
+    source = opened.source
     n = len(source)
-    if n == 0:
-        raise DataError(path, "sequence has no frames")
     counts = np.zeros(n, dtype=np.int64)
     dropped = 0
     histogram = np.zeros(256, dtype=np.int64)
@@ -46,7 +48,10 @@ def inspect_sequence(path: str | Path, fmt: str = "auto") -> SequenceInfo:
     return SequenceInfo(
         path=Path(path),
         format=source.format,
-        sensor=source.sensor.name,
+        sensor=opened.sensor.name,
+        beams=opened.sensor.n_rings,
+        columns=opened.sensor.width,
+        sensor_from=opened.sensor_from,
         frames=n,
         points_min=int(counts.min()),
         points_median=float(np.median(counts)),

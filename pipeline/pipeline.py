@@ -1,14 +1,14 @@
 """The only module that joins the algorithm to the dataset loaders.
 
-`run_process` opens a sequence, resolves its sensor and poses, runs the SequenceProcessor and
-writes `OUT/tracks/NNNNNN.label`, `OUT/tracks.json`, `OUT/summary.json`, `OUT/config.yaml` and,
-with samples on, `OUT/samples/NNNNNN.npz`. `evaluate_folder` scores such an output against the
-sequence's SemanticKITTI labels.
+`run_process` opens a sequence (`pipeline.sequence.open_sequence`: reader, sensor, width, poses),
+runs the SequenceProcessor and writes `OUT/tracks/NNNNNN.label` (one uint32 per input point,
+docs/conventions.md), `OUT/tracks.json`, `OUT/summary.json`, `OUT/config.yaml` and, with samples
+on, `OUT/samples/NNNNNN.npz`. `evaluate_folder` scores such an output against the sequence's
+SemanticKITTI labels.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from collections.abc import Callable
@@ -19,50 +19,10 @@ import numpy as np
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.processing import SequenceProcessor
-from pipeline.scan import Scan, SequenceSource
-from pipeline.sensors import SensorModel, get_sensor
+from pipeline.sequence import open_sequence
 from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
-
-
-def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
-    """The sensor with its range-image width fitted to the scan's points per ring.
-
-    A sensor spinning faster than its preset (nuScenes runs the HDL-32E at 20 Hz) gives fewer
-    points per ring; a too-wide image would leave every other column empty and cut every object
-    into slivers.
-    """
-    if len(scan) == 0:
-        return sensor
-    per_ring = np.bincount(scan.ring[scan.ring >= 0].astype(np.int64), minlength=sensor.n_rings)
-    most = int(np.percentile(per_ring, 95))
-    if most >= 0.75 * sensor.width or most < 64:
-        return sensor
-    width = int(np.ceil(most * 1.005))
-    return dataclasses.replace(sensor, width=width, frequency_hz=sensor.frequency_hz * sensor.width / width)
-
-
-def resolve_sensor(source: SequenceSource, name: str) -> SensorModel:
-    """`auto` takes the reader's sensor, fitted to the first readable frame; otherwise a preset or json."""
-    sensor = source.sensor if name == "auto" else get_sensor(name)
-    for i in range(min(len(source), 3)):
-        try:
-            return fit_width(source.frame(i), sensor)
-        except DataError:
-            continue
-    return sensor
-
-
-def resolve_poses(source: SequenceSource, poses: str, progress: bool = False) -> np.ndarray | None:
-    """`file`: the sequence's own poses (None when it has none); `icp`: estimate with KISS-ICP."""
-    if poses == "file":
-        return source.poses
-    if poses == "icp":
-        from pipeline.odometry import estimate_poses
-
-        return estimate_poses(source, progress=progress)
-    raise DataError(None, f"--poses must be 'file' or 'icp', got {poses!r}")
 
 
 def _stats(values: list[float]) -> dict[str, float]:
@@ -91,11 +51,8 @@ def run_process(
     config = config or PipelineConfig()
     log = log or (lambda _m: None)
     out = Path(out)
-    source = open_sequence(path, fmt)
-    if len(source) == 0:
-        raise DataError(path, "sequence has no frames")
-    sens = resolve_sensor(source, sensor if sensor != "auto" else config.sensor.name)
-    pose_arr = resolve_poses(source, poses, progress)
+    seq = open_sequence(path, fmt, sensor if sensor != "auto" else config.sensor.name, poses, progress)
+    source, sens, pose_arr = seq.source, seq.sensor, seq.poses
     if pose_arr is None:
         log("no poses (pass --poses icp to estimate them): frames are segmented but not linked into tracks")
     (out / "tracks").mkdir(parents=True, exist_ok=True)
@@ -117,7 +74,7 @@ def run_process(
     t0 = time.perf_counter()
     for fr in proc.iter_frames(source, progress=progress, workers=workers, samples=True,
                                poses=pose_arr, on_skip=on_skip):
-        fr.track_labels().tofile(out / "tracks" / f"{fr.name}.label")
+        fr.scan.to_input(fr.track_labels()).tofile(out / "tracks" / f"{fr.name}.label")
         if samples:
             np.savez_compressed(
                 out / "samples" / f"{fr.name}.npz",
@@ -141,8 +98,9 @@ def run_process(
         "sequence": str(path),
         "format": source.format,
         "sensor": sens.name,
+        "sensor_from": seq.sensor_from,
         "range_image": [sens.n_rings, sens.width],
-        "poses": "none" if pose_arr is None else poses,
+        "poses": seq.pose_source,
         "linked": proc.linked,
         "frames": len(names),
         "skipped": skipped,
@@ -176,7 +134,7 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) ->
     if not tracks_file.exists():
         raise DataError(tracks_file, "missing: run `tracklabel process` first")
     tracks, doc = read_tracks(tracks_file)
-    source = open_sequence(seq)
+    source = open_reader(seq)
     names = [source.frame_name(i) for i in range(len(source))]
     pos_of_name = {n: i for i, n in enumerate(names)}
     frames: list[FrameTruth] = []
@@ -195,8 +153,10 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) ->
             continue
         label_file = out / "tracks" / f"{name}.label"
         track = np.fromfile(label_file, dtype=np.uint32)
-        if len(track) != len(scan):
-            raise DataError(label_file, f"has {len(track)} ids but the scan has {len(scan)} points")
+        if len(track) != scan.n_input:
+            raise DataError(label_file, f"has {len(track)} ids but the scan has {scan.n_input} points")
+        if scan.input_rows is not None:
+            track = track[scan.input_rows]
         key, inst = object_keys(scan.semantic, scan.instance)
         index_of[pos_of_name[name]] = len(frames)
         frames.append(FrameTruth(track, key, inst, scan.points))

@@ -4,11 +4,12 @@
 association) with the sample settings the model was trained on, classifies the sample of every
 valid segment and writes::
 
-    OUT/labels/NNNNNN.label     uint32 per point (SemanticKITTI): low 16 bits the semantic id of
+    OUT/labels/NNNNNN.label     uint32 per input point (SemanticKITTI; 0 for rows that are no
+                                point, NaN or no return): low 16 bits the semantic id of
                                 the class (pipeline.classes.SEMANTICKITTI_WRITE_ID), high 16 bits 0.
                                 A valid segment's class goes to all its points, ground points get
                                 the ground class (40, road), every other point is unlabelled (0).
-    OUT/confidence/NNNNNN.conf  float16 per point: the softmax probability of the segment's class;
+    OUT/confidence/NNNNNN.conf  float16 per input point: the softmax probability of the segment's class;
                                 0 for ground and unlabelled points (not decided by the classifier).
     OUT/segments/NNNNNN.npz     per classified segment: segment (V,) int32 local id, track (V,)
                                 int64 track id, probs (V, K) float16 class probabilities.
@@ -34,11 +35,10 @@ import numpy as np
 from pipeline.classes import GROUND, UNLABELLED, to_ours, to_semantickitti
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
 from pipeline.metrics import point_iou
 from pipeline.model import load_checkpoint, predict
-from pipeline.pipeline import resolve_poses, resolve_sensor
 from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.sequence import open_sequence
 
 __all__ = ["FramePrediction", "SegmentClassifier", "predict_frame_classes", "run_predict"]
 
@@ -167,11 +167,8 @@ def run_predict(
     clf = SegmentClassifier(checkpoint, device)
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, size)
     out = Path(out)
-    source = open_sequence(seq, fmt)
-    if len(source) == 0:
-        raise DataError(seq, "sequence has no frames")
-    sens = resolve_sensor(source, sensor if sensor != "auto" else config.sensor.name)
-    pose_arr = resolve_poses(source, poses, progress)
+    opened = open_sequence(seq, fmt, sensor if sensor != "auto" else config.sensor.name, poses, progress)
+    source, sens, pose_arr = opened.source, opened.sensor, opened.poses
     if pose_arr is None and smooth_tracks:
         log("no poses: tracks are single frames, --smooth-tracks has no effect")
     for sub in ("labels", "confidence", "segments"):
@@ -209,8 +206,9 @@ def run_predict(
                 probs = smoother(np.asarray(fr.segments.track_id)[fr.sample_segment], probs)
             pred = predict_frame_classes(fr, probs)
             name = fr.name
-            to_semantickitti(pred.point_class).astype(np.uint32).tofile(out / "labels" / f"{name}.label")
-            pred.confidence.astype(np.float16).tofile(out / "confidence" / f"{name}.conf")
+            labels = to_semantickitti(pred.point_class).astype(np.uint32)
+            fr.scan.to_input(labels).tofile(out / "labels" / f"{name}.label")
+            fr.scan.to_input(pred.confidence.astype(np.float16)).tofile(out / "confidence" / f"{name}.conf")
             np.savez(
                 out / "segments" / f"{name}.npz", segment=pred.segment, track=pred.track, probs=probs.astype(np.float16)
             )
@@ -247,7 +245,8 @@ def run_predict(
         "sample_size": config.samples.size,
         "sample_channels": config.samples.channels,
         "sensor": sens.name,
-        "poses": "none" if pose_arr is None else poses,
+        "sensor_from": opened.sensor_from,
+        "poses": opened.pose_source,
         "smooth_tracks": smooth_tracks,
         "frames": state["frames"],
         "skipped": skipped,

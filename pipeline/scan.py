@@ -2,6 +2,11 @@
 
 Frames: points are in the lidar frame (x forward, y left, z up, metres).
 `T_world_lidar` (4, 4) maps lidar points to the world: p_world = T_world_lidar @ p_lidar.
+
+A scan holds only usable points: readers drop input rows with NaN or inf, and the pixels without
+a return of an organized H x W layout. `Scan.input_rows` remembers which input rows became points,
+so that every per-point output can be written back with one value per input row
+(`Scan.to_input`; docs/conventions.md, "One value per input point").
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ class Scan:
     semantic:  (N,) uint16 SemanticKITTI semantic id, or None.
     instance:  (N,) uint16 instance id (0 = none), or None.
     dropped:   count of input rows removed because they held NaN or inf.
+    input_rows: (N_input,) bool, the input rows that became the points of this scan, in order
+               (point k is the k-th True row); None when every input row is a point (N_input = N).
     """
 
     points: np.ndarray
@@ -36,6 +43,7 @@ class Scan:
     semantic: np.ndarray | None = None
     instance: np.ndarray | None = None
     dropped: int = 0
+    input_rows: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -46,9 +54,27 @@ class Scan:
         for name in ("time", "semantic", "instance"):
             arr = getattr(self, name)
             assert arr is None or arr.shape == (n,), (name, None if arr is None else arr.shape, n)
+        rows = self.input_rows
+        assert rows is None or (rows.ndim == 1 and rows.dtype == np.bool_ and int(rows.sum()) == n)
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @property
+    def n_input(self) -> int:
+        """Rows of the input this scan was read from (points plus dropped rows)."""
+        return len(self.points) if self.input_rows is None else len(self.input_rows)
+
+    def to_input(self, values: np.ndarray, fill: float | int = 0) -> np.ndarray:
+        """(N_input, ...) `values` (N, ...) per point spread back to the input rows; `fill` where
+        an input row is not a point (NaN, inf, no return)."""
+        values = np.asarray(values)
+        assert values.shape[:1] == (len(self),), (values.shape, len(self))
+        if self.input_rows is None:
+            return values
+        out = np.full((self.n_input, *values.shape[1:]), fill, dtype=values.dtype)
+        out[self.input_rows] = values
+        return out
 
     @property
     def has_labels(self) -> bool:
@@ -68,13 +94,23 @@ class Scan:
             pick(self.semantic),
             pick(self.instance),
             self.dropped,
+            self._input_rows_after(mask),
         )
+
+    def _input_rows_after(self, mask: np.ndarray) -> np.ndarray:
+        """input_rows of `select(mask)`: the input rows of the points kept by `mask`."""
+        if self.input_rows is None:
+            return np.asarray(mask, dtype=bool).copy()
+        rows = self.input_rows.copy()
+        rows[self.input_rows] = mask
+        return rows
 
 
 @runtime_checkable
 class SequenceSource(Protocol):
     """A LiDAR sequence: frames read lazily, with optional poses, times and labels.
 
+    sensor_from: how the sensor was decided, one of `pipeline.sensors.SENSOR_FROM`.
     poses: (F, 4, 4) float64 `T_world_lidar` per frame, or None when the source has none.
     times: (F,) float64 seconds per frame, or None.
     """
@@ -82,6 +118,7 @@ class SequenceSource(Protocol):
     path: Path
     format: str
     sensor: SensorModel
+    sensor_from: str
     poses: np.ndarray | None
     times: np.ndarray | None
 
@@ -99,6 +136,9 @@ class SequenceInfo:
     path: Path
     format: str
     sensor: str
+    beams: int
+    columns: int  # range-image width
+    sensor_from: str  # how the sensor was decided (pipeline.sensors.SENSOR_FROM)
     frames: int
     points_min: int
     points_median: float
@@ -119,3 +159,9 @@ def clean_rows(values: np.ndarray) -> tuple[np.ndarray, int]:
     """Mask (N,) of rows of `values` (N, C) that are all finite, and the number that are not."""
     finite = np.isfinite(values).all(axis=1)
     return finite, int(len(finite) - finite.sum())
+
+
+def input_rows_of(kept: np.ndarray) -> np.ndarray | None:
+    """`Scan.input_rows` for the input-row mask `kept` (N_input,): None when every row is kept."""
+    kept = np.asarray(kept, dtype=bool)
+    return None if kept.all() else kept

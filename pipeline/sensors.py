@@ -2,6 +2,12 @@
 
 Rows of a range image follow the beams from the top: row 0 is the beam with the highest
 elevation. `SensorModel.elevations_deg` is therefore sorted in descending order.
+
+A sequence's sensor is decided once, and how it was decided is kept with it (`SENSOR_FROM`): the
+user's flag, the data's metadata (a simulator's metadata.json, an Ouster json), a ring field, an
+organized H x W layout, the scan order of the points, or the elevation histogram of an unordered
+cloud (`pipeline.io.layout`). Beams found in the data become a preset when their count and
+elevations match one (`sensor_from_elevations`).
 """
 
 from __future__ import annotations
@@ -89,6 +95,34 @@ def _vlp16() -> SensorModel:
 
 
 PRESETS: dict[str, SensorModel] = {"hdl32e": _hdl32e(), "hdl64e": _hdl64e(), "vlp16": _vlp16()}
+
+
+# How a sequence's sensor was decided, as `tracklabel inspect` prints it.
+SENSOR_FROM = (
+    "user flag", "metadata", "ring field", "organized layout", "scan order", "elevation histogram", "default",
+)
+# Beams found in the data are a preset's when every beam lies this close to the preset's; the
+# parallax of KITTI's HDL-64E moves its medians up to 0.6 deg off the nominal elevations.
+PRESET_TOLERANCE_DEG = 1.0
+
+
+def sensor_from_elevations(name: str, elevations_deg: np.ndarray, width: int) -> SensorModel:
+    """The sensor of beams measured in the data, (B,) elevations in degrees from the top beam
+    (NaN = a beam without points): the preset with B beams within PRESET_TOLERANCE_DEG of them,
+    else a model `name` with the measured elevations (gaps interpolated, made strictly descending)
+    and `width` columns."""
+    el = np.asarray(elevations_deg, dtype=np.float64)
+    have = ~np.isnan(el)
+    if have.sum() < 2:
+        raise DataError(None, f"{name}: cannot measure beam elevations from {int(have.sum())} beams")
+    for preset in PRESETS.values():
+        nominal = np.asarray(preset.elevations_deg)
+        if preset.n_rings == len(el) and np.nanmax(np.abs(el - nominal)) < PRESET_TOLERANCE_DEG:
+            return preset
+    idx = np.arange(len(el))
+    el = np.interp(idx, idx[have], el[have])
+    el = np.minimum.accumulate(el) - idx * 1e-6  # strictly descending
+    return SensorModel(name, tuple(float(x) for x in el), width=max(8, int(width)))
 
 
 def get_sensor(name: str) -> SensorModel:

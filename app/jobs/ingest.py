@@ -1,7 +1,8 @@
 """`ingest`: run the perception pipeline over a registered sequence and store its results.
 
 1. Roll back whatever an earlier, unfinished attempt wrote for the sequence (rows and artifacts).
-2. Run `SequenceProcessor.iter_frames` in frame order.
+2. Open the sequence as `tracklabel process` does (`pipeline.sequence.open_sequence`: sensor,
+   width and poses, `file` or `icp`), and run `SequenceProcessor.iter_frames` in frame order.
 3. Every `ingest_batch_frames` frames: the new tracks (one short transaction), the frames'
    artifact files (no lock held), then in one transaction the frames, segments, constraint pairs
    (track links, and the fragment links that join two tracks into a stitch) and track and
@@ -29,12 +30,14 @@ from app.core.errors import Conflict, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
+from app.schemas import IngestPoses
 
 
 class IngestParams(BaseModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     force: bool = False  # re-ingest a ready sequence (drops its reviews)
+    poses: IngestPoses = "file"  # the sequence's own poses, or estimated (KISS-ICP)
 
 
 class FrameProcessor(Protocol):
@@ -44,10 +47,11 @@ class FrameProcessor(Protocol):
 class IngestBackend:
     """How ingest opens a sequence and builds the processor (tests substitute a fake)."""
 
-    def open(self, path: str, fmt: str) -> Any:
-        from pipeline.io import open_sequence
+    def open(self, path: str, fmt: str, sensor: str, poses: str) -> Any:
+        """A `pipeline.sequence.Sequence` (source, sensor, poses)."""
+        from pipeline.sequence import open_sequence
 
-        return open_sequence(path, fmt=fmt)
+        return open_sequence(path, fmt, sensor=sensor, poses=poses)
 
     def processor(self, config: Any, sensor: Any) -> FrameProcessor:
         from pipeline.processing import SequenceProcessor
@@ -59,14 +63,6 @@ class IngestBackend:
 
         cfg = load_config(settings_path)
         return cfg.override(overrides) if overrides else cfg
-
-    def sensor(self, source: Any, config: Any) -> Any:
-        name = getattr(getattr(config, "sensor", None), "name", "auto")
-        if name and name != "auto":
-            from pipeline.sensors import get_sensor
-
-            return get_sensor(name)
-        return source.sensor
 
 
 _backend: IngestBackend = IngestBackend()
@@ -132,9 +128,9 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     ctx.artifacts.remove_sequence(params.sequence_id)
     ctx.progress(0.0, "opening the sequence")
 
-    source = _backend.open(path, fmt)
     config = _backend.config(ctx.settings.pipeline_config, overrides)
-    sensor = _backend.sensor(source, config)
+    opened = _backend.open(path, fmt, getattr(getattr(config, "sensor", None), "name", "auto"), params.poses)
+    source, sensor = opened.source, opened.sensor
     total = len(source)
     with ctx.db.write() as s:
         s.execute(
@@ -151,7 +147,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         state.skipped.append(f"frame {index}: {error}")
 
     batch: list[Any] = []
-    for fr in processor.iter_frames(source, progress=False, workers=1, on_skip=on_skip):
+    for fr in processor.iter_frames(source, progress=False, workers=1, poses=opened.poses, on_skip=on_skip):
         batch.append(fr)
         if len(batch) >= ctx.settings.ingest_batch_frames:
             _write_batch(ctx, state, batch)
@@ -291,6 +287,7 @@ def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
             track=point_track,
             samples=np.asarray(fr.samples, dtype=np.uint8),
             sample_segment=np.asarray(fr.sample_segment, dtype=np.int32),
+            input_rows=getattr(fr.scan, "input_rows", None),
         ),
     )
 

@@ -204,8 +204,8 @@ def confirm_stitches(pairs: np.ndarray, label: np.ndarray, gt_object: np.ndarray
 
 
 # Code that shapes the samples: a change to any of these files invalidates cached scenes.
-_SOURCES = ("simulation", "range_image.py", "ground.py", "segmentation.py", "samples.py", "association.py",
-            "processing.py", "sensors.py", "classes.py", "experiments/data.py")
+_SOURCES = ("simulation", "io", "sequence.py", "range_image.py", "ground.py", "segmentation.py", "samples.py",
+            "association.py", "processing.py", "sensors.py", "classes.py", "experiments/data.py")
 
 
 def _code_fingerprint() -> str:
@@ -240,13 +240,11 @@ def _route_progress(poses: np.ndarray) -> np.ndarray:
 
 def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = False) -> SceneSamples:
     """Run the perception pipeline over a labelled sequence and let the operator review it."""
-    from pipeline.io import open_sequence
-    from pipeline.pipeline import resolve_sensor
     from pipeline.processing import SequenceProcessor
+    from pipeline.sequence import open_sequence
 
-    source = open_sequence(seq)
-    sensor = resolve_sensor(source, config.sensor.name)
-    poses = source.poses
+    opened = open_sequence(seq, sensor=config.sensor.name)
+    source, sensor, poses = opened.source, opened.sensor, opened.poses
     assert poses is not None, "simulated sequences carry poses"
     route = _route_progress(np.asarray(poses))
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("samples", "frame", "segment", "track", "link_score",
@@ -255,7 +253,7 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = Fals
     proc = SequenceProcessor(config, sensor)
     n_done = 0
     prev_lut = np.zeros(0, np.int64)  # previous frame: segment id -> sample index, -1 = none
-    for fr in proc.iter_frames(source, progress=progress, samples=True):
+    for fr in proc.iter_frames(source, progress=progress, samples=True, poses=poses):
         if fr.scan.semantic is None or fr.scan.instance is None:
             raise ValueError(f"{seq}: frame {fr.name} has no labels")
         n_seg = len(fr.segments.n_points)

@@ -9,9 +9,11 @@ Layout (a folder, or a single `.bin` as a one-frame sequence)::
     SEQ/times.txt             optional, one time (s) per frame
     SEQ/metadata.json         optional, {"sensor": "hdl32e", ...} (written by the simulator)
 
-Poses become lidar poses `T_world_lidar = inv(Tr) @ P_k @ Tr`. Rings are recovered from scan order
-(`pipeline.io.rings`). The sensor is, in order: the `sensor` argument, metadata.json, the preset
-whose beam count matches the rings found in the first frame, HDL-64E.
+Frames are ordered by the natural order of their names. Poses become lidar poses
+`T_world_lidar = inv(Tr) @ P_k @ Tr`. The sensor is, in order: the `sensor` argument,
+metadata.json, or what the first frame shows (`pipeline.io.layout`: an organized H x W layout,
+scan order, the elevation histogram). Rows come from the organized layout, else scan order, else
+the elevations (`pipeline.io.layout.Layout.rows`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
-from pipeline.io.rings import recover_rings, scan_order_rings
+from pipeline.io.layout import Layout, detect_layout, known_layout
+from pipeline.io.registry import frame_files
 from pipeline.io.semantickitti import (
     lidar_poses,
     read_bin,
@@ -30,10 +33,8 @@ from pipeline.io.semantickitti import (
     read_label,
     read_matrix_lines,
 )
-from pipeline.scan import Scan, clean_rows
-from pipeline.sensors import PRESETS, SensorModel, get_sensor
-
-DEFAULT_SENSOR = "hdl64e"
+from pipeline.scan import Scan, input_rows_of
+from pipeline.sensors import SensorModel, get_sensor
 
 
 def _scan_files(path: Path) -> tuple[list[Path], Path]:
@@ -44,7 +45,7 @@ def _scan_files(path: Path) -> tuple[list[Path], Path]:
     if not path.is_dir():
         raise DataError(path, "no such file or folder")
     folder = path / "velodyne" if (path / "velodyne").is_dir() else path
-    files = sorted(f for f in folder.glob("*.bin") if not f.name.endswith(".pcd.bin"))
+    files = frame_files(f for f in folder.glob("*.bin") if not f.name.endswith(".pcd.bin"))
     if not files:
         raise DataError(folder, "holds no .bin scans")
     return files, path
@@ -94,14 +95,6 @@ def _metadata_sensor(root: Path) -> SensorModel | None:
         raise DataError(meta, str(exc.args[0])) from None
 
 
-def sensor_for_rings(found: int) -> SensorModel:
-    """The preset with `found` beams, else the KITTI default (HDL-64E)."""
-    for preset in PRESETS.values():
-        if preset.n_rings == found:
-            return preset
-    return PRESETS[DEFAULT_SENSOR]
-
-
 class KittiSequence:
     """A KITTI / SemanticKITTI sequence, read lazily frame by frame (`pipeline.scan.SequenceSource`)."""
 
@@ -123,7 +116,8 @@ class KittiSequence:
         times = self.root / "times.txt"
         if self.path.is_dir() and times.is_file():
             self.times = _read_times(times, len(self._files))
-        self.sensor = self._pick_sensor(sensor)
+        self._layout = self._pick_layout(sensor)
+        self.sensor = self._layout.sensor
 
     def _load_poses(
         self, poses: str | Path | None, calib: str | Path | None
@@ -141,29 +135,38 @@ class KittiSequence:
             self.warnings.append(f"{pose_file}: no calib.txt beside it, poses are taken as T_world_lidar")
         return _read_poses(pose_file, len(self._files), calib_file)
 
-    def _pick_sensor(self, sensor: str | SensorModel) -> SensorModel:
-        if isinstance(sensor, SensorModel):
-            return sensor
-        if sensor != "auto":
-            return get_sensor(sensor)
-        meta = _metadata_sensor(self.root)
-        if meta is not None:
-            return meta
-        points = self._read_points(0)[0][:, :3]
-        rows, found = scan_order_rings(points, None)
-        return sensor_for_rings(found if rows is not None else 0)
+    def _pick_layout(self, sensor: str | SensorModel) -> Layout:
+        """The sensor (flag, metadata.json, else found in the first frame) and how rows are read."""
+        if isinstance(sensor, SensorModel) or sensor != "auto":
+            self.sensor_from = "user flag"
+            chosen = sensor if isinstance(sensor, SensorModel) else get_sensor(sensor)
+        else:
+            chosen = _metadata_sensor(self.root)
+            self.sensor_from = "metadata"
+        name, first = self._first_readable()
+        if chosen is not None:
+            return known_layout(chosen, first)
+        layout = detect_layout(first, "kitti")
+        self.sensor_from = layout.how
+        if layout.how == "default":
+            self.warnings.append(f"{name}: no beams show in this frame; rows use {layout.sensor.name} elevations")
+        return layout
+
+    def _first_readable(self) -> tuple[Path, np.ndarray]:
+        """(file, (N, 3) points) of the first of the first three frames that reads; a corrupt
+        frame is the pipeline's to skip, the sequence still opens."""
+        for f in self._files[:3]:
+            try:
+                return f, read_bin(f)[:, :3]
+            except DataError as exc:
+                error = exc
+        raise error
 
     def __len__(self) -> int:
         return len(self._files)
 
     def frame_name(self, index: int) -> str:
         return self._files[index].stem
-
-    def _read_points(self, index: int) -> tuple[np.ndarray, np.ndarray, int]:
-        """(finite rows (M, 4), finite mask (N,), dropped count) of frame `index`."""
-        raw = read_bin(self._files[index])
-        finite, dropped = clean_rows(raw)
-        return raw[finite], finite, dropped
 
     def label_path(self, index: int) -> Path | None:
         if self._labels is None:
@@ -174,18 +177,21 @@ class KittiSequence:
     def frame(self, index: int) -> Scan:
         if not -len(self) <= index < len(self):
             raise IndexError(f"frame {index} out of range for {len(self)} frames")
-        rows, finite, dropped = self._read_points(index)
-        points = np.ascontiguousarray(rows[:, :3])
+        raw = read_bin(self._files[index])
+        finite = np.isfinite(raw).all(axis=1)
+        kept = self._layout.kept(raw[:, :3]) & finite
+        rows = raw[kept]
         semantic = instance = None
         label = self.label_path(index)
         if label is not None:
-            semantic, instance = read_label(label, expected=len(finite))
-            semantic, instance = semantic[finite], instance[finite]
+            semantic, instance = read_label(label, expected=len(raw))
+            semantic, instance = semantic[kept], instance[kept]
         return Scan(
-            points=points,
+            points=np.ascontiguousarray(rows[:, :3]),
             intensity=np.clip(rows[:, 3], 0.0, 1.0).astype(np.float32),
-            ring=recover_rings(points, self.sensor).ring,
+            ring=self._layout.rows(raw[:, :3], kept),
             semantic=semantic,
             instance=instance,
-            dropped=dropped,
+            dropped=int(len(raw) - finite.sum()),
+            input_rows=input_rows_of(kept),
         )

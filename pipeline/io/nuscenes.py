@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
+from pipeline.io.registry import frame_files
 from pipeline.io.semantickitti import read_bin
-from pipeline.scan import Scan, clean_rows
+from pipeline.scan import Scan, clean_rows, input_rows_of
 from pipeline.sensors import PRESETS, SensorModel, get_sensor
 
 RECORD = 5
@@ -38,7 +39,7 @@ def _files(path: Path) -> list[Path]:
         return [path]
     if not path.is_dir():
         raise DataError(path, "no such file or folder")
-    files = sorted(path.glob("*.pcd.bin"))
+    files = frame_files(path.glob("*.pcd.bin"))
     if not files:
         raise DataError(path, "holds no .pcd.bin sweeps")
     return files
@@ -52,6 +53,7 @@ class NuScenesSequence:
     def __init__(self, path: str | Path, sensor: str | SensorModel = "auto") -> None:
         self.path = Path(path)
         self._files = _files(self.path)
+        self.sensor_from = "ring field" if sensor == "auto" else "user flag"
         if isinstance(sensor, SensorModel):
             self.sensor = sensor
         else:
@@ -88,4 +90,5 @@ class NuScenesSequence:
             intensity=np.clip(rows[:, 3] / 255.0, 0.0, 1.0).astype(np.float32),
             ring=(N_RINGS - 1 - ring.astype(np.int64)).astype(np.int16),
             dropped=dropped,
+            input_rows=input_rows_of(finite),
         )

@@ -5,9 +5,9 @@ opened, and its absence is a DataError. Metadata for a pcap: the `sensor_info` a
 `.json` of the same stem, else the `.json` in the same folder whose stem is the longest prefix of
 the pcap's (`OS-1-128_..._1024x10.json` for `OS-1-128_..._1024x10_lb_n3.pcap`).
 
-Each frame is the staggered `LidarScan` of sensor 0 (the first in a multi-sensor file). Points
-are the pixels with a return (range > 0) in the sensor frame (x forward, y left, z up), row by
-row; `ring` is the pixel row ordered by beam altitude (Ouster rows already run top-down),
+Each frame is the staggered `LidarScan` of sensor 0 (the first in a multi-sensor file). Its input
+rows are the H x W pixels row by row; points are the pixels with a return (range > 0) in the
+sensor frame (x forward, y left, z up); `ring` is the pixel row ordered by beam altitude (Ouster rows already run top-down),
 intensity the calibrated reflectivity / 255, time the column timestamp relative to the first
 valid column.
 """
@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
-from pipeline.scan import Scan, clean_rows
+from pipeline.scan import Scan, input_rows_of
 from pipeline.sensors import SensorModel, get_sensor, ouster_from_metadata
 
 INSTALL_HINT = "reading Ouster recordings needs the optional extra: pip install 'tracklabel[ouster]'"
@@ -100,6 +100,7 @@ class OusterSequence:
         order = np.argsort(-altitudes, kind="stable")
         self._row_of_pixel_row = np.empty(len(order), dtype=np.int16)
         self._row_of_pixel_row[order] = np.arange(len(order), dtype=np.int16)
+        self.sensor_from = "metadata" if sensor == "auto" else "user flag"
         if isinstance(sensor, SensorModel):
             self.sensor = sensor
         elif sensor != "auto":
@@ -159,14 +160,15 @@ class OusterSequence:
         t0 = self._first_stamp(scan)
         col_time = np.where(stamps > 0, (stamps - t0) * 1e-9, 0.0)
         rows = np.broadcast_to(self._row_of_pixel_row[:h, None], (h, w))
-        points = xyz[hit]
-        finite, dropped = clean_rows(points)
+        finite = np.isfinite(xyz).all(axis=2)
+        kept = hit & finite
         return Scan(
-            points=points[finite].astype(np.float32),
-            intensity=np.clip(inten[hit][finite], 0.0, 1.0).astype(np.float32),
-            ring=rows[hit][finite].astype(np.int16),
-            time=np.broadcast_to(col_time[None, :], (h, w))[hit][finite].astype(np.float32),
-            dropped=dropped,
+            points=xyz[kept].astype(np.float32),
+            intensity=np.clip(inten[kept], 0.0, 1.0).astype(np.float32),
+            ring=rows[kept].astype(np.int16),
+            time=np.broadcast_to(col_time[None, :], (h, w))[kept].astype(np.float32),
+            dropped=int((hit & ~finite).sum()),
+            input_rows=input_rows_of(kept.ravel()),
         )
 
     def close(self) -> None:

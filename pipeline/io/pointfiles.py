@@ -8,14 +8,17 @@ Fields are matched by name (case-insensitive):
   by 255 when it is <= 255, else by 65535 (then clipped to [0, 1]). Absent = 0;
 - ring: `ring`, `laser_id`, `channel`, `ring_id`, `scalar_ring`. Its direction is taken from the
   elevation (Velodyne drivers number from the bottom, Ouster from the top). Without one, an
-  organised cloud (PCD `HEIGHT` > 1) gives one ring per row; otherwise rings are recovered
-  (`pipeline.io.rings.recover_rings`: scan order, then nearest elevation);
+  organised cloud (PCD `HEIGHT` > 1) gives one ring per row; otherwise the first frame decides
+  (`pipeline.io.layout`: an organized H x W layout of zeros for no return, scan order, the
+  elevation histogram of an unordered cloud);
 - time: `t`, `time`, `timestamp`, `ts`, made relative to the scan's first point; integers, and
   floats spanning more than a second, are taken as nanoseconds;
 - labels: `label` (uint32, SemanticKITTI layout).
 
-The sensor ("auto") is the preset with the first frame's ring count, or a model built from that
-frame's per-ring median elevations when no preset has that count; HDL-64E when no rings show.
+The sensor ("auto") is the preset whose beams match the first frame's rings (count and
+elevations within 1 deg), or a model of that frame's per-ring median elevations; HDL-64E when no
+beams show. A folder's files are frames in the natural order of their names (`2.pcd` before
+`10.pcd`).
 """
 
 from __future__ import annotations
@@ -25,14 +28,15 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
-from pipeline.io.rings import recover_rings, rows_from_ring_field, scan_order_rings, segment_medians
-from pipeline.scan import Scan, clean_rows
-from pipeline.sensors import PRESETS, SensorModel, get_sensor
+from pipeline.io.layout import Layout, detect_layout, known_layout, measured_sensor
+from pipeline.io.registry import frame_files
+from pipeline.io.rings import rows_from_ring_field
+from pipeline.scan import Scan, input_rows_of
+from pipeline.sensors import SensorModel, get_sensor
 
 INTENSITY_FIELDS = ("intensity", "remission", "reflectivity", "i", "scalar_intensity")
 RING_FIELDS = ("ring", "laser_id", "channel", "ring_id", "scalar_ring")
 TIME_FIELDS = ("t", "time", "timestamp", "ts")
-DEFAULT_SENSOR = "hdl64e"
 
 
 def _field(table: np.ndarray, names: tuple[str, ...]) -> np.ndarray | None:
@@ -59,22 +63,6 @@ def _relative_time(values: np.ndarray) -> np.ndarray:
     return t.astype(np.float32)
 
 
-def estimated_sensor(name: str, points: np.ndarray, rows: np.ndarray, n_rings: int) -> SensorModel:
-    """A sensor model from per-row median elevations and points per row (rows (N,), 0 = top)."""
-    p = points.astype(np.float64)
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    med = segment_medians(el, rows.astype(np.int64), n_rings)
-    idx = np.arange(n_rings)
-    have = ~np.isnan(med)
-    if have.sum() < 2:
-        raise DataError(None, f"{name}: cannot estimate beam elevations from {int(have.sum())} rings")
-    med = np.interp(idx, idx[have], med[have])
-    med = np.minimum.accumulate(med) - idx * 1e-6  # strictly descending
-    counts = np.bincount(rows.astype(np.int64), minlength=n_rings)
-    width = max(8, int(np.percentile(counts, 95)))
-    return SensorModel(name, tuple(float(x) for x in med), width=width)
-
-
 class _PointFileSequence:
     """Files of one suffix read lazily as a `pipeline.scan.SequenceSource` without poses."""
 
@@ -92,6 +80,7 @@ class _PointFileSequence:
         self._intensity_scale = 1.0 if intensity is None else _intensity_scale(intensity)
         if intensity is None:
             self.warnings.append(f"{self._files[0]}: no intensity field, intensity set to 0")
+        self._layout: Layout | None = None  # None: rows come from a ring field or the PCD's rows
         self.sensor = self._pick_sensor(sensor, first)
 
     def _list_files(self) -> list[Path]:
@@ -99,7 +88,7 @@ class _PointFileSequence:
             return [self.path]
         if not self.path.is_dir():
             raise DataError(self.path, "no such file or folder")
-        files = sorted(self.path.glob(f"*{self.suffix}"))
+        files = frame_files(self.path.glob(f"*{self.suffix}"))
         if not files:
             raise DataError(self.path, f"holds no {self.suffix} files")
         return files
@@ -132,29 +121,35 @@ class _PointFileSequence:
         return None
 
     def _pick_sensor(self, sensor: str | SensorModel, first: tuple[np.ndarray, int]) -> SensorModel:
-        if isinstance(sensor, SensorModel):
-            return sensor
-        if sensor != "auto":
-            return get_sensor(sensor)
+        """The flag's sensor, else the one the first frame shows; sets how rows are read."""
         table, height = first
         xyz = self._xyz(table)
-        finite, _ = clean_rows(xyz)
-        xyz = xyz[finite]
         ring = self._ring_source(table, height)
+        given = None
+        if isinstance(sensor, SensorModel) or sensor != "auto":
+            given = sensor if isinstance(sensor, SensorModel) else get_sensor(sensor)
+            self.sensor_from = "user flag"
         if ring is not None:
-            n = int(ring.max()) + 1 if len(ring) else 0
-            rows = rows_from_ring_field(xyz, ring[finite], n) if n else None
-        else:
-            rows, n = scan_order_rings(xyz, None)
-        for preset in PRESETS.values():
-            if preset.n_rings == n:
-                return preset
-        if rows is None or n < 2:
+            if given is not None:
+                return given
+            self.sensor_from = "ring field" if _field(table, RING_FIELDS) is not None else "organized layout"
+            finite = np.isfinite(xyz).all(axis=1)
+            n = int(ring[finite].max()) + 1 if finite.any() else 0
+            if n < 2:
+                raise DataError(self._files[0], f"the ring field shows {n} rings")
+            rows = rows_from_ring_field(xyz[finite], ring[finite], n)
+            width = len(table) // height if height > 1 else None
+            return measured_sensor(f"{self.format}-{n}beam", xyz[finite], rows, n, width)
+        if given is not None:
+            self._layout = known_layout(given, xyz)
+            return given
+        self._layout = detect_layout(xyz, self.format)
+        self.sensor_from = self._layout.how
+        if self._layout.how == "default":
             self.warnings.append(
-                f"{self._files[0]}: no ring field and no scan order; rows use {DEFAULT_SENSOR} elevations"
+                f"{self._files[0]}: no ring field and no beams show; rows use {self._layout.sensor.name} elevations"
             )
-            return PRESETS[DEFAULT_SENSOR]
-        return estimated_sensor(f"{self.format}-{n}beam", xyz, rows, n)
+        return self._layout.sensor
 
     def __len__(self) -> int:
         return len(self._files)
@@ -172,30 +167,33 @@ class _PointFileSequence:
             columns.append(intensity.astype(np.float64)[:, None])
         if time is not None and np.issubdtype(time.dtype, np.floating):
             columns.append(time[:, None])
-        finite, dropped = clean_rows(np.column_stack(columns))
-        points = np.ascontiguousarray(xyz[finite])
-        ring = self._ring_source(table, height)
-        if ring is not None:
-            rows = rows_from_ring_field(points, ring[finite], self.sensor.n_rings)
+        finite = np.isfinite(np.column_stack(columns)).all(axis=1)
+        kept = finite if self._layout is None else finite & self._layout.kept(xyz)
+        points = np.ascontiguousarray(xyz[kept])
+        if self._layout is None:
+            ring = self._ring_source(table, height)
+            assert ring is not None
+            rows = rows_from_ring_field(points, ring[kept], self.sensor.n_rings)
         else:
-            rows = recover_rings(points, self.sensor).ring
+            rows = self._layout.rows(xyz, kept)
         if intensity is None:
             inten = np.zeros(len(points), np.float32)
         else:
-            inten = np.clip(intensity[finite] / self._intensity_scale, 0.0, 1.0).astype(np.float32)
+            inten = np.clip(intensity[kept] / self._intensity_scale, 0.0, 1.0).astype(np.float32)
         label = _field(table, ("label",))
         semantic = instance = None
         if label is not None:
-            raw = label[finite].astype(np.uint32)
+            raw = label[kept].astype(np.uint32)
             semantic, instance = (raw & 0xFFFF).astype(np.uint16), (raw >> 16).astype(np.uint16)
         return Scan(
             points=points,
             intensity=inten,
             ring=rows,
-            time=None if time is None else _relative_time(time[finite]),
+            time=None if time is None else _relative_time(time[kept]),
             semantic=semantic,
             instance=instance,
-            dropped=dropped,
+            dropped=int(len(finite) - finite.sum()),
+            input_rows=input_rows_of(kept),
         )
 
 

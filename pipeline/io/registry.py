@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+
+from natsort import natsorted
 
 from pipeline.errors import DataError
 from pipeline.scan import SequenceSource
@@ -18,6 +20,12 @@ _READERS: dict[str, str] = {
     "ouster": "pipeline.io.ouster:OusterSequence",
     "velodyne_pcap": "pipeline.io.velodyne:VelodynePcapSequence",
 }
+
+
+def frame_files(paths: Iterable[Path]) -> list[Path]:
+    """Frame files in natural order of their names (`9.pcd` before `10.pcd`; zero-padded names
+    sort as before)."""
+    return natsorted(paths, key=lambda p: p.name)
 
 
 def register_reader(name: str, target: str) -> None:
@@ -66,7 +74,7 @@ def detect_format(path: str | Path) -> str:
             return "ply"
         if any(p.glob("*.osf")):
             return "ouster"
-        pcaps = sorted(p.glob("*.pcap"))
+        pcaps = frame_files(p.glob("*.pcap"))
         if pcaps:
             return _pcap_format(pcaps[0])
         if not any(p.iterdir()):
@@ -88,6 +96,7 @@ def detect_format(path: str | Path) -> str:
     raise DataError(p, "unknown file type")
 
 
-def open_sequence(path: str | Path, fmt: str = "auto", **opts: object) -> SequenceSource:
-    """Open a sequence, detecting its format unless `fmt` names one."""
+def open_reader(path: str | Path, fmt: str = "auto", **opts: object) -> SequenceSource:
+    """The reader of `path`, detecting its format unless `fmt` names one (the pipeline opens
+    sequences through `pipeline.sequence.open_sequence`, which also fixes sensor, width and poses)."""
     return dataset_factory(detect_format(path) if fmt == "auto" else fmt, path, **opts)

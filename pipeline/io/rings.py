@@ -1,12 +1,12 @@
-"""Ring (beam row) recovery for point clouds without a ring field, and a check of any ring layout.
+"""Ring (beam row) recovery from scan order or a ring field, and a check of any ring layout.
 
-Rows follow docs/conventions.md: row 0 is the top beam. Two ways to recover them:
+Rows follow docs/conventions.md: row 0 is the top beam.
 
-1. **Scan order** (`scan_order_rings`): a KITTI `.bin` stores one laser's revolution after the
-   other, so a new beam starts where the azimuth wraps around (drops by more than half a turn).
-   The segments are then ordered by elevation to make row 0 the top beam.
-2. **Elevation** (`elevation_rings`): each point takes the sensor beam of nearest elevation. It
-   ignores the laser origin offsets, so it is only a fallback (exact on simulated data).
+- **Scan order** (`scan_order_rings`): a KITTI `.bin` stores one laser's revolution after the
+  other, so a new beam starts where the azimuth wraps around (drops by more than half a turn).
+  The segments are then ordered by elevation to make row 0 the top beam. Clouds without scan
+  order get their rows from their elevations (`pipeline.io.beams`).
+- **Ring field** (`rows_from_ring_field`): a source's ring numbers, turned top-down.
 
 `check_rings` measures how well rows match lasers without ground truth: it fits each row's laser
 origin height `h` (z = h + rho tan(e), the HDL-64E lasers sit ~0.2 m above the frame origin) and
@@ -21,23 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.sensors import SensorModel
-
 TWO_PI = 2.0 * np.pi
-
-
-@dataclass(frozen=True)
-class RingRecovery:
-    """Recovered rows of a scan.
-
-    ring:   (N,) int16 row, 0 = top beam, in [0, n_rings).
-    method: "scan_order" or "elevation" (the fallback).
-    found:  segments found in scan order (0 when the order showed no rings).
-    """
-
-    ring: np.ndarray
-    method: str
-    found: int
 
 
 @dataclass(frozen=True)
@@ -171,21 +155,6 @@ def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np
     return None, first_found
 
 
-def elevation_rings(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
-    """(N,) int64 row of the sensor beam with the nearest elevation (0 = top)."""
-    e = sensor.elevations_rad()  # descending
-    bounds = 0.5 * (e[1:] + e[:-1])  # descending
-    return np.searchsorted(-bounds, -_elevation(points), side="left").astype(np.int64)
-
-
-def recover_rings(points: np.ndarray, sensor: SensorModel) -> RingRecovery:
-    """Rows (0 = top) for points (N, 3) in scan order: scan order first, elevation as fallback."""
-    rows, found = scan_order_rings(points, sensor.n_rings)
-    if rows is not None:
-        return RingRecovery(rows.astype(np.int16), "scan_order", found)
-    return RingRecovery(elevation_rings(points, sensor).astype(np.int16), "elevation", found)
-
-
 def rows_from_ring_field(points: np.ndarray, ring: np.ndarray, n_rings: int) -> np.ndarray:
     """(N,) int16 rows from a source's ring numbers, flipped when its ring 0 is the bottom beam.
 
@@ -266,9 +235,3 @@ def check_rings(points: np.ndarray, ring: np.ndarray, n_rings: int, sectors: int
         wrong=wrong,
         wrong_fraction=float(wrong.mean()) if len(wrong) else 0.0,
     )
-
-
-def count_scan_rings(points: np.ndarray) -> int:
-    """Rings found in scan order with monotonic elevation (0 when the order shows none)."""
-    rows, found = scan_order_rings(points, None)
-    return found if rows is not None else 0

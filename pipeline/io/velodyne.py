@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
-from pipeline.io.pointfiles import estimated_sensor
-from pipeline.io.rings import rows_from_ring_field, segment_medians
-from pipeline.scan import Scan, clean_rows
-from pipeline.sensors import PRESETS, SensorModel, get_sensor
+from pipeline.io.layout import measured_sensor
+from pipeline.io.rings import rows_from_ring_field
+from pipeline.scan import Scan, clean_rows, input_rows_of
+from pipeline.sensors import SensorModel, get_sensor
 
 INSTALL_HINT = "reading Velodyne pcaps needs the optional extra: pip install 'tracklabel[velodyne]'"
 # velodyne_decoder.PointField order of the contiguous float arrays
@@ -43,14 +43,7 @@ def sensor_for_scan(points: np.ndarray, ring: np.ndarray) -> SensorModel:
     n = int(ring.max()) + 1 if len(ring) else 0
     if n < 2:
         raise DataError(None, "first Velodyne scan has fewer than two rings")
-    rows = rows_from_ring_field(points, ring, n)
-    p = points.astype(np.float64)
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    med = segment_medians(el, rows.astype(np.int64), n)
-    for preset in PRESETS.values():
-        if preset.n_rings == n and np.nanmax(np.abs(med - np.asarray(preset.elevations_deg))) < 1.0:
-            return preset
-    return estimated_sensor(f"velodyne-{n}beam", points, rows, n)
+    return measured_sensor(f"velodyne-{n}beam", points, rows_from_ring_field(points, ring, n), n)
 
 
 class VelodynePcapSequence:
@@ -76,6 +69,7 @@ class VelodynePcapSequence:
         if first is None:
             raise DataError(self.path, "no Velodyne scan decoded (not Velodyne data?)")
         self.times = np.asarray(stamps, dtype=np.float64)
+        self.sensor_from = "user flag" if isinstance(sensor, SensorModel) or sensor != "auto" else "ring field"
         if isinstance(sensor, SensorModel):
             self.sensor = sensor
         elif sensor != "auto":
@@ -126,4 +120,5 @@ class VelodynePcapSequence:
             ring=rows_from_ring_field(points, cloud[:, RING].astype(np.int64), self.sensor.n_rings),
             time=(t - t.min()).astype(np.float32) if len(t) else t.astype(np.float32),
             dropped=dropped,
+            input_rows=input_rows_of(finite),
         )

@@ -96,16 +96,13 @@ class FakeBackend(IngestBackend):
     def __init__(self, n_frames: int = 6, n_objects: int = 4, delay_s: float = 0.0, fail_at: int | None = None) -> None:
         self.n_frames, self.n_objects, self.delay_s, self.fail_at = n_frames, n_objects, delay_s, fail_at
 
-    def open(self, path: str, fmt: str) -> FakeSource:
-        return FakeSource(Path(path), self.n_frames)
+    def open(self, path: str, fmt: str, sensor: str, poses: str) -> SimpleNamespace:
+        return SimpleNamespace(source=FakeSource(Path(path), self.n_frames), sensor=None, poses=None)
 
     def processor(self, config: Any, sensor: Any) -> FakeProcessor:
         return FakeProcessor(self.n_objects, self.delay_s, self.fail_at)
 
     def config(self, settings_path: Any, overrides: Any) -> Any:
-        return None
-
-    def sensor(self, source: Any, config: Any) -> Any:
         return None
 
 

@@ -5,11 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from app.cli import app
 from pipeline.io.semantickitti import read_bin, write_label, write_poses
 from tests.pipeline.test_io_kitti import pose, write_sequence
+from tests.pipeline.test_io_pointfiles import write_pcd, xyz_columns
+from tests.pipeline.test_organized import kitti_organized, write_organized_bin
 
 runner = CliRunner()
 
@@ -28,7 +31,8 @@ def assert_one_line_error(result, name: str) -> None:
 def test_cli_inspect_prints_summary(tmp_path: Path) -> None:
     result = inspect(write_sequence(tmp_path / "seq", frames=2, cols=100))
     assert result.exit_code == 0, result.stderr
-    for text in ("format:  kitti", "sensor:  hdl32e", "frames:  2", "poses:   given", "ground"):
+    for text in ("format:  kitti", "sensor:  hdl32e (32 beams x 2160 columns), from metadata", "frames:  2",
+                 "poses:   given", "ground"):
         assert text in result.stdout
 
 
@@ -75,3 +79,33 @@ def test_cli_inspect_unknown_folder(tmp_path: Path) -> None:
 
 def test_cli_inspect_missing_path(tmp_path: Path) -> None:
     assert_one_line_error(inspect(tmp_path / "nope"), "nope")
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_kitti_shuffled_names_64_beams(real_data: Path, tmp_path: Path) -> None:
+    (tmp_path / "velodyne").mkdir()
+    for name in ("000000", "000001"):
+        raw = read_bin(real_data / "kitti_seq00" / "velodyne" / f"{name}.bin")
+        raw[np.random.default_rng(0).permutation(len(raw))].tofile(tmp_path / "velodyne" / f"{name}.bin")
+    result = inspect(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    assert "sensor:  hdl64e (64 beams x 2048 columns), from elevation histogram" in result.stdout
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_organized_64x2048(real_data: Path, tmp_path: Path) -> None:
+    grid = kitti_organized(real_data)
+    result = inspect(write_organized_bin(tmp_path / "velodyne" / "000000.bin", grid).parent.parent)
+    assert result.exit_code == 0, result.stderr
+    assert "sensor:  hdl64e (64 beams x 2048 columns), from organized layout" in result.stdout
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_nuscenes_pcd_without_ring_names_32_beams(real_data: Path, tmp_path: Path) -> None:
+    raw = np.fromfile(next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin")), np.float32).reshape(-1, 5)
+    for i in range(3):
+        xyz = np.ascontiguousarray(raw[np.random.default_rng(i).permutation(len(raw)), :3])
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(xyz))
+    result = inspect(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    assert "sensor:  hdl32e (32 beams x " in result.stdout and "from elevation histogram" in result.stdout

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -97,3 +98,23 @@ def test_cli_predict_size_mismatch_exits_2(sim, ckpt, tmp_path):
 def test_cli_predict_unknown_sequence_exits_2(ckpt, tmp_path):
     r = runner.invoke(app, ["predict", str(tmp_path / "nope"), "--model", str(ckpt), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2
+
+
+def test_cli_predict_bad_points_one_label_and_confidence_per_input_point(sim, ckpt, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(sim, seq)
+    shutil.rmtree(seq / "labels")
+    raw = read_bin(seq / "velodyne" / "000000.bin").copy()
+    raw[:50, 0] = np.nan
+    raw[50:60, :3] = 1e9
+    raw.tofile(seq / "velodyne" / "000000.bin")
+    np.zeros((0, 4), np.float32).tofile(seq / "velodyne" / "000001.bin")
+    out = tmp_path / "pred"
+    r = runner.invoke(app, ["predict", str(seq), "--model", str(ckpt), "--out", str(out), "--device", "cpu"])
+    assert r.exit_code == 0, r.output
+    for name, n in (("000000", len(raw)), ("000001", 0)):
+        label = np.fromfile(out / "labels" / f"{name}.label", dtype=np.uint32)
+        conf = np.fromfile(out / "confidence" / f"{name}.conf", dtype=np.float16)
+        assert label.shape == (n,) and conf.shape == (n,)
+    label = np.fromfile(out / "labels" / "000000.label", dtype=np.uint32)
+    assert not label[:50].any()  # the NaN rows are unlabelled

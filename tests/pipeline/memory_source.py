@@ -20,6 +20,7 @@ class MemorySource:
         self.path = Path("memory")
         self.scans = scans
         self.sensor = sensor
+        self.sensor_from = "user flag"
         self.poses = poses
         self.times = None
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.io.kitti import KittiSequence
 from pipeline.io.semantickitti import (
     read_bin,
@@ -57,7 +57,7 @@ def write_sequence(
 
 def test_kitti_round_trip_points_labels_poses(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq")
-    seq = open_sequence(root)
+    seq = open_reader(root)
     assert isinstance(seq, SequenceSource) and seq.format == "kitti"
     assert len(seq) == 3 and seq.frame_name(1) == "000001"
     assert seq.sensor.name == "hdl32e"
@@ -104,7 +104,7 @@ def test_kitti_nan_rows_dropped_and_labels_aligned(tmp_path: Path) -> None:
 
 def test_kitti_single_bin_file_reads_sibling_label(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq", frames=2)
-    seq = open_sequence(root / "velodyne" / "000001.bin")
+    seq = open_reader(root / "velodyne" / "000001.bin")
     assert len(seq) == 1 and seq.poses is None and seq.frame_name(0) == "000001"
     assert seq.frame(0).semantic is not None
 
@@ -133,7 +133,7 @@ def test_kitti_poses_with_time_column(tmp_path: Path) -> None:
 def test_kitti_explicit_poses_file(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq", frames=2, poses=False, labels=False)
     write_poses(tmp_path / "other.txt", np.stack([pose(0.0), pose(3.0)]))
-    seq = open_sequence(root, poses=tmp_path / "other.txt")
+    seq = open_reader(root, poses=tmp_path / "other.txt")
     np.testing.assert_allclose(seq.poses[1][0, 3], 3.0)
 
 
@@ -173,7 +173,7 @@ def test_kitti_metadata_unknown_sensor_names_file(tmp_path: Path) -> None:
 
 
 def test_kitti_seq09_real_poses_and_rings(kitti_seq09: Path) -> None:
-    seq = open_sequence(kitti_seq09)
+    seq = open_reader(kitti_seq09)
     assert len(seq) == 5 and seq.sensor.name == "hdl64e"
     assert seq.poses.shape == (5, 4, 4)
     steps = [
@@ -188,6 +188,26 @@ def test_kitti_seq09_real_poses_and_rings(kitti_seq09: Path) -> None:
 
 
 def test_kitti_real_single_file(real_data: Path) -> None:
-    seq = open_sequence(real_data / "kitti_seq09" / "velodyne" / "000003.bin")
+    seq = open_reader(real_data / "kitti_seq09" / "velodyne" / "000003.bin")
     assert len(seq) == 1 and seq.sensor.name == "hdl64e"
     assert len(seq.frame(0)) == 2027200 // 16
+
+
+def test_kitti_corrupt_first_frame_opens_and_names_it_when_read(tmp_path: Path) -> None:
+    """The sensor and layout come from the first frame that reads; the corrupt one fails alone."""
+    root = write_sequence(tmp_path / "seq", frames=3, sensor=None, labels=False, cols=100)
+    bad = root / "velodyne" / "000000.bin"
+    bad.write_bytes(bad.read_bytes()[:-3])
+    seq = KittiSequence(root)
+    assert seq.sensor.name == "hdl64e" and len(seq.frame(1)) == 6400
+    with pytest.raises(DataError, match="000000.bin"):
+        seq.frame(0)
+
+
+def test_kitti_folder_frames_in_natural_order(tmp_path: Path) -> None:
+    (tmp_path / "velodyne").mkdir()
+    for i in range(11):
+        pts, _ = beam_scan("hdl32e", cols=100, seed=i)
+        write_bin(tmp_path / "velodyne" / f"{i}.bin", pts, np.zeros(len(pts), np.float32))
+    seq = KittiSequence(tmp_path)
+    assert [seq.frame_name(k) for k in range(11)] == [str(i) for i in range(11)]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.io.nuscenes import NuScenesSequence
 
 NAME = "n015-2018-07-24-11-22-45+0800__LIDAR_TOP__{stamp}.pcd.bin"
@@ -29,7 +29,7 @@ def test_nuscenes_axes_ring_and_intensity_converted(tmp_path: Path) -> None:
 def test_nuscenes_folder_is_sequence_with_times(tmp_path: Path) -> None:
     for stamp in (1532402927647951, 1532402927697951):
         write_sweep(tmp_path / NAME.format(stamp=stamp), np.zeros((4, 5)) + 1)
-    seq = open_sequence(tmp_path)
+    seq = open_reader(tmp_path)
     assert seq.format == "nuscenes" and len(seq) == 2 and seq.poses is None
     np.testing.assert_allclose(np.diff(seq.times), [0.05], atol=1e-6)
     assert seq.frame_name(0).endswith("1532402927647951")
@@ -56,7 +56,7 @@ def test_nuscenes_nan_rows_dropped(tmp_path: Path) -> None:
 
 def test_nuscenes_real_sweep_row0_is_top(real_data: Path) -> None:
     f = next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin"))
-    seq = open_sequence(f)
+    seq = open_reader(f)
     scan = seq.frame(0)
     assert len(scan) == 34_688 and seq.sensor.n_rings == 32
     assert 0.0 <= scan.intensity.min() and scan.intensity.max() <= 1.0

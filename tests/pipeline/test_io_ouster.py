@@ -8,7 +8,7 @@ import pytest
 
 import pipeline.io.ouster as ouster_module
 from pipeline.errors import DataError
-from pipeline.io import detect_format, open_sequence
+from pipeline.io import detect_format, open_reader
 from pipeline.io.ouster import OusterSequence, find_ouster_metadata
 from pipeline.odometry import estimate_poses
 
@@ -31,7 +31,7 @@ def row_elevations(scan, rows: int) -> np.ndarray:
 def test_ouster_pcap_real(real_data: Path, name: str, frames: int, beams: int, product: str) -> None:
     path = real_data / "ouster" / name
     assert detect_format(path) == "ouster"
-    seq = open_sequence(path)
+    seq = open_reader(path)
     assert len(seq) == frames and seq.sensor.name == product and seq.sensor.n_rings == beams
     scan = seq.frame(frames - 1)
     assert len(scan) > 0.5 * beams * 1024  # most pixels have a return
@@ -43,7 +43,7 @@ def test_ouster_pcap_real(real_data: Path, name: str, frames: int, beams: int, p
 
 
 def test_ouster_osf_real(real_data: Path) -> None:
-    seq = open_sequence(real_data / "ouster" / "osf_fw_3.2_10scans.osf")
+    seq = open_reader(real_data / "ouster" / "osf_fw_3.2_10scans.osf")
     assert seq.format == "ouster" and len(seq) == 10
     assert (seq.sensor.name, seq.sensor.n_rings, seq.sensor.width) == ("ouster-os-0-8", 8, 2048)
     assert np.all(np.diff(seq.times) > 0.09) and np.all(np.diff(seq.times) < 0.11)
@@ -90,7 +90,7 @@ def test_ouster_corrupt_pcap_names_file(tmp_path: Path) -> None:
 
 def test_estimate_poses_deskews_ouster_scans(real_data: Path) -> None:
     """Per-point times switch deskewing on; three 10 Hz scans of a moving sensor give small motions."""
-    seq = open_sequence(real_data / "ouster" / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap")
+    seq = open_reader(real_data / "ouster" / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap")
     assert seq.frame(0).time is not None
     poses = estimate_poses(seq)
     steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)

@@ -8,7 +8,7 @@ from plyfile import PlyData, PlyElement
 from pypcd4 import Encoding, PointCloud
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.io.pointfiles import PcdSequence, PlySequence
 from pipeline.io.semantickitti import pack_label
 from tests.pipeline.test_rings import beam_scan
@@ -42,7 +42,7 @@ def test_pcd_ring_field_bottom_first_and_uint8_intensity(tmp_path: Path) -> None
     cols = xyz_columns(pts)
     cols["intensity"] = np.full(len(pts), 51, np.uint8)
     cols["ring"] = (31 - rows).astype(np.uint16)  # Velodyne driver numbering: 0 = lowest beam
-    seq = open_sequence(write_pcd(tmp_path / "a.pcd", cols))
+    seq = open_reader(write_pcd(tmp_path / "a.pcd", cols))
     assert seq.format == "pcd" and seq.sensor.name == "hdl32e"
     scan = seq.frame(0)
     np.testing.assert_array_equal(scan.ring, rows)
@@ -94,7 +94,7 @@ def test_pcd_folder_is_sequence(tmp_path: Path) -> None:
     for i in range(3):
         pts, _ = beam_scan("hdl32e", cols=90, seed=i)
         write_pcd(tmp_path / f"{i:04d}.pcd", xyz_columns(pts))
-    seq = open_sequence(tmp_path)
+    seq = open_reader(tmp_path)
     assert seq.format == "pcd" and len(seq) == 3 and seq.frame_name(2) == "0002"
     assert seq.poses is None and any("no intensity" in w for w in seq.warnings)
 
@@ -116,7 +116,7 @@ def test_ply_round_trip_with_float_intensity(tmp_path: Path) -> None:
     pts, rows = beam_scan("hdl32e", cols=90)
     cols = xyz_columns(pts)
     cols["scalar_intensity"] = np.full(len(pts), 0.25, np.float32)
-    seq = open_sequence(write_ply(tmp_path / "a.ply", cols))
+    seq = open_reader(write_ply(tmp_path / "a.ply", cols))
     assert seq.format == "ply" and seq.sensor.name == "hdl32e"
     scan = seq.frame(0)
     np.testing.assert_array_equal(scan.points, pts)
@@ -138,3 +138,35 @@ def test_ply_corrupt_file_names_it(tmp_path: Path) -> None:
     )
     with pytest.raises(DataError, match="bad.ply"):
         PlySequence(f)
+
+
+def test_pcd_folder_frames_in_natural_order(tmp_path: Path) -> None:
+    for i in range(12):  # 0.pcd .. 11.pcd: a plain sort puts 10 and 11 before 2
+        pts, _ = beam_scan("vlp16", cols=90, seed=i)
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(pts + np.float32(i)))
+    seq = open_reader(tmp_path)
+    assert [seq.frame_name(k) for k in range(12)] == [str(i) for i in range(12)]
+    assert seq.frame(10).points[0, 0] == pytest.approx(beam_scan("vlp16", cols=90, seed=10)[0][0, 0] + 10)
+
+
+def test_pcd_unordered_cloud_beams_from_elevation_histogram(tmp_path: Path) -> None:
+    pts, rows = beam_scan("vlp16", cols=1000)
+    perm = np.random.default_rng(0).permutation(len(pts))
+    seq = PcdSequence(write_pcd(tmp_path / "a.pcd", xyz_columns(pts[perm])))
+    assert (seq.sensor.name, seq.sensor_from) == ("vlp16", "elevation histogram")
+    np.testing.assert_array_equal(seq.frame(0).ring, rows[perm])
+
+
+@pytest.mark.real_data
+def test_pcd_real_nuscenes_keyframes_without_ring_are_32_beams(real_data: Path, tmp_path: Path) -> None:
+    """nuScenes HDL-32E sweeps as x y z PCD keyframes in shuffled order: the histogram finds the
+    32 beams (the HDL-32E preset), fitted by process to the sweep's 20 Hz width."""
+    from pipeline.sequence import open_sequence
+
+    raw = np.fromfile(next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin")), np.float32).reshape(-1, 5)
+    for i in range(2):
+        perm = np.random.default_rng(i).permutation(len(raw))
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(np.ascontiguousarray(raw[perm, :3])))
+    seq = open_sequence(tmp_path)
+    assert (seq.sensor.name, seq.sensor.n_rings, seq.sensor_from) == ("hdl32e", 32, "elevation histogram")
+    assert 1070 <= seq.sensor.width < 1100  # ~1,080 columns at 20 Hz

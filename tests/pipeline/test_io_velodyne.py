@@ -10,7 +10,7 @@ import pytest
 
 import pipeline.io.velodyne as velodyne_module
 from pipeline.errors import DataError
-from pipeline.io import detect_format, open_sequence
+from pipeline.io import detect_format, open_reader
 from pipeline.io.velodyne import VelodynePcapSequence
 
 BLOCK_DT = 46.08e-6  # s between HDL-32E firing blocks
@@ -55,7 +55,7 @@ def test_velodyne_pcap_detected_without_json(hdl32e_pcap: Path) -> None:
 
 
 def test_velodyne_pcap_decodes_scans(hdl32e_pcap: Path) -> None:
-    seq = open_sequence(hdl32e_pcap)
+    seq = open_reader(hdl32e_pcap)
     assert len(seq) == 3  # two revolutions and the partial one at the end
     assert seq.sensor.name == "hdl32e" and seq.poses is None
     assert np.diff(seq.times) == pytest.approx([0.1, 0.0188], abs=2e-3)
@@ -66,7 +66,7 @@ def test_velodyne_pcap_decodes_scans(hdl32e_pcap: Path) -> None:
 
 
 def test_velodyne_pcap_row0_is_top_beam(hdl32e_pcap: Path) -> None:
-    scan = open_sequence(hdl32e_pcap).frame(0)
+    scan = open_reader(hdl32e_pcap).frame(0)
     p = scan.points.astype(np.float64)
     el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
     med = np.array([np.median(el[scan.ring == r]) for r in range(32)])

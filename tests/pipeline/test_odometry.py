@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.errors import DataError
-from pipeline.io import open_sequence
+from pipeline.io import open_reader
 from pipeline.odometry import (
     OdometrySettings,
     estimate_poses,
@@ -99,7 +99,7 @@ def test_voxel_downsample_one_point_per_voxel() -> None:
 
 def test_estimate_poses_kitti_seq09_matches_ground_truth(kitti_seq09: Path) -> None:
     """KITTI seq 09 frames 10-14: each frame-to-frame motion within 5% of translation and 0.3 deg yaw."""
-    seq = open_sequence(kitti_seq09)
+    seq = open_reader(kitti_seq09)
     est = estimate_poses(seq)
     for a in range(len(seq) - 1):
         de = np.linalg.inv(est[a]) @ est[a + 1]

@@ -2,17 +2,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
-from pipeline.io.rings import (
-    check_rings,
-    count_scan_rings,
-    elevation_rings,
-    recover_rings,
-    rows_from_ring_field,
-    scan_order_rings,
-)
+from pipeline.io.beams import nearest_beam
+from pipeline.io.layout import recover_rings
+from pipeline.io.rings import check_rings, rows_from_ring_field, scan_order_rings
 from pipeline.io.semantickitti import read_bin
 from pipeline.sensors import get_sensor
 
@@ -79,28 +72,6 @@ def test_recover_rings_wrong_beam_count_falls_back() -> None:
     assert rec.method == "elevation" and rec.found == 16
 
 
-def test_count_scan_rings_vlp16() -> None:
-    pts, _ = beam_scan("vlp16")
-    assert count_scan_rings(pts) == 16
-
-
-@settings(max_examples=50, deadline=None)
-@given(
-    beam=st.integers(0, 63),
-    azimuth=st.floats(-np.pi, np.pi),
-    rng=st.floats(1.0, 100.0),
-    frac=st.floats(-0.45, 0.45),
-)
-def test_elevation_rings_nearest_beam(beam: int, azimuth: float, rng: float, frac: float) -> None:
-    sensor = get_sensor("hdl64e")
-    el = sensor.elevations_rad()
-    # the beams are not evenly spaced: stay within half the nearer neighbour's gap
-    gaps = ([el[beam - 1] - el[beam]] if beam > 0 else []) + ([el[beam] - el[beam + 1]] if beam < 63 else [])
-    e = el[beam] + frac * min(gaps)
-    p = np.array([[rng * np.cos(e) * np.cos(azimuth), rng * np.cos(e) * np.sin(azimuth), rng * np.sin(e)]])
-    assert elevation_rings(p, sensor)[0] == beam
-
-
 def test_rows_from_ring_field_flips_bottom_first_numbering() -> None:
     pts, rows = beam_scan()
     np.testing.assert_array_equal(rows_from_ring_field(pts, 31 - rows, 32), rows)
@@ -137,6 +108,7 @@ def test_recover_rings_kitti_rows_are_lasers(real_data, name: str) -> None:
 
 def test_check_rings_kitti_flags_elevation_rows(real_data) -> None:
     """The check separates: nearest-elevation rows (laser origin offsets ignored) fail it on KITTI."""
-    pts = read_bin(real_data / "kitti_seq09" / "velodyne" / "000010.bin")[:, :3]
-    rows = elevation_rings(pts, get_sensor("hdl64e"))
+    pts = read_bin(real_data / "kitti_seq09" / "velodyne" / "000010.bin")[:, :3].astype(np.float64)
+    el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+    rows = nearest_beam(el, np.asarray(get_sensor("hdl64e").elevations_deg))
     assert check_rings(pts, rows, 64).wrong_fraction > 0.02

@@ -33,12 +33,12 @@ def _public(session: SessionDep, ds: Dataset) -> DatasetPublic:
     )
 
 
-def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_id: int) -> Job:
+def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_id: int, poses: str = "file") -> Job:
     ingest = get_job_type("ingest")
-    params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force})
+    params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force, "poses": poses})
     assert ingest.prepare is not None
     ingest.prepare(session, params)
-    job = crud.create_job(session, "ingest", params.model_dump(), user_id)
+    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id)
     seq = session.get(Sequence, sequence_id)
     assert seq is not None
     seq.ingest_job_id = job.id
@@ -73,7 +73,7 @@ def register_dataset(
         raise Invalid(str(exc)) from exc
     ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id)
     if body.ingest:
-        _queue_ingest(session, seq.id, False, admin.id)
+        _queue_ingest(session, seq.id, False, admin.id, body.poses)
     session.commit()
     return _public(session, ds)
 
@@ -123,7 +123,8 @@ def read_sequence(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) 
 def ingest_sequence(
     sequence_id: IdPath, body: IngestRequest, admin: AdminUser, session: WriteSessionDep
 ) -> JobPublic:
-    """Queue the ingest job of a sequence (admin). `force` redoes a ready sequence and drops its reviews."""
-    job = _queue_ingest(session, sequence_id, body.force, admin.id)
+    """Queue the ingest job of a sequence (admin). `force` redoes a ready sequence and drops its
+    reviews; `poses` is `file` (the sequence's own) or `icp` (estimated)."""
+    job = _queue_ingest(session, sequence_id, body.force, admin.id, body.poses)
     session.commit()
     return JobPublic.model_validate(job)
