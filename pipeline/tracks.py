@@ -46,8 +46,8 @@ def fragment_track_pairs(
 
 @dataclass
 class Track:
-    """One track: frame indices (ascending, consecutive), per-frame point counts and centroids,
-    and the score of each link (len(frames) - 1)."""
+    """One track: frame indices (ascending, consecutive), per-frame point counts and centroids
+    (mm resolution), and the score of each link (len(frames) - 1, 1e-4 resolution)."""
 
     id: int
     frames: list[int] = field(default_factory=list)
@@ -56,13 +56,8 @@ class Track:
     scores: list[float] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {
-            "id": self.id,
-            "frames": self.frames,
-            "points": self.points,
-            "centroids": np.round(np.asarray(self.centroids, np.float64), 3).tolist(),
-            "scores": np.round(np.asarray(self.scores, np.float64), 4).tolist(),
-        }
+        return {"id": self.id, "frames": self.frames, "points": self.points, "centroids": self.centroids,
+                "scores": self.scores}
 
 
 class TrackBuilder:
@@ -81,16 +76,20 @@ class TrackBuilder:
             st[0] += 1
             st[1] = max(st[1], sh)
         self._prev_track_id = np.asarray(seg.track_id, np.int64)
-        for s in np.flatnonzero(seg.track_id > 0):
-            tid = int(seg.track_id[s])
+        kept = np.flatnonzero(seg.track_id > 0)
+        # rounded here, once per frame, as tracks.json stores them
+        centroids = np.round(np.asarray(seg.centroid_world, np.float64)[kept], 3).tolist()
+        scores = np.round(np.asarray(seg.link_score, np.float64)[kept], 4).tolist()
+        for tid, n, centroid, score in zip(seg.track_id[kept].tolist(), seg.n_points[kept].tolist(), centroids,
+                                           scores, strict=True):
             tr = self.tracks.get(tid)
             if tr is None:
                 tr = self.tracks[tid] = Track(tid)
-            elif not np.isnan(seg.link_score[s]):
-                tr.scores.append(float(seg.link_score[s]))
+            elif score == score:  # NaN: the track starts here
+                tr.scores.append(score)
             tr.frames.append(fr.index)
-            tr.points.append(int(seg.n_points[s]))
-            tr.centroids.append([float(v) for v in seg.centroid_world[s]])
+            tr.points.append(n)
+            tr.centroids.append(centroid)
 
     def constraint_pairs(self) -> list[tuple[int, int, int, float]]:
         """(track id, frame i, frame i+1, link score) for every link."""

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
-from pipeline.io.layout import Layout, detect_layout, known_layout
+from pipeline.io.layout import Layout, detect_layout, finite_rows, known_layout
 from pipeline.io.registry import frame_files
 from pipeline.io.semantickitti import (
     lidar_poses,
@@ -178,18 +178,21 @@ class KittiSequence:
         if not -len(self) <= index < len(self):
             raise IndexError(f"frame {index} out of range for {len(self)} frames")
         raw = read_bin(self._files[index])
-        finite = np.isfinite(raw).all(axis=1)
-        kept = self._layout.kept(raw[:, :3]) & finite
-        rows = raw[kept]
+        finite = finite_rows(raw)
+        kept = self._layout.kept(raw[:, :3], finite)
+        all_kept = bool(kept.all())
+        rows = raw if all_kept else raw[kept]
+        points = np.ascontiguousarray(rows[:, :3])
         semantic = instance = None
         label = self.label_path(index)
         if label is not None:
             semantic, instance = read_label(label, expected=len(raw))
-            semantic, instance = semantic[kept], instance[kept]
+            if not all_kept:
+                semantic, instance = semantic[kept], instance[kept]
         return Scan(
-            points=np.ascontiguousarray(rows[:, :3]),
+            points=points,
             intensity=np.clip(rows[:, 3], 0.0, 1.0).astype(np.float32),
-            ring=self._layout.rows(raw[:, :3], kept),
+            ring=self._layout.rows(points, kept),
             semantic=semantic,
             instance=instance,
             dropped=int(len(raw) - finite.sum()),

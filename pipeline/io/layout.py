@@ -20,6 +20,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from pipeline.io.beams import MIN_RHO, beam_rows, find_beams
 from pipeline.io.organized import organized_rows, organized_shape, returns
@@ -74,19 +75,33 @@ class Layout:
     beams_deg: np.ndarray
     origin_height: float = 0.0
 
-    def kept(self, xyz: np.ndarray) -> np.ndarray:
-        """(N_input,) bool, the input rows that are points: finite, and returns of an organized layout."""
-        finite = np.isfinite(xyz).all(axis=1)
+    def kept(self, xyz: np.ndarray, finite: np.ndarray | None = None) -> np.ndarray:
+        """(N_input,) bool, the input rows that are points: finite (`finite`, when known), and
+        returns of an organized layout."""
+        finite = finite_rows(xyz) if finite is None else finite
         return finite & returns(xyz) if self.organized is not None else finite
 
-    def rows(self, xyz: np.ndarray, kept: np.ndarray) -> np.ndarray:
-        """(M,) int16 row (0 = top) of the kept input rows of a frame's (N_input, 3) points."""
+    def rows(self, points: np.ndarray, kept: np.ndarray) -> np.ndarray:
+        """(M,) int16 row (0 = top) of a frame's kept points (M, 3), `kept` (N_input,) the mask
+        that picked them from the input rows."""
         if self.organized is not None:
             h, w, top_first = self.organized
-            if len(xyz) == h * w:
+            if len(kept) == h * w:
                 return organized_rows(h, w, top_first)[kept]
-        points = np.ascontiguousarray(xyz[kept])
         return recover_rings(points, self.sensor, self.beams_deg, self.origin_height).ring
+
+
+@njit(cache=True)
+def finite_rows(values):  # pragma: no cover - numba
+    """(N,) bool: the rows of (N, C) `values` whose every value is finite."""
+    n, c = values.shape
+    out = np.ones(n, dtype=np.bool_)
+    for i in range(n):
+        for k in range(c):
+            if not np.isfinite(values[i, k]):
+                out[i] = False
+                break
+    return out
 
 
 def _elevations(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:

@@ -175,7 +175,7 @@ class _PointFileSequence:
             assert ring is not None
             rows = rows_from_ring_field(points, ring[kept], self.sensor.n_rings)
         else:
-            rows = self._layout.rows(xyz, kept)
+            rows = self._layout.rows(points, kept)
         if intensity is None:
             inten = np.zeros(len(points), np.float32)
         else:

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pipeline.range_image import fast_atan2
+
 TWO_PI = 2.0 * np.pi
 
 
@@ -45,18 +47,52 @@ class RingCheck:
 
 
 @njit(cache=True)
-def _angles(points):  # pragma: no cover - numba
-    """Azimuth in [0, 2 pi) and elevation, float32: plenty to find wrap-arounds and order rings."""
+def _clockwise(points):  # pragma: no cover - numba
+    """(N,) float32 azimuth in [0, 2 pi) of points stored clockwise or counter-clockwise, made
+    counter-clockwise (most steps between consecutive points turn one way: that is the storage)."""
     n = points.shape[0]
     az = np.empty(n, dtype=np.float32)
-    el = np.empty(n, dtype=np.float32)
     two_pi = np.float32(TWO_PI)
+    turn = 0
     for i in range(n):
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        a = np.arctan2(y, x)
+        a = fast_atan2(points[i, 1], points[i, 0])
         az[i] = a + two_pi if a < 0 else a
-        el[i] = np.arctan2(z, np.sqrt(x * x + y * y))
-    return az, el
+        if i:
+            d = az[i] - az[i - 1]
+            d = d - two_pi if d > np.pi else (d + two_pi if d < -np.pi else d)
+            turn += 1 if d > 0 else (-1 if d < 0 else 0)
+    if turn < 0:
+        for i in range(n):
+            az[i] = two_pi - az[i] if az[i] > 0 else az[i]
+    return az
+
+
+@njit(cache=True)
+def _wrap_segments(points, az, cut, max_segments):  # pragma: no cover - numba
+    """Scan-order segments from the cut: (N,) int32 segment id (a new one where the azimuth,
+    measured from `cut`, drops by more than half a turn), (S,) counts and (S,) mean tan of the
+    elevation; S = 0 when more than `max_segments` show (not a scan order)."""
+    n = points.shape[0]
+    seg = np.empty(n, dtype=np.int32)
+    counts = np.zeros(max_segments, dtype=np.int64)
+    sums = np.zeros(max_segments, dtype=np.float64)
+    two_pi = np.float32(TWO_PI)
+    k = 0
+    prev = np.float32(0.0)
+    for i in range(n):
+        b = az[i] - cut
+        b = b + two_pi if b < 0 else b
+        if i and b - prev < -np.pi:
+            k += 1
+            if k >= max_segments:
+                return seg, counts[:0], sums[:0]
+        prev = b
+        seg[i] = k
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        counts[k] += 1
+        sums[k] += z / max(np.sqrt(x * x + y * y), 1e-6)
+    counts = counts[: k + 1]
+    return seg, counts, sums[: k + 1] / np.maximum(counts, 1)
 
 
 def _azimuth(points: np.ndarray) -> np.ndarray:
@@ -69,14 +105,6 @@ def _elevation(points: np.ndarray) -> np.ndarray:
     """(N,) float64 elevation in radians."""
     p = points.astype(np.float64, copy=False)
     return np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
-
-
-def segment_means(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
-    """(n_seg,) mean of `values` per segment id `seg` (NaN for empty segments); O(N), for ordering."""
-    counts = np.bincount(seg, minlength=n_seg)
-    sums = np.bincount(seg, weights=values, minlength=n_seg)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / counts, np.nan)
 
 
 def segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarray:
@@ -93,65 +121,57 @@ def segment_medians(values: np.ndarray, seg: np.ndarray, n_seg: int) -> np.ndarr
     return out
 
 
-def _segments(azimuth: np.ndarray, cut: float) -> np.ndarray:
-    """(N,) segment id: a new segment starts where the azimuth, measured from `cut`, wraps."""
-    b = np.mod(azimuth - cut, TWO_PI)
-    starts = np.zeros(len(b), dtype=np.int64)
-    starts[1:] = np.diff(b) < -np.pi
-    return np.cumsum(starts)
-
-
-def _merge_fragments(seg: np.ndarray, elevation: np.ndarray) -> np.ndarray:
-    """Merge tiny segments (azimuth jitter across the cut) into the neighbour of closer elevation."""
-    n_seg = int(seg[-1]) + 1 if len(seg) else 0
-    counts = np.bincount(seg, minlength=n_seg)
-    if n_seg < 2:
-        return seg
-    min_len = max(4, int(0.05 * np.median(counts)))
-    tiny = np.flatnonzero(counts < min_len)
-    if len(tiny) == 0:
-        return seg
-    med = segment_means(elevation, seg, n_seg)
+def _merge_fragments(counts: np.ndarray, elevation: np.ndarray) -> np.ndarray:
+    """(S,) new dense id of each scan-order segment: tiny ones (azimuth jitter across the cut)
+    join the neighbour of closer elevation; (S,) counts and mean elevations (any monotonic measure)."""
+    n_seg = len(counts)
     target = np.arange(n_seg)
-    for s in tiny:  # loop over a few segments, not points
+    if n_seg < 2:
+        return target
+    min_len = max(4, int(0.05 * np.median(counts)))
+    for s in np.flatnonzero(counts < min_len):  # loop over a few segments, not points
         prev, nxt = s - 1, s + 1
-        d_prev = abs(med[s] - med[prev]) if prev >= 0 and counts[prev] >= min_len else np.inf
-        d_next = abs(med[s] - med[nxt]) if nxt < n_seg and counts[nxt] >= min_len else np.inf
+        d_prev = abs(elevation[s] - elevation[prev]) if prev >= 0 and counts[prev] >= min_len else np.inf
+        d_next = abs(elevation[s] - elevation[nxt]) if nxt < n_seg and counts[nxt] >= min_len else np.inf
         if np.isfinite(d_prev) or np.isfinite(d_next):
             target[s] = prev if d_prev <= d_next else nxt
     # resolve chains and renumber densely in scan order
-    target = target[target]
-    _, dense = np.unique(target, return_inverse=True)
-    return dense[seg]
+    return np.unique(target[target], return_inverse=True)[1]
+
+
+# More scan-order segments than this are no scan order (an unordered cloud wraps at every point).
+MAX_SEGMENTS = 1024
 
 
 def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np.ndarray | None, int]:
     """Rows from scan order: ((N,) int64 row 0 = top, or None when the order shows no rings; found).
 
     A layout is accepted when the segment count equals `n_rings` (any count when None) and the
-    segments' median elevations fall (or rise, then they are reversed) monotonically. The cut is
+    segments' mean elevations fall (or rise, then they are reversed) monotonically. The cut is
     tried at azimuth 0 (KITTI) and pi; counter-clockwise and clockwise storage are both accepted.
     """
     n = len(points)
     if n < 2:
         return None, 0
-    az, el = _angles(np.ascontiguousarray(points, dtype=np.float32))
-    step = np.mod(np.diff(az) + np.pi, TWO_PI) - np.pi
-    if np.median(step) < 0:  # stored clockwise
-        az = np.mod(-az, TWO_PI)
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    az = _clockwise(pts)
     first_found = 0
     for cut in (0.0, np.pi):
-        seg = _merge_fragments(_segments(az, cut), el)
-        found = int(seg[-1]) + 1
+        seg, counts, elevation = _wrap_segments(pts, az, np.float32(cut), MAX_SEGMENTS)
+        if len(counts) == 0:
+            continue
+        target = _merge_fragments(counts, elevation)
+        found = int(target.max()) + 1
         first_found = first_found or found
         if found < 2 or (n_rings is not None and found != n_rings):
             continue
-        med = segment_means(el, seg, found)
-        d = np.diff(med)
+        merged = np.bincount(target, weights=elevation * counts, minlength=found) / np.bincount(
+            target, weights=counts, minlength=found)
+        d = np.diff(merged)
         if np.mean(d < 0) >= 0.9:
-            return seg, found
+            return target[seg], found
         if np.mean(d > 0) >= 0.9:
-            return found - 1 - seg, found
+            return found - 1 - target[seg], found
     return None, first_found
 
 
