@@ -28,8 +28,8 @@ from pipeline.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y,
 if TYPE_CHECKING:
     from pipeline.simulation.layout import Facade, Layout
 
-PLANTING_KINDS = ("hedge", "hedge_gap", "ivy", "shrubs")
-WALL_PLANTING_P = (0.22, 0.12, 0.1, 0.12)  # of a building front; the rest have none
+PLANTING_KINDS = ("hedge_flush", "hedge_gap", "ivy", "shrub_row")  # instance kinds too
+WALL_PLANTING_P = (0.35, 0.15, 0.15, 0.2)  # of a building front; the rest have none
 FENCE_PLANTING_P = (0.3, 0.05, 0.2, 0.1)
 TOUCHING_CARS = 0.15  # parked cars whose bumper touches the next car's
 
@@ -66,15 +66,15 @@ def draw_planting(
         return None
     kind = PLANTING_KINDS[int(np.searchsorted(cum, u, "right"))]
     length = x1 - x0
-    share = rng.uniform(0.4, 1.0)
+    share = rng.uniform(0.6, 1.0)
     a = x0 + rng.uniform(0.0, (1.0 - share) * length)
     b = a + share * length
     if kind == "ivy":
         h = min(host_height, rng.uniform(1.5, 7.0))
         return Planting(kind, a, b, 0.0, rng.uniform(0.1, 0.25), h)
-    if kind == "shrubs":
+    if kind == "shrub_row":
         return Planting(kind, a, b, 0.0, rng.uniform(0.7, 1.4), rng.uniform(0.7, 1.6))
-    gap = rng.uniform(0.0, 0.05) if kind == "hedge" else rng.uniform(0.1, 1.0)
+    gap = rng.uniform(0.0, 0.05) if kind == "hedge_flush" else rng.uniform(0.1, 1.0)
     width = min(rng.uniform(0.5, 1.2), room - gap - 0.1)
     if width < 0.4:
         return None
@@ -103,11 +103,11 @@ def build_planting(lay: Layout, pl: Planting, xy: np.ndarray, yaw: float, face: 
         local = np.array([0.5 * (a + b), y_mid])
         p = np.asarray(xy) + np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
         z = lay.z(p)
-        if pl.kind == "shrubs":
+        if pl.kind == "shrub_row":
             _add_shrubs(lay, pl, a, b, p, yaw, local, rng)
             continue
         if iid == 0:  # one hedge or climber along the host, built in pieces
-            iid = lay.reg.new(pl.kind.replace("_gap", ""), (m.VEGETATION,), position=(p[0], p[1], z))
+            iid = lay.reg.new(pl.kind, (m.VEGETATION,), position=(p[0], p[1], z))
         bld = PrimitiveBuilder()
         sink = 0.1 + max(0.0, z - min(lay.z(_along(xy, yaw, x, y_mid)) for x in (a, b)))
         bld.box((0.0, 0.0, 0.5 * (pl.height - sink)), (0.5 * (b - a), 0.5 * pl.width, 0.5 * (pl.height + sink)),
@@ -126,7 +126,7 @@ def _add_shrubs(lay: Layout, pl: Planting, a: float, b: float, p: np.ndarray, ya
     while x < b - 0.3 * pl.width:
         r = 0.5 * pl.width * rng.uniform(0.8, 1.1)
         q = p + _along(np.zeros(2), yaw, x - local[0], 0.0)
-        iid = lay.reg.new("bush", (m.VEGETATION,), position=(q[0], q[1], lay.z(q)))
+        iid = lay.reg.new("shrub_row", (m.VEGETATION,), position=(q[0], q[1], lay.z(q)))
         bld = PrimitiveBuilder()
         bld.ellipsoid((0.0, 0.0, 0.45 * pl.height), (r, r, 0.55 * pl.height), m.VEGETATION, iid,
                       m.foliage(rng, dense=True))
@@ -142,7 +142,7 @@ def add_trunk_shrub(lay: Layout, b: PrimitiveBuilder, rt: float, pos: np.ndarray
     r = rng.uniform(0.35, 0.8)
     ang = rng.uniform(0, 2 * np.pi)
     d = rt + r * rng.uniform(0.3, 0.9)
-    iid = lay.reg.new("bush", (m.VEGETATION,), position=tuple(pos))
+    iid = lay.reg.new("trunk_shrub", (m.VEGETATION,), position=tuple(pos))
     b.ellipsoid((d * np.cos(ang), d * np.sin(ang), 0.7 * r), (r, r * rng.uniform(0.8, 1.2), r * rng.uniform(0.8, 1.2)),
                 m.VEGETATION, iid, m.foliage(rng, dense=True))
 
@@ -161,7 +161,7 @@ def add_rack(lay: Layout, xy: np.ndarray, yaw: float, n: int, spacing: float) ->
     lay.put(bld, xy, yaw)
 
 
-LEAN_WALL_P = 0.18  # walls and fences with people leaning on them
+LEAN_WALL_P = 0.35  # walls and fences with people leaning on them
 BIKES_AT_WALL_P = 0.15
 
 
@@ -176,7 +176,7 @@ def lean_on_walls(lay: Layout, walls: list[Facade]) -> None:
             continue
         along = d / length
         if rng.random() < LEAN_WALL_P:
-            for _ in range(int(rng.integers(1, 3))):
+            for _ in range(int(rng.integers(1, 4))):
                 feet = f.ends[0] + rng.uniform(0.5, length - 0.5) * along + rng.uniform(0.25, 0.4) * f.normal
                 _leaning_person(lay, feet, f.normal, rng)
         if f.wall and rng.random() < BIKES_AT_WALL_P:
@@ -191,7 +191,7 @@ def _leaning_person(lay: Layout, feet: np.ndarray, normal: np.ndarray, rng: np.r
     if not lay.free(lay.disc(feet + 0.3 * normal, 0.15), min_clear=None):
         return
     lay.mark(lay.disc(feet, 0.3))
-    iid = lay.reg.new("person", (m.PERSON,), position=(feet[0], feet[1], lay.z(feet)))
+    iid = lay.reg.new("person_leaning", (m.PERSON,), position=(feet[0], feet[1], lay.z(feet)))
     bld = PrimitiveBuilder()
     m.add_person(bld, lay.style.draw_person(rng), m.PERSON, iid, rng.uniform(0, 2 * np.pi), 0.0)
     yaw = float(np.arctan2(normal[1], normal[0]))  # facing away from the wall
@@ -202,7 +202,7 @@ def _leaning_bike(lay: Layout, xy: np.ndarray, along: np.ndarray, normal: np.nda
     if not lay.free(lay.rect(xy + 0.2 * normal, float(np.arctan2(along[1], along[0])), 0.5, 0.1), min_clear=None):
         return
     lay.mark(lay.rect(xy, float(np.arctan2(along[1], along[0])), 0.6, 0.2))
-    iid = lay.reg.new("bicycle", (m.BICYCLE,), position=(xy[0], xy[1], lay.z(xy)))
+    iid = lay.reg.new("bicycle_leaning", (m.BICYCLE,), position=(xy[0], xy[1], lay.z(xy)))
     bld = PrimitiveBuilder()
     m.add_bicycle(bld, m.BICYCLE, iid, Material(refl=rng.uniform(0.2, 0.6)))
     yaw = float(np.arctan2(along[1], along[0]))

@@ -478,7 +478,7 @@ class Layout:
         bumpers may touch)."""
         car = car or self.style.draw_car(self.rng, extra=self.extra)
         pad = (0.2, 0.15) if mark else (0.0, 0.0)
-        pts = self.rect(xy, yaw, car.length / 2 + pad[0], car.width / 2 + pad[1], step=0.3)
+        pts = self.rect(xy, yaw, car.overall_length / 2 + pad[0], car.width / 2 + pad[1], step=0.3)
         if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
             return None
         if mark:
@@ -772,17 +772,17 @@ def _bays(lay: Layout, st: Stretch) -> None:
             # the plain style's car sets the spacing, so the varied styles keep the plain draws
             plain = lay.style.draw_car(rng)
             car = lay.style.vary_car(plain, lay.extra)
-            sc = s + plain.length / 2
+            sc = s + plain.overall_length / 2
             yaw = lay.yaw_at(sc) + (np.pi if st.side > 0 else 0.0)
             if rng.random() < 0.12:
                 yaw += np.pi
             xy = lay.at(sc, lat + rng.uniform(-0.1, 0.1))
-            if sc - car.length / 2 >= end:  # a longer varied car may not fit
+            if sc - car.overall_length / 2 >= end:  # a longer varied car may not fit
                 foot = lay.parked_car(xy, yaw, car=car, mark=False)
                 if foot is not None:
                     row.append(foot)
-                    end = sc + car.length / 2
-            s += plain.length + ct.bumper_gap(rng)
+                    end = sc + car.overall_length / 2
+            s += plain.overall_length + ct.bumper_gap(rng)
         else:
             s += rng.uniform(5.0, 6.5)  # an empty bay
     for foot in row:  # marked after the row, so that neighbours may touch
@@ -821,12 +821,12 @@ def _lot(lay: Layout, st: Stretch) -> None:
                 yaw = lay.yaw_at(s) + st.side * nose * np.pi / 2
                 xy = lay.at(s, st.side * (lat_abs + rng.uniform(-0.2, 0.2)))
                 turn = rng.uniform(-0.04, 0.04)
-                if s - car.width / 2 >= end:
+                if s - car.overall_width / 2 >= end:
                     foot = lay.parked_car(xy, yaw + turn, car=car, mark=False)
                     if foot is not None:
                         row.append(foot)
-                        end = s + car.width / 2 + 0.25  # mirrors
-                s += plain.width + rng.uniform(0.35, 1.0)  # mirror to mirror 0-0.7 m
+                        end = s + car.overall_width / 2
+                s += plain.overall_width + rng.uniform(0.05, 0.65)  # mirror to mirror
             else:
                 s += rng.uniform(2.4, 2.7)  # an empty space
         for foot in row:

@@ -54,6 +54,20 @@ class CarShape:
     kind: str
     roof_box: bool = False  # a roof box on the cabin (varied styles)
 
+    @property
+    def overall_length(self) -> float:
+        """Bumper to bumper, plates included (`add_car`)."""
+        return self.length + 2 * BUMPER_REACH
+
+    @property
+    def overall_width(self) -> float:
+        """Mirror to mirror (`add_car`)."""
+        return self.width + 2 * MIRROR_REACH
+
+
+BUMPER_REACH = 0.115  # the plates stand this far beyond the body
+MIRROR_REACH = 0.2
+
 
 CAR_KINDS = {
     # kind: (length, width, height, body_height, cabin share, cabin offset share)

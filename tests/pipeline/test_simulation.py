@@ -16,6 +16,7 @@ from pipeline.simulation import simulate_frame, simulate_sequence
 from pipeline.simulation.ground import GroundModel
 from pipeline.simulation.raycast import Windows, cast, ray_directions, ray_windows
 from pipeline.simulation.returns import BEAM_BIAS, make_returns
+from pipeline.simulation import models as m
 from pipeline.simulation.scene import build_scene
 from pipeline.simulation.shapes import (
     Material,
@@ -427,3 +428,81 @@ def test_cli_simulate_end_to_end(tmp_path: Path):
     assert result.exit_code == 0, result.output
     assert "points/frame" in result.output
     assert len(list((tmp_path / "cli/velodyne").glob("*.bin"))) == 2
+
+
+def test_simulate_walls_smooth_foliage_scattered(seq: Path):
+    """On the written campus (HDL-32E) walls scatter like SemanticKITTI's walls (row residual
+    median ~1 cm) and foliage several times more (docs/simulator.md)."""
+    from pipeline.io import open_sequence
+    from pipeline.simulation.texture import texture_statistics
+
+    source = open_sequence(seq)
+    stats = texture_statistics((source.frame(k) for k in (0, FRAMES - 1)), SENSOR)
+    wall = stats["building"]["row_residual_cm"][2]
+    assert 0.5 < wall < 2.0
+    assert stats["vegetation"]["row_residual_cm"][2] > 3 * wall
+    assert stats["vegetation"]["row_residual_over_3cm"] > 0.5 > stats["building"]["row_residual_over_3cm"]
+
+
+def test_texture_line_residual_zero_on_a_ramp_and_sigma_on_noise():
+    from pipeline.simulation.texture import line_residual
+
+    rng = np.random.default_rng(0)
+    ramp = np.tile(5.0 + 0.01 * np.arange(200.0), (4, 1))
+    cls = np.full(ramp.shape, 50)
+    res = line_residual(ramp, cls, 3, 5, 1)
+    np.testing.assert_allclose(res[:, 3:-3], 0.0, atol=1e-9)
+    noisy = ramp + rng.normal(0.0, 0.02, ramp.shape)
+    assert np.median(line_residual(noisy, cls, 3, 5, 1)) == pytest.approx(0.02, rel=0.15)
+    other = cls.copy()
+    other[:, ::2] = 70  # every other pixel another class: 3-4 of 7 per class, fewer than 5
+    assert np.isnan(line_residual(noisy, other, 3, 5, 1)).all()
+
+
+def test_texture_holes_are_gaps_within_one_class():
+    from pipeline.simulation.texture import holes
+
+    cls = np.array([[50, -1, -1, 50, -1, 70, -1, -1, -1, -1, 70, 70]])
+    # 1-2: between two walls; 4: between two classes; 7-8: within 3 columns of the shrub both ways
+    np.testing.assert_array_equal(holes(cls, reach=3), [[-1, 50, 50, -1, -1, -1, -1, 70, 70, -1, -1, -1]])
+
+
+def test_simulate_campus_has_the_contacts_of_real_streets(scene):
+    """Planting against walls and fences, shrubs against trunks, people and bikes leaning on walls,
+    and parked cars bumper to bumper: gaps of 0-0.8 m, some touching, none overlapping."""
+    kinds = {v.kind for v in scene.instances.values()}
+    assert {"hedge_flush", "shrub_row", "trunk_shrub", "person_leaning", "bicycle_leaning", "rack"} <= kinds
+    assert {"ivy", "hedge_gap"} & kinds
+    static = scene.static
+    cars = [iid for iid, v in scene.instances.items() if v.kind == "car" and not v.moving]
+    gaps = []
+    for iid in cars:
+        mine = static.take(np.flatnonzero(static.instance == iid))
+        near = np.flatnonzero((static.semantic == 10) & (static.instance != iid)
+                              & (np.linalg.norm(static.center - mine.center[0], axis=1) < 8.0))
+        if len(near):
+            gaps.append(signed_distance(mine.corners().reshape(-1, 3), static.take(near)).min())
+    gaps = np.asarray(gaps)
+    assert (gaps < 0.85).mean() > 0.5 and (gaps < 0.06).sum() >= 2 and gaps.min() > -0.1
+    for kind in ("hedge_flush", "trunk_shrub"):  # flush against a wall or fence, or a trunk
+        host = (m.BUILDING, m.FENCE) if kind == "hedge_flush" else (m.TRUNK,)
+        touching = 0
+        for iid in [i for i, v in scene.instances.items() if v.kind == kind]:
+            mine = static.take(np.flatnonzero(static.instance == iid))
+            near = np.flatnonzero(np.isin(static.semantic, host)
+                                  & (np.linalg.norm(static.center - mine.center[0], axis=1) < 40.0))
+            touching += bool(len(near)) and surface_distance(mine.corners().reshape(-1, 3), static.take(near)).min() < 0.1
+        assert touching >= 1, kind
+
+
+def test_simulation_code_is_in_the_scene_cache_fingerprint(monkeypatch):
+    """A change to any simulator module gives the experiments' cached scenes a new key."""
+    from pipeline.experiments import data
+
+    before = data._code_fingerprint()
+    real_read = Path.read_bytes
+    for target in sorted((Path(data.__file__).resolve().parent.parent / "simulation").glob("*.py")):
+        monkeypatch.setattr(Path, "read_bytes", lambda self, t=target: real_read(self) + (b"#" if self == t else b""))
+        assert data._code_fingerprint() != before, target.name
+    monkeypatch.undo()
+    assert data._code_fingerprint() == before
