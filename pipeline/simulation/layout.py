@@ -10,7 +10,10 @@ Each side of every straight is cut into stretches of 25-65 m, each with a charac
     open      grass with scattered trees, bushes, benches, bins, fences
 
 Behind them stand more buildings (varied footprints: L-shaped wings, recessed entrances
-under an overhang on pillars, towers), and trees and bushes are scattered over the grass.
+under an overhang on pillars, towers; fronts with recessed windows), and trees and bushes are
+scattered over the grass. Things touch as on real streets (`contacts`): hedges, climbers and
+shrubs against walls and fences, shrubs against trunks, cars parked bumper to bumper, people
+and bikes leaning on walls, bikes in racks.
 Lamps line the sidewalks; signs and bollards mark the zebra crossings. Placement keeps
 objects off the road and sidewalks and apart from each other with a 0.5 m occupancy grid.
 """

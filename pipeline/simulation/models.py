@@ -558,17 +558,17 @@ def add_bollard(b: PrimitiveBuilder, instance: int) -> None:
 def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, instance: int) -> float:
     """A fence along x: a solid wall or a see-through mesh on posts; returns its height."""
     h = rng.uniform(1.0, 1.9)
-    if rng.random() < 0.5:  # boards, slats or panels: a few centimetres of relief
+    if rng.random() < 0.5:  # boards, slats or panels: centimetres to decimetres of relief
         b.box(
             (0, 0, h / 2 - 0.1),
             (length / 2, 0.04, h / 2 + 0.1),
             FENCE,
             instance,
-            Material(refl=rng.uniform(0.2, 0.55), depth=rng.uniform(0.06, 0.15), grain=rng.uniform(0.08, 0.15)),
+            Material(refl=rng.uniform(0.2, 0.55), depth=rng.uniform(0.08, 0.2), grain=rng.uniform(0.08, 0.15)),
         )
     else:  # a mesh or railing: most rays pass through its gaps
         b.box((0, 0, h / 2), (length / 2, 0.02, h / 2), FENCE, instance,
-              Material(refl=rng.uniform(0.2, 0.55), porosity=0.6, depth=rng.uniform(0.04, 0.1), grain=0.05))
+              Material(refl=rng.uniform(0.2, 0.55), porosity=0.6, depth=rng.uniform(0.06, 0.15), grain=0.05))
         n = max(2, int(length / 2.5) + 1)
         for x in np.linspace(-length / 2, length / 2, n):
             b.cylinder((x, 0, h / 2), 0.03, h / 2, FENCE, instance, METAL)

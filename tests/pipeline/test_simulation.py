@@ -12,11 +12,11 @@ from pipeline.classes import POINT_CLASSES, to_ours
 from pipeline.errors import DataError
 from pipeline.io.semantickitti import read_bin, read_calib_tr, read_label, read_matrix_lines
 from pipeline.sensors import PRESETS
+from pipeline.simulation import models as m
 from pipeline.simulation import simulate_frame, simulate_sequence
 from pipeline.simulation.ground import GroundModel
 from pipeline.simulation.raycast import Windows, cast, ray_directions, ray_windows
 from pipeline.simulation.returns import BEAM_BIAS, make_returns
-from pipeline.simulation import models as m
 from pipeline.simulation.scene import build_scene
 from pipeline.simulation.shapes import (
     Material,
@@ -146,7 +146,7 @@ def test_simulate_points_lie_on_their_instance_surface(seq: Path, scene):
     frame with one transform (metadata T_world_scene) and compared to the instance's true
     primitives: 95 % of the points of smooth rigid surfaces within 5 cm (range noise sigma is
     0.5 cm + 0.04 % of the range) and none beyond 15 cm; bark and fence boards within their relief
-    (<= 15 cm deep); foliage inside its crown or, for 95 %, within 5 cm outside it.
+    (<= 20 cm deep); foliage inside its crown or, for 95 %, within 5 cm outside it.
     """
     meta = _meta(seq)
     T_scene_world = np.linalg.inv(np.asarray(meta["T_world_scene"]))
@@ -172,7 +172,7 @@ def test_simulate_points_lie_on_their_instance_surface(seq: Path, scene):
         assert np.percentile(d, 95) < 0.05, moving
         assert max(x.max() for x in dists) < 0.15, moving
     d = np.concatenate(relief)
-    assert np.percentile(d, 5) > -0.15 and np.percentile(d, 95) < 0.05
+    assert np.percentile(d, 5) > -0.2 and np.percentile(d, 95) < 0.05
     d = np.concatenate(foliage)
     assert np.percentile(d, 95) < 0.05 and d.max() < 0.2
 
