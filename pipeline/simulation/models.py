@@ -564,7 +564,7 @@ def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, inst
             (length / 2, 0.04, h / 2 + 0.1),
             FENCE,
             instance,
-            Material(refl=rng.uniform(0.2, 0.55), depth=rng.uniform(0.08, 0.2), grain=rng.uniform(0.08, 0.15)),
+            Material(refl=rng.uniform(0.2, 0.55), depth=rng.uniform(0.08, 0.2), grain=rng.uniform(0.03, 0.06)),
         )
     else:  # a mesh or railing: most rays pass through its gaps
         b.box((0, 0, h / 2), (length / 2, 0.02, h / 2), FENCE, instance,
