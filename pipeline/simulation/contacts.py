@@ -84,8 +84,7 @@ def draw_planting(
 def planting_footprint(lay: Layout, pl: Planting, xy: np.ndarray, yaw: float, face: float, out: int) -> np.ndarray:
     """(K, 2) scene points covering the planting's ground (occupancy), host at `xy`, `yaw`."""
     y_mid = face + out * (pl.gap + 0.5 * pl.width)
-    c, s = np.cos(yaw), np.sin(yaw)
-    centre = np.asarray(xy) + np.array([c * 0.5 * (pl.x0 + pl.x1) - s * y_mid, s * 0.5 * (pl.x0 + pl.x1) + c * y_mid])
+    centre = _host_to_scene(xy, yaw, 0.5 * (pl.x0 + pl.x1), y_mid)
     return lay.rect(centre, yaw, 0.5 * (pl.x1 - pl.x0), 0.5 * pl.width)
 
 
@@ -93,39 +92,41 @@ def build_planting(lay: Layout, pl: Planting, xy: np.ndarray, yaw: float, face: 
     """Put the planting's primitives on the campus, in pieces of <= 6 m that each stand on the
     ground under them; each hedge, climber and shrub is its own instance."""
     rng = lay.rng
-    c, s = np.cos(yaw), np.sin(yaw)
+    y_mid = face + out * (pl.gap + 0.5 * pl.width)
     pieces = max(1, int(np.ceil((pl.x1 - pl.x0) / 6.0)))
     edges = np.linspace(pl.x0, pl.x1, pieces + 1)
     leaves = m.foliage(rng, dense=pl.kind != "ivy", climber=pl.kind == "ivy")
     iid = 0
     for a, b in zip(edges[:-1], edges[1:], strict=True):
-        y_mid = face + out * (pl.gap + 0.5 * pl.width)
-        local = np.array([0.5 * (a + b), y_mid])
-        p = np.asarray(xy) + np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
-        z = lay.z(p)
         if pl.kind == "shrub_row":
-            _add_shrubs(lay, pl, a, b, p, yaw, local, rng)
+            _add_shrubs(lay, pl, a, b, xy, yaw, y_mid)
             continue
+        p = _host_to_scene(xy, yaw, 0.5 * (a + b), y_mid)
+        z = lay.z(p)
         if iid == 0:  # one hedge or climber along the host, built in pieces
             iid = lay.reg.new(pl.kind, (m.VEGETATION,), position=(p[0], p[1], z))
+        sink = 0.1 + max(0.0, z - min(lay.z(_host_to_scene(xy, yaw, x, y_mid)) for x in (a, b)))
         bld = PrimitiveBuilder()
-        sink = 0.1 + max(0.0, z - min(lay.z(_along(xy, yaw, x, y_mid)) for x in (a, b)))
         bld.box((0.0, 0.0, 0.5 * (pl.height - sink)), (0.5 * (b - a), 0.5 * pl.width, 0.5 * (pl.height + sink)),
                 m.VEGETATION, iid, leaves)
         lay.put(bld, p, yaw)
 
 
-def _along(xy: np.ndarray, yaw: float, x: float, y: float) -> np.ndarray:
+def _host_to_scene(xy: np.ndarray, yaw: float, x: float, y: float) -> np.ndarray:
+    """(2,) scene xy of the point (x, y) of a host frame at `xy` turned by `yaw`."""
     c, s = np.cos(yaw), np.sin(yaw)
     return np.asarray(xy) + np.array([c * x - s * y, s * x + c * y])
 
 
-def _add_shrubs(lay: Layout, pl: Planting, a: float, b: float, p: np.ndarray, yaw: float, local, rng) -> None:
-    """Shrubs along a - b whose backs touch the host (their centres `width / 2` off its face)."""
+def _add_shrubs(lay: Layout, pl: Planting, a: float, b: float, xy: np.ndarray, yaw: float, y_mid: float) -> None:
+    """Shrubs along a..b whose backs touch the host (their centres `width / 2` off its face)."""
+    rng = lay.rng
+    mid = 0.5 * (a + b)
+    p = _host_to_scene(xy, yaw, mid, y_mid)
     x = a + 0.5 * pl.width
     while x < b - 0.3 * pl.width:
         r = 0.5 * pl.width * rng.uniform(0.8, 1.1)
-        q = p + _along(np.zeros(2), yaw, x - local[0], 0.0)
+        q = p + _host_to_scene(np.zeros(2), yaw, x - mid, 0.0)
         iid = lay.reg.new("shrub_row", (m.VEGETATION,), position=(q[0], q[1], lay.z(q)))
         bld = PrimitiveBuilder()
         bld.ellipsoid((0.0, 0.0, 0.45 * pl.height), (r, r, 0.55 * pl.height), m.VEGETATION, iid,

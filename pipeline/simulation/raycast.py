@@ -9,10 +9,11 @@ Foliage and glass are porous (a ray may pass through) and foliage is penetrable 
 comes from some depth inside); bark has relief (the return comes from up to `depth` below the
 surface). Materials with a grain draw pass-through and depth once per texture cell of the
 primitive (a counter-based hash of the primitive's key and the cell of the ray's entry point in
-the primitive's local frame), with a little per-ray jitter on the depth: neighbouring rays that
-meet one leaf cluster agree, and the texture holds still from frame to frame. Materials without
-a grain draw per ray from (frame seed, row, column, primitive). Either way a frame is
-reproducible whatever the thread count.
+the primitive's local frame): neighbouring rays that meet one leaf cluster agree, and the texture
+holds still from frame to frame. Farther away a growing share of the depth is drawn per ray
+(DECORRELATION_RANGE) and foliage's depth scale grows (FAR_DEPTH): a wider footprint covers more
+leaves. Materials without a grain draw per ray from (frame seed, row, column, primitive). Either
+way a frame is reproducible whatever the thread count.
 """
 
 from __future__ import annotations
