@@ -50,11 +50,11 @@ def impure_structures(seq: Path, out: Path, top: int = 12) -> dict:
     """What the impure segments (purity < 0.95) join: per pair of instance kinds (the segment's
     dominant object's kind + another object's kind), the points of the other object in them, as
     a share of all points outside their segment's dominant object."""
-    from pipeline.io import open_sequence
+    from pipeline.sequence import open_sequence
 
     kinds = {int(k): v["kind"] for k, v in json.loads((seq / "metadata.json").read_text())["instances"].items()}
     kinds[0] = "ground"
-    source = open_sequence(seq)
+    source = open_sequence(seq).source
     cost: dict[str, int] = {}
     total = 0
     for i in range(len(source)):
@@ -95,11 +95,10 @@ def _frame_pairs(track: np.ndarray, key: np.ndarray, inst: np.ndarray, kinds: di
 def texture(out_dir: Path, quick: bool) -> dict | None:
     """Texture statistics of real labelled HDL-64E frames and of the campus (HDL-64E and its own
     HDL-32E); None without the real data. Writes texture.png to `out_dir`."""
-    from pipeline.io import open_sequence
-    from pipeline.pipeline import resolve_sensor
     from pipeline.plots import quantile_comparison
     from pipeline.scan import Scan
     from pipeline.sensors import PRESETS
+    from pipeline.sequence import open_sequence
     from pipeline.simulation import simulate_frame
     from pipeline.simulation.scene import build_scene
     from pipeline.simulation.texture import texture_statistics
@@ -108,9 +107,9 @@ def texture(out_dir: Path, quick: bool) -> dict | None:
         real = kitti_seq00(Path(tmp) / "k00", frames=range(3))
         if real is None:
             return None
-        source = open_sequence(real)
+        opened = open_sequence(real)
         stats = {"real HDL-64E (KITTI 00, frames 0-2)": texture_statistics(
-            (source.frame(i) for i in range(len(source))), resolve_sensor(source, "auto"))}
+            (opened.source.frame(i) for i in range(len(opened))), opened.sensor)}
     frames = range(0, 200, 50 if quick else 20)
     scenes = [build_scene(seed) for seed in (0, 1)]
     for name in ("hdl64e", "hdl32e"):

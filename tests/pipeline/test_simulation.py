@@ -433,10 +433,10 @@ def test_cli_simulate_end_to_end(tmp_path: Path):
 def test_simulate_walls_smooth_foliage_scattered(seq: Path):
     """On the written campus (HDL-32E) walls scatter like SemanticKITTI's walls (row residual
     median ~1 cm) and foliage several times more (docs/simulator.md)."""
-    from pipeline.io import open_sequence
+    from pipeline.sequence import open_sequence
     from pipeline.simulation.texture import texture_statistics
 
-    source = open_sequence(seq)
+    source = open_sequence(seq).source
     stats = texture_statistics((source.frame(k) for k in (0, FRAMES - 1)), SENSOR)
     wall = stats["building"]["row_residual_cm"][2]
     assert 0.5 < wall < 2.0
