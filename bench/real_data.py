@@ -33,3 +33,24 @@ def nuscenes_sweep() -> Path | None:
     p = REAL / "nuscenes_hdl32e"
     files = sorted(p.glob("*.pcd.bin")) if p.is_dir() else []
     return files[0] if files else None
+
+
+def kitti_seq00(dest: Path, frames: range = range(3)) -> Path | None:
+    """A KITTI folder with the labelled frames of SemanticKITTI sequence 00 (symlinks to scans and
+    labels), their poses, times and calib."""
+    src = REAL / "kitti_seq00"
+    if not src.is_dir():
+        return None
+    for sub, ext in (("velodyne", "bin"), ("labels", "label")):
+        (dest / sub).mkdir(parents=True, exist_ok=True)
+        for i in frames:
+            link = dest / sub / f"{i:06d}.{ext}"
+            if not link.exists():
+                link.symlink_to(src / sub / f"{i:06d}.{ext}")
+    for name in ("poses.txt", "times.txt"):
+        lines = (src / name).read_text().splitlines()
+        (dest / name).write_text("\n".join(lines[i] for i in frames) + "\n")
+    calib = dest / "calib.txt"
+    if not calib.exists():
+        calib.symlink_to(src / "calib.txt")
+    return dest

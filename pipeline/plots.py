@@ -126,3 +126,46 @@ def plot_f_bars(
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(title)
     return _save(fig, path)
+
+
+def quantile_comparison(
+    stats: dict[str, dict[str, dict]],
+    metrics: dict[str, str],
+    path: str | Path,
+    log: set[str] | frozenset[str] = frozenset(),
+    title: str = "Real vs simulated, per class",
+) -> Path:
+    """One panel per metric; per class one row per source: a thin line from the 10th to the 90th
+    percentile, a thick bar from the 25th to the 75th, a tick at the median.
+
+    stats: {source: {class: {metric: [p10, p25, p50, p75, p90] or None}}}; metrics: {key: axis label};
+    log: metrics drawn on a log axis.
+    """
+    plt = _pyplot()
+    sources = list(stats)
+    classes = list(dict.fromkeys(c for s in stats.values() for c in s))
+    colours = plt.get_cmap("tab10")
+    fig, axes = plt.subplots(1, len(metrics), figsize=(4.2 * len(metrics), 0.55 * len(classes) * len(sources) + 1.2),
+                             sharey=True)
+    axes = np.atleast_1d(axes)
+    step = 1.0 / (len(sources) + 1)
+    for ax, (key, label) in zip(axes, metrics.items(), strict=True):
+        for j, src in enumerate(sources):
+            for i, cls in enumerate(classes):
+                q = stats[src].get(cls, {}).get(key)
+                if not q:
+                    continue
+                y = i + (j + 1) * step - 0.5
+                ax.plot([q[0], q[4]], [y, y], color=colours(j), linewidth=1)
+                ax.plot([q[1], q[3]], [y, y], color=colours(j), linewidth=5, solid_capstyle="butt",
+                        label=src if i == 0 else None)
+                ax.plot([q[2]], [y], "|", color="black", markersize=9)
+        if key in log:
+            ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].set_yticks(range(len(classes)), labels=classes)
+    axes[0].invert_yaxis()
+    axes[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.suptitle(title)
+    return _save(fig, path)

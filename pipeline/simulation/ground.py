@@ -26,15 +26,15 @@ from pipeline.simulation.route import SAMPLE_STEP, Route
 # Region codes of ground hits (the ray caster stores them as negative hit ids).
 ROAD, MARKING, PARKING, SIDEWALK, CURB, TERRAIN = range(6)
 REGION_SEMANTIC = np.array([40, 40, 44, 48, 48, 72], np.uint16)
-# Material rows (refl, drop, spec, porosity, depth, noise) per region.
+# Material rows (refl, drop, spec, porosity, depth, noise, grain) per region.
 REGION_MATERIAL = np.array(
     [
-        [0.10, 0.0, 0.0, 0.0, 0.0, 0.0],
-        [0.55, 0.0, 0.0, 0.0, 0.0, 0.0],
-        [0.13, 0.0, 0.0, 0.0, 0.0, 0.0],
-        [0.30, 0.0, 0.0, 0.0, 0.0, 0.0],
-        [0.35, 0.0, 0.0, 0.0, 0.0, 0.0],
-        [0.24, 0.02, 0.0, 0.0, 0.0, 0.015],
+        [0.10, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.55, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.13, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.35, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.24, 0.02, 0.0, 0.0, 0.0, 0.015, 0.0],
     ],
     np.float32,
 )

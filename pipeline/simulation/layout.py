@@ -10,7 +10,10 @@ Each side of every straight is cut into stretches of 25-65 m, each with a charac
     open      grass with scattered trees, bushes, benches, bins, fences
 
 Behind them stand more buildings (varied footprints: L-shaped wings, recessed entrances
-under an overhang on pillars, towers), and trees and bushes are scattered over the grass.
+under an overhang on pillars, towers; fronts with recessed windows), and trees and bushes are
+scattered over the grass. Things touch as on real streets (`contacts`): hedges, climbers and
+shrubs against walls and fences, shrubs against trunks, cars parked bumper to bumper, people
+and bikes leaning on walls, bikes in racks.
 Lamps line the sidewalks; signs and bollards mark the zebra crossings. Placement keeps
 objects off the road and sidewalks and apart from each other with a 0.5 m occupancy grid.
 """
@@ -22,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.classes import POINT_CLASSES, to_ours
+from pipeline.simulation import contacts as ct
 from pipeline.simulation import models as m
 from pipeline.simulation.actors import ground_frame
 from pipeline.simulation.ground import GRID_CELL, GroundModel
@@ -29,6 +33,8 @@ from pipeline.simulation.route import SAMPLE_STEP, Route
 from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_x, rot_z
 from pipeline.simulation.style import STYLES, CampusStyle
 
+TRUNK_SHRUB_P = 0.25  # trees with a shrub grown against the trunk
+GARDEN_FENCE_P = 0.5  # hedge stretches with a fence behind the sidewalk (planting against it)
 STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
 STRETCH_P = (0.2, 0.17, 0.15, 0.26, 0.12, 0.10)
 BAY_WIDTH = 2.3
@@ -85,6 +91,7 @@ class Facade:
 
     ends: np.ndarray
     normal: np.ndarray
+    wall: bool = True  # a building's wall (False: a fence)
 
 
 @dataclass
@@ -166,6 +173,7 @@ class Layout:
         self.occupied = np.zeros(ground.lat.shape, bool)
         self.sets: list[PrimitiveSet] = []
         self.facades: list[Facade] = []
+        self.walls: list[Facade] = []  # building fronts and fences without planting: people and bikes lean on them
         self.hedges: list[Facade] = []
         self.bushes: list[tuple[np.ndarray, float]] = []
         self.entrances: list[tuple[np.ndarray, float]] = []
@@ -273,7 +281,9 @@ class Layout:
         trunk_id = self.reg.new("tree_trunk", (m.TRUNK,), position=pos)
         crown_id = self.reg.new("tree_crown", (m.VEGETATION,), position=pos + (0, 0, base))
         b = PrimitiveBuilder()
-        bark = Material(refl=rng.uniform(0.2, 0.4), drop=0.02, noise=0.005)
+        # bark: plates and furrows of a few centimetres (SemanticKITTI trunks scatter 4 cm along rows)
+        bark = Material(refl=rng.uniform(0.28, 0.55), drop=0.02, noise=0.005, depth=rng.uniform(0.06, 0.14),
+                        grain=rng.uniform(0.04, 0.08))
         if style == "conifer":
             leaves = m.foliage(rng, dense=True)
             layers = int(rng.integers(3, 5))
@@ -292,6 +302,8 @@ class Layout:
             cz = m.add_canopy(b, rng, base, radius, height, crown_id, m.foliage(rng))
             top = cz
         m.add_trunk(b, rt, top, trunk_id, bark)
+        if style != "conifer" and rng.random() < TRUNK_SHRUB_P:
+            ct.add_trunk_shrub(self, b, rt, pos)
         if style != "conifer" and rng.random() < 0.3:
             # shoots and low twigs on the trunk (epicormic growth): leaves next to the bark
             leaves = m.foliage(rng)
@@ -376,7 +388,8 @@ class Layout:
     def building(
         self, xy: np.ndarray, yaw: float, length: float, depth: float, height: float, walkable: bool
     ) -> bool:
-        """A building whose front (local +y) faces the street at `xy`; False when it does not fit."""
+        """A building whose front (local +y) faces the street at `xy`; False when it does not fit.
+        Its front wall may carry planting (`contacts`): then people do not walk along it."""
         rng = self.rng
         wing = rng.random() < 0.35
         wing_w = rng.uniform(6.0, min(14.0, 0.6 * length)) if wing else 0.0
@@ -393,87 +406,91 @@ class Layout:
         allpts = np.concatenate(pts)
         if not self.free(allpts, min_clear=0.6):
             return False
+        room = float(self.clearance(np.stack([xy + rot2 @ np.array([x, 0.0]) for x in (-length / 2, 0.0, length / 2)])).min())
+        planting = ct.draw_planting(rng, -length / 2 + 0.3, length / 2 - 0.3, room, height, ct.WALL_PLANTING_P)
+        if planting is not None:
+            foot = ct.planting_footprint(self, planting, xy, yaw, 0.0, 1)
+            if self.free(foot, min_clear=0.0):
+                self.mark(foot)
+            else:
+                planting = None
         self.mark(allpts)
         ground_z = self.ground.height(allpts)
         z0 = self.z(xy)
-        bottom = float(ground_z.min()) - z0 - 0.6
         iid = self.reg.new("building", (m.BUILDING,), position=(xy[0], xy[1], z0))
         glass = rng.random() < self.style.glass_share
         if glass:
-            wall = Material(refl=rng.uniform(0.06, 0.14), drop=0.25, spec=0.45)
-        else:
-            wall = Material(refl=rng.uniform(0.18, 0.6), drop=0.01, spec=0.05)
+            wall = Material(refl=rng.uniform(0.15, 0.3), drop=0.02, spec=0.3)
+        else:  # plaster, brick, concrete: SemanticKITTI's walls return 0.28-0.64 (10th-90th percentile)
+            wall = Material(refl=rng.uniform(0.32, 0.7), drop=0.01, spec=0.05)
+        facade = None if glass else m.draw_facade(rng)
         b = PrimitiveBuilder()
-
-        def block(x0, x1, y0, y1, top, mat=wall):
-            b.box(
-                ((x0 + x1) / 2, (y0 + y1) / 2, (bottom + top) / 2),
-                ((x1 - x0) / 2, (y1 - y0) / 2, (top - bottom) / 2),
-                m.BUILDING,
-                iid,
-                mat,
-            )
-
-        recess = length > 14.0 and rng.random() < 0.5
-        if recess:
-            rw = rng.uniform(4.0, min(12.0, length - 6.0))
-            xa = rng.uniform(-length / 2 + 2.5, length / 2 - 2.5 - rw)
-            xb = xa + rw
-            rd = rng.uniform(1.5, 4.0)
-            block(-length / 2, xa, -depth, 0.0, height)
-            block(xb, length / 2, -depth, 0.0, height)
-            block(xa, xb, -depth, -rd, height)
-            if height > 5.0 and rng.random() < 0.6:
-                # An upper floor over the recess, carried by pillars: a covered entrance.
-                b.box(
-                    ((xa + xb) / 2, -rd / 2, (3.4 + height) / 2),
-                    (rw / 2, rd / 2, (height - 3.4) / 2),
-                    m.BUILDING,
-                    iid,
-                    wall,
-                )
-                for x in np.arange(xa + 0.5, xb - 0.2, 3.0):
-                    b.cylinder(
-                        (x, -0.4, (bottom + 3.4) / 2),
-                        rng.uniform(0.18, 0.3),
-                        (3.4 - bottom) / 2,
-                        m.BUILDING,
-                        iid,
-                        wall,
-                    )
-            self.entrances.append((xy + rot2 @ np.array([(xa + xb) / 2, 0.5]), yaw))
-        else:
-            block(-length / 2, length / 2, -depth, 0.0, height)
-            self.entrances.append((xy + rot2 @ np.array([rng.uniform(-length / 3, length / 3), 0.8]), yaw))
+        bottom = float(ground_z.min()) - z0 - 0.6
+        entrance = self._building_blocks(b, rng, iid, wall, facade, length, depth, height, bottom)
         if wing:
             x0 = wing_side * length / 2 - (wing_w if wing_side > 0 else 0.0)
-            block(x0, x0 + wing_w, -depth - wing_d, -depth + 0.1, height * rng.uniform(0.6, 1.3))
+            _block(b, iid, wall, None, x0, x0 + wing_w, -depth - wing_d, -depth + 0.1, bottom,
+                   height * rng.uniform(0.6, 1.3))
         if rng.random() < 0.25 and length > 12.0:
             tw = rng.uniform(5.0, 10.0)
             tx = rng.uniform(-length / 2 + tw / 2, length / 2 - tw / 2)
-            block(tx - tw / 2, tx + tw / 2, -depth + 1.0, -1.0, height + rng.uniform(3.0, 9.0))
+            _block(b, iid, wall, None, tx - tw / 2, tx + tw / 2, -depth + 1.0, -1.0, bottom,
+                   height + rng.uniform(3.0, 9.0))
         self.put(b, xy, yaw, dz=0.0)
-        if walkable:
-            ends = np.stack(
-                [
-                    xy + rot2 @ np.array([-length / 2 + 0.5, 0.0]),
-                    xy + rot2 @ np.array([length / 2 - 0.5, 0.0]),
-                ]
-            )
-            self.facades.append(Facade(ends, rot2 @ np.array([0.0, 1.0])))
+        self.entrances.append((xy + rot2 @ entrance, yaw))
+        front = Facade(np.stack([xy + rot2 @ np.array([x, 0.0]) for x in (-length / 2 + 0.5, length / 2 - 0.5)]),
+                       rot2 @ np.array([0.0, 1.0]))
+        if planting is not None:
+            ct.build_planting(self, planting, xy, yaw, 0.0, 1)
+        else:
+            self.walls.append(front)
+            if walkable:
+                self.facades.append(front)
         return True
 
-    def parked_car(self, xy: np.ndarray, yaw: float, kind: str | None = None) -> bool:
-        car = self.style.draw_car(self.rng, kind=kind, extra=self.extra)
-        pts = self.rect(xy, yaw, car.length / 2 + 0.2, car.width / 2 + 0.15)
+    def _building_blocks(
+        self, b: PrimitiveBuilder, rng: np.random.Generator, iid: int, wall: Material, facade: m.FacadeShape | None,
+        length: float, depth: float, height: float, bottom: float,
+    ) -> np.ndarray:
+        """The main blocks (with a recessed entrance under an overhang on pillars, or plain); returns
+        the local xy in front of the entrance."""
+        if not (length > 14.0 and rng.random() < 0.5):
+            _block(b, iid, wall, facade, -length / 2, length / 2, -depth, 0.0, bottom, height)
+            return np.array([rng.uniform(-length / 3, length / 3), 0.8])
+        rw = rng.uniform(4.0, min(12.0, length - 6.0))
+        xa = rng.uniform(-length / 2 + 2.5, length / 2 - 2.5 - rw)
+        xb = xa + rw
+        rd = rng.uniform(1.5, 4.0)
+        _block(b, iid, wall, facade, -length / 2, xa, -depth, 0.0, bottom, height)
+        _block(b, iid, wall, facade, xb, length / 2, -depth, 0.0, bottom, height)
+        _block(b, iid, wall, None, xa, xb, -depth, -rd, bottom, height)
+        if height > 5.0 and rng.random() < 0.6:
+            # An upper floor over the recess, carried by pillars: a covered entrance.
+            b.box(((xa + xb) / 2, -rd / 2, (3.4 + height) / 2), (rw / 2, rd / 2, (height - 3.4) / 2), m.BUILDING,
+                  iid, wall)
+            for x in np.arange(xa + 0.5, xb - 0.2, 3.0):
+                b.cylinder((x, -0.4, (bottom + 3.4) / 2), rng.uniform(0.18, 0.3), (3.4 - bottom) / 2, m.BUILDING,
+                           iid, wall)
+        return np.array([(xa + xb) / 2, 0.5])
+
+    def parked_car(
+        self, xy: np.ndarray, yaw: float, car: m.CarShape | None = None, mark: bool = True
+    ) -> np.ndarray | None:
+        """A parked car (drawn unless given) at `xy` heading `yaw`; its footprint, or None when it
+        does not fit. mark=False leaves the footprint for the caller to mark (a row of cars whose
+        bumpers may touch)."""
+        car = car or self.style.draw_car(self.rng, extra=self.extra)
+        pad = (0.2, 0.15) if mark else (0.0, 0.0)
+        pts = self.rect(xy, yaw, car.overall_length / 2 + pad[0], car.width / 2 + pad[1], step=0.3)
         if not self.free(pts, min_clear=None) or not self.ground.low(pts).all():
-            return False
-        self.mark(pts)
+            return None
+        if mark:
+            self.mark(pts)
         iid = self.reg.new("car", (m.CAR,), position=(xy[0], xy[1], self.z(xy)), dark=car.dark)
         b = PrimitiveBuilder()
         m.add_car(b, car, m.CAR, iid)
         self.put(b, xy, yaw, rot=ground_frame(self.ground, xy, yaw))
-        return True
+        return pts
 
     def small(
         self, xy: np.ndarray, what: str, yaw: float | None = None, min_clear: float | None = None
@@ -533,10 +550,39 @@ class Layout:
             return
         self.mark(pts)
         b = PrimitiveBuilder()
-        m.add_fence(
+        h = m.add_fence(
             b, self.rng, length, self.reg.new("fence", (m.FENCE,), position=(xy[0], xy[1], self.z(xy)))
         )
         self.put(b, xy, yaw)
+        out = -side if self.rng.random() < 0.7 else side  # planting mostly on the street side
+        planting = ct.draw_planting(self.rng, -length / 2, length / 2, 1.3, h, ct.FENCE_PLANTING_P)
+        if planting is not None:
+            foot = ct.planting_footprint(self, planting, xy, yaw, out * 0.05, out)
+            if self.free(foot, min_clear=0.0):
+                self.mark(foot)
+                ct.build_planting(self, planting, xy, yaw, out * 0.05, out)
+                return
+        normal = -side * (self.route.offset(sm, 1.0) - self.route.point(sm))
+        self.walls.append(Facade(np.stack([self.at(s0, side * (self.edge(sm, side) + offset - 0.05)),
+                                           self.at(s1, side * (self.edge(sm, side) + offset - 0.05))]),
+                                 normal, wall=False))
+
+
+def _block(
+    b: PrimitiveBuilder, iid: int, wall: Material, facade: m.FacadeShape | None, x0: float, x1: float, y0: float,
+    y1: float, bottom: float, top: float,
+) -> None:
+    """A building block x0..x1, y0..y1 (local) from `bottom` to `top`; with a facade, its front
+    (y1) is a wall with recessed windows (`models.add_facade`)."""
+    if facade is not None:
+        models_front = y1 - facade.recess
+        sub = PrimitiveBuilder()
+        m.add_facade(sub, facade, x0, x1, bottom, top, iid, wall)
+        sub.shift(0.0, y1)
+        b.extend(sub)
+        y1 = models_front
+    b.box(((x0 + x1) / 2, (y0 + y1) / 2, (bottom + top) / 2), ((x1 - x0) / 2, (y1 - y0) / 2, (top - bottom) / 2),
+          m.BUILDING, iid, wall)
 
 
 # --------------------------------------------------------------------------- the plan
@@ -560,6 +606,7 @@ def populate(lay: Layout, stretches: list[Stretch], crossings: np.ndarray) -> No
                     lay.at(sc - 3.0 - 1.5 * k, side * (lay.edge(sc, side) + 0.3)), "bollard", min_clear=0.0
                 )
     _standing_people(lay)
+    ct.lean_on_walls(lay, lay.walls)
     if lay.extra is not None:
         _varied_extras(lay, stretches)
 
@@ -692,38 +739,57 @@ def _frontage(lay: Layout, st: Stretch) -> None:
         hedge = setback > 2.2 and rng.random() < 0.4
         lat = st.side * (lay.edge(sm, st.side) + setback)
         yaw = lay.yaw_at(sm) + (np.pi if st.side > 0 else 0.0)  # local +y towards the street
+        walkers = len(lay.facades)
         ok = lay.building(
             lay.at(sm, lat), yaw, length, rng.uniform(10.0, 24.0), rng.uniform(4.0, 18.0), walkable=not hedge
         )
         if ok and hedge:
             lay.hedge(s + 1.0, s + length - 1.0, st.side, 0.3)
         if ok and rng.random() < 0.35:
-            if not hedge:
+            if len(lay.facades) > walkers:
                 lay.facades.pop()  # the rack stands where people would walk along the wall
             sb = s + rng.uniform(2.0, length - 2.0)
-            for k in range(int(rng.integers(2, 7))):
+            n = int(rng.integers(2, 7))
+            ct.add_rack(lay, lay.at(sb, st.side * (lay.edge(sb, st.side) + 0.75)), lay.yaw_at(sb), n, 0.8)
+            for k in range(n):
                 p = lay.at(sb + 0.8 * k, st.side * (lay.edge(sb, st.side) + 0.75))
                 lay.small(p, "bicycle", yaw=lay.yaw_at(sb) + np.pi / 2, min_clear=0.0)
         s += length + rng.uniform(3.0, 15.0)
 
 
 def _hedges(lay: Layout, st: Stretch) -> None:
+    if lay.rng.random() < GARDEN_FENCE_P:
+        lay.fence(st.s0 + 1.0, st.s1 - 1.0, st.side, lay.rng.uniform(1.0, 1.8))
     _hedge_row(lay, st, 0.3)
     _trees_in_row(lay, st, (3.0, 6.0), (8.0, 15.0), p=0.6)
 
 
 def _bays(lay: Layout, st: Stretch) -> None:
+    """Cars parked along the curb bumper to bumper (`contacts.bumper_gap`), a few bays empty."""
     rng = lay.rng
     lat = st.side * (lay.road.road_half + BAY_WIDTH / 2)
-    s = st.s0 + 5.0
+    s, end = st.s0 + 5.0, -np.inf  # next free arc length; where the last parked car ends
+    row: list[np.ndarray] = []
     while s < st.s1 - 9.0:
-        car_len = 5.0
-        if rng.random() < 0.82:
-            yaw = lay.yaw_at(s + 3) + (np.pi if st.side > 0 else 0.0)
+        if rng.random() < 0.85:
+            # the plain style's car sets the spacing, so the varied styles keep the plain draws
+            plain = lay.style.draw_car(rng)
+            car = lay.style.vary_car(plain, lay.extra)
+            sc = s + plain.overall_length / 2
+            yaw = lay.yaw_at(sc) + (np.pi if st.side > 0 else 0.0)
             if rng.random() < 0.12:
                 yaw += np.pi
-            lay.parked_car(lay.at(s + 3.0, lat + rng.uniform(-0.1, 0.1)), yaw)
-        s += car_len + rng.uniform(0.8, 2.2)
+            xy = lay.at(sc, lat + rng.uniform(-0.1, 0.1))
+            if sc - car.overall_length / 2 >= end:  # a longer varied car may not fit
+                foot = lay.parked_car(xy, yaw, car=car, mark=False)
+                if foot is not None:
+                    row.append(foot)
+                    end = sc + car.overall_length / 2
+            s += plain.overall_length + ct.bumper_gap(rng)
+        else:
+            s += rng.uniform(5.0, 6.5)  # an empty bay
+    for foot in row:  # marked after the row, so that neighbours may touch
+        lay.mark(foot)
     if rng.random() < 0.5:
         _hedge_row(lay, st, 0.3)
         _trees_in_row(lay, st, (3.0, 5.0), (9.0, 15.0), p=0.6)
@@ -748,15 +814,26 @@ def _lot(lay: Layout, st: Stretch) -> None:
     rows = [lay.road.road_half + 3.0 + 2.5, low - 0.3 - 2.5]
     occupancy = rng.uniform(0.6, 0.9)
     for r, lat_abs in enumerate(rows):
-        s = st.s0 + 6.0
+        s, end = st.s0 + 6.0, -np.inf
+        row: list[np.ndarray] = []
         while s < st.s1 - 6.0:
             if rng.random() < occupancy:
+                plain = lay.style.draw_car(rng)
+                car = lay.style.vary_car(plain, lay.extra)
                 nose = 1 if (r == 0) == (rng.random() < 0.7) else -1
                 yaw = lay.yaw_at(s) + st.side * nose * np.pi / 2
-                lay.parked_car(
-                    lay.at(s, st.side * (lat_abs + rng.uniform(-0.2, 0.2))), yaw + rng.uniform(-0.06, 0.06)
-                )
-            s += rng.uniform(2.5, 2.8)
+                xy = lay.at(s, st.side * (lat_abs + rng.uniform(-0.2, 0.2)))
+                turn = rng.uniform(-0.04, 0.04)
+                if s - car.overall_width / 2 >= end:
+                    foot = lay.parked_car(xy, yaw + turn, car=car, mark=False)
+                    if foot is not None:
+                        row.append(foot)
+                        end = s + car.overall_width / 2
+                s += plain.overall_width + rng.uniform(0.05, 0.65)  # mirror to mirror
+            else:
+                s += rng.uniform(2.4, 2.7)  # an empty space
+        for foot in row:
+            lay.mark(foot)
     if rng.random() < 0.6:
         s = rng.uniform(st.s0 + 6, st.s1 - 6)
         for k in range(int(rng.integers(2, 6))):

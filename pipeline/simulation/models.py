@@ -20,7 +20,10 @@ MOVING_CAR, MOVING_BICYCLIST, MOVING_PERSON = 252, 253, 254
 BUILDING, FENCE, VEGETATION, TRUNK = 50, 51, 70, 71
 POLE, TRAFFIC_SIGN, OTHER_OBJECT = 80, 81, 99
 
-GLASS = Material(refl=0.08, drop=0.45, spec=0.6)  # windows: sparse, weak returns
+# Car windows: most rays pass into the cabin (and return from the seats, or from beyond the car);
+# the glass itself returns weakly, and seldom at oblique incidence.
+GLASS = Material(refl=0.03, drop=0.05, spec=0.6, porosity=0.25)
+INTERIOR = Material(refl=0.06, drop=0.1)  # seats and dashboard behind the car's windows
 RUBBER = Material(refl=0.05, drop=0.15, spec=0.3)
 PLASTIC = Material(refl=0.15, drop=0.02)
 RETRO = Material(refl=0.9)
@@ -50,6 +53,20 @@ class CarShape:
     dark: bool
     kind: str
     roof_box: bool = False  # a roof box on the cabin (varied styles)
+
+    @property
+    def overall_length(self) -> float:
+        """Bumper to bumper, plates included (`add_car`)."""
+        return self.length + 2 * BUMPER_REACH
+
+    @property
+    def overall_width(self) -> float:
+        """Mirror to mirror (`add_car`)."""
+        return self.width + 2 * MIRROR_REACH
+
+
+BUMPER_REACH = 0.115  # the plates stand this far beyond the body
+MIRROR_REACH = 0.2
 
 
 CAR_KINDS = {
@@ -81,10 +98,11 @@ def draw_car(
     lo_hi = CAR_KINDS[kind]
     length, width, height, body_h, cab_share, cab_off = (rng.uniform(*r) for r in lo_hi)
     dark = bool(rng.random() < dark_share)
+    # reflectivities tuned to SemanticKITTI's car remission (a quarter of it near 0, median 0.08)
     if dark:
-        paint = Material(refl=rng.uniform(0.02, 0.06), drop=0.05, spec=rng.uniform(0.88, 0.96))
+        paint = Material(refl=rng.uniform(0.005, 0.03), drop=0.05, spec=rng.uniform(0.8, 0.92))
     else:
-        paint = Material(refl=rng.uniform(0.25, 0.75), drop=0.01, spec=rng.uniform(0.1, 0.35))
+        paint = Material(refl=rng.uniform(0.2, 0.75), drop=0.01, spec=rng.uniform(0.1, 0.35))
     return CarShape(
         length=length,
         width=width,
@@ -101,8 +119,8 @@ def draw_car(
 
 
 def add_car(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) -> None:
-    """Body, glass cabin, roof, four wheels, bumpers, plates and mirrors (13 primitives); a
-    pickup's bed walls, a box van's cargo box, a roof box."""
+    """Body, glass cabin with seats inside, roof, four wheels, bumpers, plates and mirrors (14
+    primitives); a pickup's bed walls, a box van's cargo box, a roof box."""
     half_l, half_w = car.length / 2, car.width / 2
     z0 = car.clearance
     _car_extras(b, car, semantic, instance)
@@ -117,6 +135,13 @@ def add_car(b: PrimitiveBuilder, car: CarShape, semantic: int, instance: int) ->
         semantic,
         instance,
         GLASS,
+    )
+    b.box(
+        (car.cabin_offset, 0, z0 + car.body_height + 0.3 * cab_h),
+        (0.4 * car.cabin_length, half_w - 0.3, 0.3 * cab_h),
+        semantic,
+        instance,
+        INTERIOR,
     )
     b.box(
         (car.cabin_offset, 0, cab_top - 0.04),
@@ -310,14 +335,19 @@ def add_trunk(b: PrimitiveBuilder, radius: float, top: float, instance: int, bar
     b.cylinder((0, 0, 0.5 * (top - 0.3)), radius, 0.5 * (top + 0.3), TRUNK, instance, bark)
 
 
-def foliage(rng: np.random.Generator, dense: bool = False) -> Material:
-    return Material(
-        refl=rng.uniform(0.28, 0.45),
-        drop=0.05,
-        porosity=rng.uniform(0.04, 0.1) if dense else rng.uniform(0.15, 0.3),
-        depth=rng.uniform(0.06, 0.12) if dense else rng.uniform(0.15, 0.35),
-        noise=0.02,
-    )
+def foliage(rng: np.random.Generator, dense: bool = False, climber: bool = False) -> Material:
+    """Leaves: dense (hedges, shrubs, conifers), open (crowns) or a climber's thin layer on a wall.
+    Depth, porosity and grain are tuned so that range scatter along rows and beams matches
+    SemanticKITTI's vegetation (docs/simulator.md)."""
+    if climber:
+        return Material(refl=rng.uniform(0.3, 0.5), drop=0.04, porosity=rng.uniform(0.02, 0.08),
+                        depth=rng.uniform(0.03, 0.06), noise=0.01, grain=rng.uniform(0.06, 0.12))
+    if dense:  # trimmed or dense leaves: returns from the outer few centimetres
+        return Material(refl=rng.uniform(0.3, 0.5), drop=0.04, porosity=rng.uniform(0.04, 0.1),
+                        depth=rng.uniform(0.05, 0.1), noise=0.005, grain=rng.uniform(0.08, 0.16))
+    # a crown: rays reach deep between the leaves (neighbouring returns decimetres apart)
+    return Material(refl=rng.uniform(0.3, 0.5), drop=0.05, porosity=rng.uniform(0.15, 0.3),
+                    depth=rng.uniform(0.35, 0.7), noise=0.005, grain=rng.uniform(0.06, 0.12))
 
 
 def add_canopy(
@@ -403,6 +433,67 @@ def add_hedge(
     )
 
 
+# ----------------------------------------------------------------------------- buildings
+
+
+@dataclass(frozen=True)
+class FacadeShape:
+    """A front wall with a grid of recessed windows (m): bays of `period` along the wall, each with
+    a window `window` wide; floors `floor` high, windows from `sill` above each floor's base, `pane`
+    high; window reveals `recess` deep. Returns from the openings come from the frames and blinds at
+    the back of the reveal; a 7-pixel row window across a reveal's edge sees the step, which gives
+    real walls their tail of rough-looking pixels (more of them farther away, where a 7-pixel
+    window spans more wall)."""
+
+    period: float
+    window: float
+    floor: float
+    sill: float
+    pane: float
+    recess: float
+
+
+def draw_facade(rng: np.random.Generator) -> FacadeShape:
+    period = rng.uniform(2.2, 3.6)
+    floor = rng.uniform(3.0, 3.6)
+    return FacadeShape(
+        period=period,
+        window=period * rng.uniform(0.4, 0.65),
+        floor=floor,
+        sill=rng.uniform(0.8, 1.0),
+        pane=floor * rng.uniform(0.4, 0.55),
+        recess=rng.uniform(0.12, 0.3),
+    )
+
+
+def add_facade(
+    b: PrimitiveBuilder, f: FacadeShape, x0: float, x1: float, bottom: float, top: float, instance: int,
+    wall: Material,
+) -> None:
+    """The outer `f.recess` m of a front wall at local y in [-recess, 0], x in [x0, x1]: piers between
+    the windows (full height) and, per floor, the wall below and above the windows. The block behind
+    it ends at y = -recess."""
+    r = f.recess
+    n = max(1, int((x1 - x0) // f.period))
+    edge = 0.5 * (x1 - x0 - n * f.period)  # the wall left at both ends
+    gaps = [(x0 + edge + k * f.period + 0.5 * (f.period - f.window), x0 + edge + k * f.period
+             + 0.5 * (f.period + f.window)) for k in range(n)]
+    piers = [x0, *(x for g in gaps for x in g), x1]
+    for a, c in zip(piers[::2], piers[1::2], strict=True):
+        b.box(((a + c) / 2, -r / 2, (bottom + top) / 2), ((c - a) / 2, r / 2, (top - bottom) / 2), BUILDING,
+              instance, wall)
+    z = 0.0
+    spans = []
+    while z + f.sill + f.pane < top - 0.3:
+        spans.append((z + f.sill, z + f.sill + f.pane))
+        z += f.floor
+    bands = [bottom, *(v for s in spans for v in s), top]
+    xa, xb = gaps[0][0], gaps[-1][1]
+    for lo, hi in zip(bands[::2], bands[1::2], strict=True):
+        b.box(((xa + xb) / 2, -r / 2, (lo + hi) / 2), ((xb - xa) / 2, r / 2, (hi - lo) / 2), BUILDING, instance,
+              wall)
+
+
 # --------------------------------------------------------------------- street furniture
 
 
@@ -464,22 +555,24 @@ def add_bollard(b: PrimitiveBuilder, instance: int) -> None:
     b.cylinder((0, 0, 0.45), 0.1, 0.45, OTHER_OBJECT, instance, Material(refl=0.35))
 
 
-def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, instance: int) -> None:
-    """A fence along x: a solid wall or a see-through mesh on posts."""
+def add_fence(b: PrimitiveBuilder, rng: np.random.Generator, length: float, instance: int) -> float:
+    """A fence along x: a solid wall or a see-through mesh on posts; returns its height."""
     h = rng.uniform(1.0, 1.9)
-    if rng.random() < 0.5:
+    if rng.random() < 0.5:  # boards, slats or panels: centimetres to decimetres of relief
         b.box(
             (0, 0, h / 2 - 0.1),
             (length / 2, 0.04, h / 2 + 0.1),
             FENCE,
             instance,
-            Material(refl=rng.uniform(0.2, 0.5)),
+            Material(refl=rng.uniform(0.2, 0.55), depth=rng.uniform(0.08, 0.2), grain=rng.uniform(0.03, 0.06)),
         )
-    else:
-        b.box((0, 0, h / 2), (length / 2, 0.02, h / 2), FENCE, instance, Material(refl=0.3, porosity=0.6))
+    else:  # a mesh or railing: most rays pass through its gaps
+        b.box((0, 0, h / 2), (length / 2, 0.02, h / 2), FENCE, instance,
+              Material(refl=rng.uniform(0.2, 0.55), porosity=0.6, depth=rng.uniform(0.06, 0.15), grain=0.05))
         n = max(2, int(length / 2.5) + 1)
         for x in np.linspace(-length / 2, length / 2, n):
             b.cylinder((x, 0, h / 2), 0.03, h / 2, FENCE, instance, METAL)
+    return h
 
 
 # ------------------------------------------------------------- the varied styles' kinds

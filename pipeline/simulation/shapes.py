@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 BOX, CYLINDER, ELLIPSOID, CAPSULE = 0, 1, 2, 3
+N_MATERIAL = 7  # columns of a material row (see `Material`)
 
 
 @dataclass(frozen=True)
@@ -30,8 +31,13 @@ class Material:
     drop:     probability that a return is lost regardless of geometry.
     spec:     specular strength in [0, 1]: returns are lost at oblique incidence (dark paint, glass).
     porosity: probability that a ray passes through the primitive (foliage gaps, car glass).
-    depth:    mean penetration depth in metres (foliage), 0 for hard surfaces.
+    depth:    mean penetration depth in metres (foliage), or for a closed surface (bark) the
+              largest relief below it; 0 for smooth surfaces.
     noise:    extra range noise sigma in metres on top of the sensor's.
+    grain:    texture cell size in metres (leaf clusters, bark plates): the depth a ray reaches
+              and, for foliage, whether it passes are drawn once per cell of the primitive's local
+              frame, so neighbouring rays that meet one cell agree and the texture stays put from
+              frame to frame, as real foliage does; 0 draws them per ray and frame instead.
     """
 
     refl: float
@@ -40,6 +46,7 @@ class Material:
     porosity: float = 0.0
     depth: float = 0.0
     noise: float = 0.0
+    grain: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -51,7 +58,7 @@ class PrimitiveSet:
     rot:      (P, 3, 3) float64 scene-from-local rotation.
     size:     (P, 3) float64, see the module docstring.
     semantic: (P,) uint16 SemanticKITTI id; instance: (P,) uint16 instance id >= 1.
-    material: (P, 6) float32 columns refl, drop, spec, porosity, depth, noise.
+    material: (P, 7) float32 columns refl, drop, spec, porosity, depth, noise, grain.
     """
 
     kind: np.ndarray
@@ -66,7 +73,7 @@ class PrimitiveSet:
         p = len(self.kind)
         assert self.center.shape == (p, 3) and self.rot.shape == (p, 3, 3) and self.size.shape == (p, 3)
         assert self.semantic.shape == (p,) and self.instance.shape == (p,)
-        assert self.material.shape == (p, 6) and self.material.dtype == np.float32
+        assert self.material.shape == (p, N_MATERIAL) and self.material.dtype == np.float32
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -121,7 +128,7 @@ def empty_set() -> PrimitiveSet:
         np.zeros((0, 3)),
         np.zeros(0, np.uint16),
         np.zeros(0, np.uint16),
-        np.zeros((0, 6), np.float32),
+        np.zeros((0, N_MATERIAL), np.float32),
     )
 
 
@@ -251,7 +258,7 @@ class PrimitiveBuilder:
             center = center @ pose_rot.T
         if pose_t is not None:
             center = center + np.asarray(pose_t, float)[None]
-        mats = [(m.refl, m.drop, m.spec, m.porosity, m.depth, m.noise) for m in self._mat]
+        mats = [(m.refl, m.drop, m.spec, m.porosity, m.depth, m.noise, m.grain) for m in self._mat]
         return PrimitiveSet(
             np.array(self._kind, np.int8),
             center,

@@ -34,9 +34,9 @@ from pipeline.io.semantickitti import (
     write_poses,
     write_times,
 )
-from pipeline.sensors import PRESETS
+from pipeline.sensors import PRESETS, SensorModel
 from pipeline.simulation.raycast import cast, ray_directions, ray_windows
-from pipeline.simulation.returns import Returns, make_returns
+from pipeline.simulation.returns import BEAM_BIAS, Returns, make_returns
 from pipeline.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
 from pipeline.simulation.style import get_style
 
@@ -93,14 +93,20 @@ class SimulationSummary:
 
 
 def simulate_frame(
-    scene: Scene, index: int, dirs: np.ndarray | None = None, timings: dict[str, float] | None = None
+    scene: Scene,
+    index: int,
+    dirs: np.ndarray | None = None,
+    timings: dict[str, float] | None = None,
+    sensor: SensorModel | None = None,
 ) -> tuple[np.ndarray, Returns]:
     """(T_scene_lidar (4, 4), returns) of frame `index` (time index / 10 s) of `scene`.
 
     timings, when given, accumulates seconds per stage: scene (pose and primitives in range),
-    windows, cast, returns.
+    windows, cast, returns. sensor: the campus's HDL-32E unless given (at most 64 beams; the
+    texture comparison with real HDL-64E scans casts the campus with an HDL-64E).
     """
-    sensor = PRESETS[SENSOR]
+    sensor = sensor or PRESETS[SENSOR]
+    assert sensor.n_rings <= len(BEAM_BIAS), sensor.n_rings
     dirs = ray_directions(sensor) if dirs is None else dirs
     clock = [time.perf_counter()]
 

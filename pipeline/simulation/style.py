@@ -61,7 +61,14 @@ class CampusStyle:
         """A car of this style. In the varied styles, `extra` (a separate stream) may then replace it
         by a hatchback, pickup or box van (`extra_car_p`) and give it a roof box."""
         car = m.draw_car(rng, self.dark_share, kind=kind, kind_p=self.car_kind_p)
-        if not self.variety or extra is None or kind is not None:
+        if kind is not None:
+            return car
+        return self.vary_car(car, extra)
+
+    def vary_car(self, car: m.CarShape, extra: np.random.Generator | None) -> m.CarShape:
+        """`car` itself, or in the varied styles maybe (drawn from the separate stream `extra`) a
+        hatchback, pickup or box van instead, maybe with a roof box."""
+        if not self.variety or extra is None:
             return car
         u = extra.random()
         cum = np.cumsum(self.extra_car_p)
