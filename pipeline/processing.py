@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from pipeline.association import AssociationFrame, associate
@@ -270,6 +271,11 @@ class SequenceProcessor:
         else:
             pool = None
             results = map(_load_and_process, jobs)
+        threads_before = numba.get_num_threads()
+        if pool is None:
+            # one numba thread per frame: on a busy 2-core machine two threads ran the stages
+            # 2-4x slower at p95 than one (docs/perception.md); --workers parallelises instead
+            numba.set_num_threads(1)
         try:
             for job, core in zip(jobs, results, strict=True):
                 i = job[1]
@@ -288,6 +294,7 @@ class SequenceProcessor:
                 fr.timings_ms["associate"] = 1e3 * (time.perf_counter() - t0)
                 yield fr
         finally:
+            numba.set_num_threads(threads_before)
             if bar is not None:
                 bar.close()
             if pool is not None:

@@ -117,7 +117,7 @@ def test_segmentation_separates_foliage_flush_against_a_wall():
     scan, hedge, wall = _hedge_on_wall(slice(6, 14), slice(100, 130), scatter=0.12)
     _, _, seg = _segment(scan)
     assert _dominant(seg, hedge) != _dominant(seg, wall)
-    _, _, no_texture = _segment(scan, SegmentationConfig(texture_base=0.0))
+    _, _, no_texture = _segment(scan, SegmentationConfig(texture_base=0.0, texture_slope=0.0))
     assert _dominant(no_texture, hedge) == _dominant(no_texture, wall)
 
 
