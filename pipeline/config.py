@@ -63,12 +63,7 @@ class SegmentationConfig(_Section):
     occluder_pixels: int = Field(default=12, ge=0, le=32)
     # ground points up to this many metres below a segment's lowest pixel that join it by the
     # vertical rules go back to it (wheels, the feet of walls and people; 0 = off)
-    foot_height: float = Field(default=0.3, ge=0.0)
-    # Overhang: a vertical pair whose upper pixel is nearer than the lower one by more than
-    # overhang_base + overhang_slope * r (a crown over its trunk, an eave over a person) does not join.
-    # A vertical surface steps by ~0 m between rings; overhang_slope <= 0 disables the rule.
-    overhang_base: float = 0.05
-    overhang_slope: float = 0.01
+    foot_height: float = Field(default=0.25, ge=0.0)
     min_points: int = 3  # segments smaller than this are dropped (label 0)
 
 

@@ -157,7 +157,7 @@ def _skippable(ok, empty, rng, r, c, d1, margin_base, margin_slope):  # pragma: 
 
 
 @njit(cache=True, parallel=True)
-def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v,
+def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v,
                 occ):  # pragma: no cover - numba
     """Which neighbours join, decided once per pixel pair: right[r, c] and down[r, c] are 0 (no
     join) or the distance (1 + pixels stepped over) to the right-hand (column wraps at W-1 -> 0)
@@ -167,7 +167,6 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha,
     h, w = rng.shape
     right = np.zeros((h, w), dtype=np.uint8)
     down = np.zeros((h, w), dtype=np.uint8)
-    over = os_ > 0.0
     use_angle = tan_beta > 0.0
     # the angle between the beams of a pair, by step (columns) and by upper row (rows, one step)
     h_steps = np.arange(max(bridge_h, occ) + 2) * h_alpha
@@ -219,10 +218,7 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha,
                 d2 = rng[r1, c]
                 dmin = min(d1, d2)
                 dmax = max(d1, d2)
-                join = dmax - dmin <= vb + vs * dmin
-                if join and over and d2 - d1 > ob + os_ * dmax:
-                    join = False  # the upper pixel nearer by more than the overhang allows
-                if join:
+                if dmax - dmin <= vb + vs * dmin:
                     same = tex[r, c] == tex[r1, c]
                     cut = False
                     if use_angle:
@@ -471,7 +467,7 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
 
 @njit(cache=True)
 def _segment_kernel(
-    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_,
+    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs,
     tan_beta, v_alpha, points, col_angle, bridge_h, bridge_v, occ, tex_base, tex_slope, merge_pixels, foot, min_points,
 ):  # pragma: no cover - numba
     """Masks, texture, joins, components, merge and point labels in one call (no Python between)."""
@@ -490,7 +486,7 @@ def _segment_kernel(
     else:
         tex = ok.astype(np.uint8)
     right, down = _join_edges(
-        rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
+        rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
     )
     labels, sizes, count = _label_components(ok, right, down)
     if merge_pixels > 0:
@@ -516,7 +512,7 @@ def segment(
     pixel, point, count = _segment_kernel(
         image.index, image.range, ground, image.row, image.col, image.point_range, image.kept,
         float(config.vertical_base), float(config.vertical_slope), float(config.horizontal_base),
-        float(config.horizontal_slope), float(config.overhang_base), float(config.overhang_slope),
+        float(config.horizontal_slope),
         float(np.tan(np.deg2rad(config.angle_threshold_deg))),
         _beam_steps(sensor, h), points, 2.0 * np.pi / w, int(config.bridge_horizontal),
         int(config.bridge_vertical), int(config.occluder_pixels), float(config.texture_base), float(config.texture_slope),
