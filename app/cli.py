@@ -73,7 +73,7 @@ def simulate(
                                        "class (pickups, groups, scooters, tree guards, kiosks, ...).")] = "a",
 ) -> None:
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True, crowd=crowd,
                                  cyclists=cyclists, style=style)
@@ -224,7 +224,7 @@ def experiment_paper(
     """Reproduce the paper's Tables 7 and 8 on simulated data: its five settings, automatic
     constraints and the constraints-only adaptation to D (Fig. 12); with --ablations also the
     extensions' ablations and oracle diagnostics."""
-    from pipeline.experiments.paper import ABLATIONS, SETTINGS, PaperConfig, run_paper
+    from research.experiments.paper import ABLATIONS, SETTINGS, PaperConfig, run_paper
 
     kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
                              "train_seed": train_seed, "label_seed": label_seed,
@@ -265,7 +265,7 @@ def experiment_finetune(
     """The paper's Table 10 on a simulated new scene: baseline_min, constraint100, constraint100 +
     fine-tuning and baseline_max, and each anchor strategy's F against the confirmations."""
     from pipeline.anchors import STRATEGIES
-    from pipeline.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
+    from research.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
 
     chosen = tuple(s.strip() for s in strategies.split(",") if s.strip()) or STRATEGIES
     bad = [s for s in chosen if s not in STRATEGIES]

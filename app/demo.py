@@ -51,7 +51,7 @@ def prepare_demo(
 ) -> DemoInfo:
     from app.jobs import load_job_types
     from app.worker import Worker
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     settings = demo_settings(out, port)
     seq_dir = settings.data_dir / "sequence"

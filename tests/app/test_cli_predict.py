@@ -23,7 +23,7 @@ TINY = ModelConfig(width=8, max_width=16, depth=2, dropout=0.0)
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     out = tmp_path_factory.mktemp("sim") / "seq"
     simulate_sequence(out, frames=3, seed=5)

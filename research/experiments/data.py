@@ -307,7 +307,7 @@ def prepare_scene(
 ) -> SceneSamples:
     """Simulate (seed, frames from `start`, `crowd`, `cyclists`, `style`), process and review a
     scene; cached under `cache`."""
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     config = (config or PipelineConfig()).override({"samples": {"size": size}})
     cache = Path(cache)

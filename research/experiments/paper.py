@@ -2,9 +2,9 @@
 
 1. Simulate a training route (seed S) and a test scene D (seed S + 1000: another layout), run the
    real perception pipeline and let the ground-truth-checking operator review every track
-   (`pipeline.experiments.data`). Split the route by distance travelled into A (0-30 %),
+   (`research.experiments.data`). Split the route by distance travelled into A (0-30 %),
    B (30-60 %) and C (60-100 %). D is also of another campus style (`test_style`: other car
-   models, trees, shrubs, clothes; `pipeline.simulation.style`), as a new scene is. The campus is busier than the simulator's default (`crowd`,
+   models, trees, shrubs, clothes; `research.simulation.style`), as a new scene is. The campus is busier than the simulator's default (`crowd`,
    `cyclists`): a route of the default campus holds only ~35 people and ~5 cyclists, so 30 labels
    per class already cover nearly every object, and neither more labels nor constraints can help.
    Both scenes are of the varied styles (`train_style` "a+", `test_style` "b+"): every class has a
@@ -34,7 +34,7 @@
    Those six are the default. With `--ablations` (ABLATIONS) also:
    - constraint100_tracks_only: the paper's constraints, track links alone. The verified
      constraints of constraint30/60/100 also hold the fragment links of the stitches the operator
-     confirmed (`pipeline.experiments.data`: pieces of one object in other tracks), so that an
+     confirmed (`research.experiments.data`: pieces of one object in other tracks), so that an
      object's parallel and broken tracks become one component of the must-link graph.
    Extensions, each measured against constraint100 (see `pipeline.training`):
    - constraint100_paper_pairs: the paper's consecutive pairs only (the default draws any two
@@ -86,8 +86,8 @@ import numpy as np
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.errors import ConfigError
-from pipeline.experiments.data import SceneSamples, prepare_scene, route_part
-from pipeline.simulation.style import get_style
+from research.experiments.data import SceneSamples, prepare_scene, route_part
+from research.simulation.style import get_style
 
 SETTINGS: tuple[str, ...] = (  # the issue's: the paper's five and automatic constraints
     "baseline_min",
@@ -157,8 +157,8 @@ class PaperConfig:
     threads: int = 0  # torch CPU threads (0 = torch's default; 1 is faster on a busy shared 2-core box)
     crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars (1 = the default campus)
     cyclists: float = 3.0  # simulator: further factor on cyclists
-    train_style: str = "a+"  # campus style of the training route (pipeline.simulation.style)
-    test_style: str = "b+"  # campus style of D: another part of town (pipeline.simulation.style)
+    train_style: str = "a+"  # campus style of the training route (research.simulation.style)
+    test_style: str = "b+"  # campus style of D: another part of town (research.simulation.style)
     # verified constraints of unknown tracks too (the paper has none: constraint100_no_unknown).
     # With labels drawn per annotation this gave constraint100 validation F 87.2 against 86.0
     # (training seed 1: 87.0 against 85.6); chosen on the validation split (README)

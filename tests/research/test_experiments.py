@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pipeline.experiments.data import (
+from research.experiments.data import (
     SceneSamples,
     confirm_stitches,
     operator_review,
@@ -98,7 +98,7 @@ def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:
 
 
 def test_paper_split_by_track_and_settings_grow_constraints():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, setting_data, split_scene
 
     scene = _toy_scene()
     split = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -119,7 +119,7 @@ def test_paper_split_by_track_and_settings_grow_constraints():
 
 
 def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
-    from pipeline.experiments.paper import PaperConfig, split_scene
+    from research.experiments.paper import PaperConfig, split_scene
 
     scene = _toy_scene(n_tracks=70, length=5)
     base = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -135,7 +135,7 @@ def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
 
 
 def test_oracle_objects_label_every_view_of_the_labelled_objects_only():
-    from pipeline.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
 
     scene = _toy_scene(n_tracks=40, length=9)
     scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
@@ -157,7 +157,7 @@ def test_oracle_object_pairs_make_each_labelled_object_one_component():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from pipeline.experiments.paper import PaperConfig, oracle_object_pairs, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, oracle_object_pairs, setting_data, split_scene
 
     scene = _toy_scene(n_tracks=40, length=6)
     scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
@@ -184,7 +184,7 @@ def test_operator_confirms_stitches_of_one_object_only():
 
 
 def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, setting_data, split_scene
 
     scene = _toy_scene()
     split = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -201,7 +201,7 @@ def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
 
 def test_paper_constraint_step_keeps_the_papers_canvases():
     from pipeline.errors import ConfigError
-    from pipeline.experiments.paper import PaperConfig
+    from research.experiments.paper import PaperConfig
 
     cfg = PaperConfig()  # the paper's step: 16 labels + 80 pairs = 176 canvases
     assert cfg.equal_batch == 176
@@ -219,7 +219,7 @@ def test_paper_constraint_step_keeps_the_papers_canvases():
 
 def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
     from pipeline.errors import ConfigError
-    from pipeline.experiments.paper import ABLATIONS, PaperConfig
+    from research.experiments.paper import ABLATIONS, PaperConfig
 
     cfg = PaperConfig()
     assert cfg.training_config().closure_draw == "annotation" and cfg.training_config().closure_labels
@@ -232,7 +232,7 @@ def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
 
 
 def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ablation():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene, verified_constraints
+    from research.experiments.paper import PaperConfig, setting_data, split_scene, verified_constraints
 
     scene = _toy_scene()
     cfg = PaperConfig(labels_per_class=2)

@@ -2,7 +2,7 @@
 
 1. Prepare a training route (seed `train_seed`) and a new scene D (seed `test_seed`: another
    layout, and campus style `test_style`: other cars, trees, shrubs and clothes) with
-   `pipeline.experiments.data` (simulation, the real perception pipeline, and a
+   `research.experiments.data` (simulation, the real perception pipeline, and a
    ground-truth-checking operator who gives labels and verified constraints).
 2. Pretrain on the training route, 70/30 train/validation, the paper's selection rule:
    - baseline_min: `min_labels` labelled samples per class (the paper: 350; scaled to our data);
@@ -39,11 +39,11 @@ import numpy as np
 from pipeline.anchors import DEFAULT_STRATEGY, STRATEGIES, TRACK_STRATEGIES, class_counts, propose
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
-from pipeline.experiments.data import SceneSamples, ground_truth_label, prepare_scene
 from pipeline.finetune import finetune, finetune_config, finetune_data
 from pipeline.metrics import classification_report
 from pipeline.model import SampleCNN, embed, load_checkpoint, predict
 from pipeline.training import LabelledSamples, TrainingData, stratified_split, train
+from research.experiments.data import SceneSamples, ground_truth_label, prepare_scene
 
 K = NUM_SAMPLE_CLASSES
 UNKNOWN = K - 1
@@ -59,7 +59,7 @@ class FinetuneExperimentConfig:
     test_frames: int = 465
     crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars
     cyclists: float = 3.0  # simulator: further factor on cyclists
-    test_style: str = "b"  # campus style of the new scene (pipeline.simulation.style)
+    test_style: str = "b"  # campus style of the new scene (research.simulation.style)
     size: int = 64
     min_labels: int = 30  # baseline_min labels per class (paper: 350)
     strategies: tuple[str, ...] = STRATEGIES

@@ -35,10 +35,10 @@ from pipeline.io.semantickitti import (
     write_times,
 )
 from pipeline.sensors import PRESETS, SensorModel
-from pipeline.simulation.raycast import cast, ray_directions, ray_windows
-from pipeline.simulation.returns import BEAM_BIAS, Returns, make_returns
-from pipeline.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
-from pipeline.simulation.style import get_style
+from research.simulation.raycast import cast, ray_directions, ray_windows
+from research.simulation.returns import BEAM_BIAS, Returns, make_returns
+from research.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
+from research.simulation.style import get_style
 
 SENSOR = "hdl32e"
 GENERATOR = "tracklabel simulate"
@@ -176,7 +176,7 @@ def simulate_sequence(
     cyclists: a further factor on the number of cyclists.
     style: the campus style, the distributions objects are drawn from ("a" = default; "b" =
     another part of town; "a+" / "b+" the same with more kinds per class, see
-    `pipeline.simulation.style`).
+    `research.simulation.style`).
     """
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")

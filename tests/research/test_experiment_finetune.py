@@ -7,8 +7,8 @@ import numpy as np
 from typer.testing import CliRunner
 
 from app.cli import app
-from pipeline.experiments.data import SceneSamples
-from pipeline.experiments.finetune import simulated_answers
+from research.experiments.data import SceneSamples
+from research.experiments.finetune import simulated_answers
 
 runner = CliRunner()
 
