@@ -222,7 +222,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
             metrics=dict(payload.get("metrics") or {}),
             training_config=None
             if payload.get("training_config") is None
-            else TrainingConfig.model_validate(payload["training_config"]),
+            else _training_config(payload["training_config"]),
         )
         model = build_model(net)
         model.load_state_dict(payload["state_dict"])
@@ -231,3 +231,9 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     model.to(resolve_device(str(device)) if isinstance(device, str) else device)
     model.eval()
     return model, meta
+
+
+def _training_config(stored: dict[str, Any]) -> TrainingConfig:
+    """A checkpoint's training config; options removed since it was written (gamma_rampup,
+    component_power) are dropped so that older checkpoints still load."""
+    return TrainingConfig.model_validate({k: v for k, v in stored.items() if k in TrainingConfig.model_fields})

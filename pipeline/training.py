@@ -6,18 +6,14 @@ The loss is the paper's, Eq. (8):
     L_l = -1/M sum_i ln P_{y_i}(x_i)                        (mean cross-entropy, M labelled samples)
     L_c = gamma/N sum_n w_n (1 - sum_k P_k(x_i) P_k(x_j))   (N constraint pairs, gamma in [0, 1])
 
-with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
+with w_n = 1 for verified pairs (the paper). Extensions (`TrainingConfig`'s defaults say which are on):
 - `weighted_pairs` with pair weights < 1: automatic constraints weighted by their association score;
 - `balance_weight` b > 0 adds b (ln K - H(mean_b P(x_b))) over the pair samples: maximising the
   entropy of the batch-mean prediction keeps constraints-only training from collapsing onto one
   class (the paper reports everything becoming "trunk").
-
 - `transitive_pairs`: must-link is an equivalence, so the right side of each drawn pair is any
   other sample of the left side's track (its component in the pair graph), not only the next
   frame's: pairs then join near and far, whole and occluded views of one object;
-- `component_power` p (with transitive pairs): each pair's component is drawn with probability
-  proportional to size**p and its left sample uniformly in it, instead of drawing links uniformly
-  (where a component's share grows with its links: one long bush track outweighs many short ones);
 - `closure_labels`: must-link is an equivalence, so a label holds for its whole component of
   the pair graph; every member of a component with a labelled sample is trained on that label
   (the labelled cross-entropy then draws from the closure; a component whose labelled samples
@@ -25,14 +21,13 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
   track review does the same: one click labels every sample of a track;
 - `closure_draw="annotation"` (with closure labels): each labelled draw picks one of the given
   annotations, then a member of its component, so every annotation weighs as it does without
-  constraints; "sample" (the default) draws the closure's samples alike, which weighs an
-  annotation by the size of its component;
-- `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
+  constraints; "sample" draws the closure's samples alike, which weighs an annotation by the
+  size of its component;
 - `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
   among which the selection rule picks, move less than a constant rate lets them.
 
 With `balanced_labels` each batch draws its labelled samples class-uniformly (the labels of a rare
-class are seen as often as those of a common one); the default draws them uniformly, as the paper.
+class are seen as often as those of a common one); without, uniformly, as the paper.
 
 Each step holds m labelled samples and n = pairs_per_label * m pairs, run as one siamese forward
 over [labelled; pair left sides; pair right sides]. M = 0 (constraints only) and N = 0 (labels
@@ -80,7 +75,7 @@ __all__ = [
     "predict",
     "seed_everything",
     "semi_supervised_loss",
-    "stratified_split",
+    "split_by_track",
     "train",
 ]
 
@@ -282,18 +277,28 @@ def evaluate(model: SampleCNN, data: LabelledSamples, batch: int = 256) -> Class
     return classification_report(data.labels, pred, k, tuple(SAMPLE_CLASSES[:k]))
 
 
-def stratified_split(labels: np.ndarray, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(train_idx, val_idx) int64 indices into `labels`, each class split `val_fraction` to validation."""
+def split_by_track(
+    labels: np.ndarray, tracks: np.ndarray, val_fraction: float, seed: int | np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(train, val) int64 indices into `labels` (L,) whose samples belong to `tracks` (L,);
+    `seed` may be a generator to draw from (its state advances).
+
+    Whole tracks go to one side: the samples of one track are near-duplicates, so a split of
+    samples would validate on copies of training samples. Per class present, round(val_fraction x
+    its tracks) tracks go to validation, never all of them; a track holding samples of several
+    classes goes to validation when any of its classes sends it there.
+    """
     rng = np.random.default_rng(seed)
-    labels = np.asarray(labels)
-    train_parts, val_parts = [], []
+    labels, tracks = np.asarray(labels), np.asarray(tracks)
+    val_tracks = []
     for k in np.unique(labels):
-        idx = rng.permutation(np.flatnonzero(labels == k))
-        n_val = int(round(len(idx) * val_fraction))
-        val_parts.append(idx[:n_val])
-        train_parts.append(idx[n_val:])
-    cat = lambda parts: np.sort(np.concatenate(parts)).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
-    return cat(train_parts), cat(val_parts)
+        cand = np.unique(tracks[labels == k])
+        cand = cand[rng.permutation(len(cand))]
+        n_val = int(round(len(cand) * val_fraction))
+        val_tracks.append(cand[: min(n_val, max(len(cand) - 1, 0))])
+    vt = np.concatenate(val_tracks) if val_tracks else np.zeros(0, tracks.dtype)
+    in_val = np.isin(tracks, vt)
+    return np.flatnonzero(~in_val).astype(np.int64), np.flatnonzero(in_val).astype(np.int64)
 
 
 class _Cycler:
@@ -425,22 +430,6 @@ class _TrackPartners:
         self.pos = np.empty(num_samples, np.int64)
         self.pos[self.order] = np.arange(num_samples)  # (M,) position of each sample in `order`
 
-    def components(self, power: float) -> tuple[np.ndarray, np.ndarray]:
-        """(starts, probabilities) of the components with >= 2 members, each drawn with probability
-        proportional to size**power."""
-        first = np.flatnonzero(self.start[self.order] == np.arange(len(self.order)))  # positions where a component starts
-        size = self.size[self.order[first]]
-        keep = size >= 2
-        w = size[keep].astype(np.float64) ** power
-        return first[keep], w / w.sum()
-
-    def draw_left(self, n: int, starts: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """(n,) left samples: a component drawn by `p`, then one of its members uniformly."""
-        c = self.rng.choice(len(starts), size=n, p=p)
-        s = starts[c]
-        size = self.size[self.order[s]]
-        return self.order[s + self.rng.integers(0, size)]
-
     def draw(self, left: np.ndarray) -> np.ndarray:
         """(n,) a member of each left sample's component other than itself (components have >= 2)."""
         size = self.size[left]
@@ -455,12 +444,6 @@ def learning_rate(config: TrainingConfig, step: int, total_steps: int) -> float:
     if config.lr_schedule == "cosine":
         return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / max(total_steps, 1)))
     return config.lr
-
-
-def _rampup(t: float) -> float:
-    """exp(-5 (1 - t)^2) on t in [0, 1], 1 after (the usual sigmoid-shaped consistency ramp-up)."""
-    t = min(max(t, 0.0), 1.0)
-    return float(math.exp(-5.0 * (1.0 - t) ** 2))
 
 
 PLOT_FILES = ("learning_curve.png", "confusion.png")
@@ -596,7 +579,6 @@ def _train(
         lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
     pair_cycle = _Cycler(num_p, rng) if n else None
     partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
-    by_component = partners.components(config.component_power) if partners is not None and config.component_power is not None else None
     total_steps = max(config.epochs * steps, 1)
 
     samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
@@ -631,24 +613,20 @@ def _train(
                     break
                 li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
                 pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
-                left = pairs_np[pi, 0] if by_component is None else partners.draw_left(n, *by_component)  # type: ignore[union-attr]
+                left = pairs_np[pi, 0]
                 right = partners.draw(left) if partners is not None else pairs_np[pi, 1]
                 idx = np.concatenate([data.labelled[li], left, right])  # (m + 2n,)
                 x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
                 if config.augment:
                     x = augment_batch(x, max_shift, gen)
                 logits = model(x)  # (m + 2n, K)
-                # pair weights belong to links; component draws are unweighted
-                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w and by_component is None else None  # (n,)
-                gamma = config.gamma
-                if config.gamma_rampup > 0:
-                    gamma *= _rampup((epoch * steps + step) / (config.gamma_rampup * total_steps))
+                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w else None  # (n,)
                 parts = semi_supervised_loss(
                     logits[:m],
                     labels_t[torch.from_numpy(li).to(device)],
                     logits[m : m + len(pi)],
                     logits[m + len(pi) :],
-                    gamma=gamma,
+                    gamma=config.gamma,
                     pair_weights=pw,
                     balance_weight=config.balance_weight,
                 )

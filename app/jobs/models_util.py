@@ -192,7 +192,9 @@ def load_training_set(
     constraints: "verified" = pairs inside the kept range of accepted tracks, weight 1 (the paper);
       "automatic" = pairs of every non-discarded track with score >= min_score, weighted by the
       association score (accepted tracks' pairs weigh 1); "none" = labels only.
-    Pairs of tracks labelled "unknown" are left out (the paper makes no constraints for unknown).
+    Pairs of tracks labelled "unknown" are kept: they join views of one object like any other
+    track's (the paper makes none; `tracklabel experiment paper` measured constraint100 better with
+    them, its ablation constraint100_no_unknown).
     classes: the model's class table (default pipeline.classes.SAMPLE_CLASSES); labels outside it
       are an error.
     """
@@ -204,20 +206,15 @@ def load_training_set(
     lab_seg: list[int] = []
     lab_cls: list[int] = []
     pair_rows: list[tuple[int, int, float, bool]] = []
-    unknown_tracks: set[int] = set()
     for seq in seqs:
-        for seg_id, track_id, _frame, class_name, _idx in session.execute(crud.labels_query(seq.id)).all():
+        for seg_id, _track, _frame, class_name, _idx in session.execute(crud.labels_query(seq.id)).all():
             if class_name not in classes:
                 raise Invalid(f"label {class_name!r} of segment {seg_id} is not a class of the model ({', '.join(classes)})")
             lab_seg.append(int(seg_id))
             lab_cls.append(classes.index(class_name))
-            if class_name == "unknown":
-                unknown_tracks.add(int(track_id))
         if constraints != "none":
             q = crud.constraints_query(seq.id, verified_only=constraints == "verified")
             for row in session.execute(q).all():
-                if int(row.track_id) in unknown_tracks:
-                    continue
                 verified = bool(row.verified)
                 score = float(row.score)
                 if not verified and score < min_score:

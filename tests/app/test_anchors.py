@@ -233,10 +233,10 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
 
 
 def test_finetune_job_defaults_follow_the_library():
-    """The REST job's defaults are the library's fine-tuning defaults (chosen by the experiment)."""
-    from app.jobs.finetune import FinetuneParams
-    from pipeline.finetune import FINETUNE_DEFAULTS
+    """The REST job trains with the library's fine-tuning defaults (chosen by the experiment)."""
+    from app.jobs.finetune import FinetuneParams, finetune_job_config
+    from pipeline.config import TrainingConfig
 
     params = FinetuneParams(sequence_id=1, model_id=1)
-    for key, value in FINETUNE_DEFAULTS.items():
-        assert getattr(params, key) == value, key
+    assert finetune_job_config(params) == TrainingConfig().finetuning().model_copy(update={"weighted_pairs": True})
+    assert finetune_job_config(FinetuneParams(sequence_id=1, model_id=1, epochs=3)).epochs == 3
