@@ -13,6 +13,8 @@ from typing import Annotated, TypeVar
 
 import typer
 
+from pipeline.progress import TqdmProgress
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -75,7 +77,7 @@ def simulate(
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
     from research.simulation import simulate_sequence
 
-    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True, crowd=crowd,
+    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=TqdmProgress(), crowd=crowd,
                                  cyclists=cyclists, style=style)
     typer.echo(summary.describe())
 
@@ -129,7 +131,7 @@ def process(
     if size is not None:
         cfg = cfg.override({"samples": {"size": size}})
     summary = run_process(
-        seq, out, cfg, sensor=sensor, poses=poses, workers=workers, samples=samples, progress=True,
+        seq, out, cfg, sensor=sensor, poses=poses, workers=workers, samples=samples, progress=TqdmProgress(),
         log=lambda m: typer.echo(f"warning: {m}", err=True),
     )
     typer.echo(
@@ -152,7 +154,7 @@ def evaluate(
     from pipeline.evaluation import format_table
     from pipeline.pipeline import evaluate_folder
 
-    result = evaluate_folder(seq, out, progress=True)
+    result = evaluate_folder(seq, out, progress=TqdmProgress())
     target = json_out or (out / "evaluation.json")
     target.write_text(json.dumps(result, indent=2))
     typer.echo(format_table(result))
@@ -163,8 +165,9 @@ def evaluate(
 @friendly_errors
 def predict(
     seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    model: Annotated[Path, typer.Option("--model", help="A checkpoint (.pt) written by training.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training; default: "
+                                               "the model shipped with tracklabel (trained on the simulated campus).")] = None,
     sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
     poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
     size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
@@ -178,7 +181,7 @@ def predict(
 
     summary = run_predict(
         seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
-        smooth_tracks=smooth_tracks, progress=True, log=lambda m: typer.echo(f"warning: {m}", err=True),
+        smooth_tracks=smooth_tracks, progress=TqdmProgress(), log=lambda m: typer.echo(f"warning: {m}", err=True),
     )
     seg = summary["segments_classified"]
     typer.echo(
@@ -216,7 +219,7 @@ def experiment_paper(
     from research.experiments.paper import PaperConfig, run_paper
 
     cfg = load_experiment_config(PaperConfig, config or (), set_ or ())
-    doc = run_paper(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    doc = run_paper(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
     typer.echo((out / "paper.md").read_text())
     typer.echo(f"written: {out / 'paper.md'}, {out / 'paper.json'}, {out / 'paper_train.png'}, {out / 'paper_test.png'}"
                f" ({doc['seconds']['total']:.0f} s)")
@@ -237,10 +240,30 @@ def experiment_finetune(
     from research.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
 
     cfg = load_experiment_config(FinetuneExperimentConfig, config or (), set_ or ())
-    doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    doc = run_finetune_experiment(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
     typer.echo((out / "finetune.md").read_text())
     typer.echo(f"written: {out / 'finetune.md'}, {out / 'finetune.json'}, {out / 'finetune_f.png'}, "
                f"{out / 'finetune_curve.png'}, {out / 'finetune_curve.json'} ({doc['seconds']['total']:.0f} s)")
+
+
+@experiment_app.command("default-model")
+@friendly_errors
+def experiment_default_model(
+    out: Annotated[Path, typer.Option("--out", help="Checkpoint to write (the shipped one: pipeline/models/default.pt).")] = Path("data/default_model/default.pt"),
+    config: ConfigNames = None,
+    set_: ConfigSets = None,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default beside OUT).")] = None,
+) -> None:
+    """Train the default model on the simulated campus with the product's training (the model
+    `predict` and anchor proposals use when none is given); writes OUT and OUT's .json summary."""
+    import json
+
+    from research.configs import load_experiment_config
+    from research.experiments.default_model import DefaultModelConfig, build_default_model
+
+    cfg = load_experiment_config(DefaultModelConfig, config or (), set_ or ())
+    summary = build_default_model(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
+    typer.echo(json.dumps(summary, indent=1))
 
 
 # ----------------------------------------------------------------------------- service (app/)

@@ -32,6 +32,7 @@ from pipeline.config import TrainingConfig
 from pipeline.errors import ConfigError, DataError
 from pipeline.metrics import ClassificationReport
 from pipeline.model import CheckpointMeta, SampleCNN, load_checkpoint, save_checkpoint
+from pipeline.progress import QUIET, Progress
 from pipeline.training import LabelledSamples, TrainingData, TrainProgress, evaluate, train
 
 ConstraintMode = Literal["verified", "automatic", "none"]
@@ -129,7 +130,8 @@ def finetune(
     config: TrainingConfig | None = None,
     val: LabelledSamples | None = None,
     checkpoint_dir: str | Path | None = None,
-    progress: Callable[[TrainProgress], None] | bool = False,
+    progress: Progress = QUIET,
+    report: Callable[[TrainProgress], None] | None = None,
     stop: Callable[[], bool] | None = None,
     parent: str | None = None,
 ) -> FinetuneResult:
@@ -160,6 +162,7 @@ def finetune(
         checkpoint_dir=None,
         init_model=model,
         progress=progress,
+        report=report,
         stop=stop,
     )
     k = meta.model_config.num_classes

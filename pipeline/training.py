@@ -63,6 +63,7 @@ from pipeline.model import (
     save_checkpoint,
     to_input,
 )
+from pipeline.progress import QUIET, Progress
 
 __all__ = [
     "LabelledSamples",
@@ -497,7 +498,8 @@ def train(
     val: LabelledSamples | None = None,
     checkpoint_dir: str | Path | None = None,
     init_model: SampleCNN | None = None,
-    progress: Callable[[TrainProgress], None] | bool = False,
+    progress: Progress = QUIET,
+    report: Callable[[TrainProgress], None] | None = None,
     stop: Callable[[], bool] | None = None,
 ) -> TrainResult:
     """Train the CNN on labels + constraints; return the model chosen by the paper's rule.
@@ -505,7 +507,8 @@ def train(
     init_model: start from these weights (fine-tuning); else a fresh network from the configs.
     checkpoint_dir: when given, the selected model is written there as `best.pt` and the last
         epoch as `last.pt` (each a self-describing checkpoint, see `pipeline.model`).
-    progress: a callback receiving `TrainProgress`, True for a tqdm bar on stderr, False for none.
+    progress: a step bar (`pipeline.progress`); report: a callback receiving `TrainProgress`
+        every few steps and after each epoch (the jobs write it into their row).
     stop: polled every step; returning True ends training early (`cancelled=True`), keeping the
         best epoch so far.
     config.threads > 0 sets torch's CPU threads for the run (restored afterwards).
@@ -534,7 +537,7 @@ def train(
     if config.threads:
         torch.set_num_threads(config.threads)
     try:
-        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, stop,
+        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, report, stop,
                       annotations)
     finally:
         torch.set_num_threads(threads_before)
@@ -548,7 +551,8 @@ def _train(
     val: LabelledSamples | None,
     checkpoint_dir: str | Path | None,
     init_model: SampleCNN | None,
-    progress: Callable[[TrainProgress], None] | bool,
+    progress: Progress,
+    report: Callable[[TrainProgress], None] | None,
     stop: Callable[[], bool] | None,
     annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TrainResult:
@@ -588,12 +592,7 @@ def _train(
     weights_t = torch.from_numpy(data.pair_weights).to(device)  # (P,)
     max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
 
-    bar = None
-    if progress is True:
-        from tqdm import tqdm
-
-        bar = tqdm(total=config.epochs * steps, desc="train", unit="step", leave=False)
-    report = progress if callable(progress) else None
+    bar = progress.bar(config.epochs * steps, "train", unit="step", leave=False)
     every = max(1, steps // 10)
 
     history: list[EpochRecord] = []
@@ -641,8 +640,7 @@ def _train(
                 sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
                 seen += len(idx)
                 done = step + 1
-                if bar is not None:
-                    bar.update(1)
+                bar.update()
                 if report is not None and done % every == 0 and done < steps:
                     report(TrainProgress(epoch, config.epochs, done, steps, sums[0] / done))
             if done == 0:
@@ -660,13 +658,11 @@ def _train(
                 selected_report = val_report
             if report is not None:
                 report(TrainProgress(epoch, config.epochs, done, steps, rec.loss, val_f, epoch_done=True))
-            if bar is not None:
-                bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
+            bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
             if cancelled:
                 break
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
 
     selected, how = _select(history, config.loss_threshold)
     last_state = None

@@ -17,12 +17,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from app.anchors import confirmed_sample_anchors
-from app.core.errors import Conflict, Invalid, NotFound, ServiceError
+from app.core.errors import Conflict, Invalid, ServiceError
 from app.jobs import models_util
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, get_job_type, register
 from app.jobs.training_params import job_training_config, with_training_fields
-from app.models import Sequence
 from pipeline.config import TrainingConfig
 
 
@@ -49,11 +48,7 @@ def finetune_job_config(params: Any) -> TrainingConfig:
 
 
 def prepare_finetune(s: Any, params: Any) -> None:
-    seq = s.get(Sequence, params.sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {params.sequence_id} not found")
-    if seq.status != "ready":
-        raise Conflict(f"sequence {params.sequence_id} is {seq.status}; fine-tune once it is ready")
+    models_util.ready_sequence(s, params.sequence_id)
     models_util.get_model_version(s, params.model_id)
 
 
@@ -137,7 +132,7 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
         return ctx.cancelled.is_set() or ctx.lease_lost.is_set()
 
     ctx.progress(0.05, f"fine-tuning on {len(data.labelled)} labelled samples and {len(data.pairs)} pairs")
-    res = finetune((model, meta), data, cfg, checkpoint_dir=out_dir, progress=on_progress, stop=stop, parent=parent_path)
+    res = finetune((model, meta), data, cfg, checkpoint_dir=out_dir, report=on_progress, stop=stop, parent=parent_path)
     ctx.checkpoint()
     if res.checkpoint is None:
         raise Invalid("fine-tuning finished no epoch")

@@ -24,12 +24,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlalchemy import update
 from sqlalchemy.orm import Session
 
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, Invalid
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.models_util import (
     load_training_set,
     model_dir,
     model_version_for_job,
+    ready_sequence,
     register_model_version,
     sample_config_for,
 )
@@ -170,7 +171,7 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
     out = model_dir(ctx.settings, "train", ctx.job_id)
     ctx.progress(0.05, f"training on {counts['labelled_train']} labels and {counts['pairs']} pairs")
     result = train(
-        train_data, cfg, model_cfg, samples_cfg, val=val, checkpoint_dir=out, progress=on_progress,
+        train_data, cfg, model_cfg, samples_cfg, val=val, checkpoint_dir=out, report=on_progress,
         stop=lambda: ctx.cancelled.is_set() or ctx.lease_lost.is_set(),
     )
     if result.cancelled:
@@ -209,11 +210,7 @@ def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
 
 def prepare_train(s: Session, params: Any) -> None:
     for sid in (*params.sequence_ids, *params.val_sequence_ids):
-        seq = s.get(Sequence, sid)
-        if seq is None:
-            raise NotFound(f"sequence {sid} not found")
-        if seq.status != "ready":
-            raise Conflict(f"sequence {sid} is {seq.status}, not ready: ingest it first")
+        ready_sequence(s, sid)
 
 
 register(

@@ -43,6 +43,7 @@ from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
 from pipeline.finetune import finetune, finetune_data
 from pipeline.metrics import classification_report
 from pipeline.model import SampleCNN, embed, load_checkpoint, predict
+from pipeline.progress import QUIET, Progress
 from pipeline.training import LabelledSamples, TrainingData, split_by_track, train
 from research.experiments.data import SceneSamples, ground_truth_label, prepare_scene
 
@@ -167,7 +168,7 @@ def _pretrain_sets(scene: SceneSamples, cfg: FinetuneExperimentConfig) -> dict[s
 
 
 def _pretrain(
-    scene: SceneSamples, cfg: FinetuneExperimentConfig, models_dir: Path, log: Callable[[str], None], progress: bool
+    scene: SceneSamples, cfg: FinetuneExperimentConfig, models_dir: Path, log: Callable[[str], None], progress: Progress
 ) -> dict[str, Path]:
     paths: dict[str, Path] = {}
     mc = ModelConfig()
@@ -249,7 +250,7 @@ def run_finetune_experiment(
     out: str | Path,
     cfg: FinetuneExperimentConfig | None = None,
     cache: str | Path | None = None,
-    progress: bool = True,
+    progress: Progress = QUIET,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the experiment (module docstring) and write its outputs under `out`; returns the JSON."""
@@ -290,11 +291,7 @@ def run_finetune_experiment(
             pairs, scores, verified = test_scene.verified_pairs, None, None
         runs: list[dict[str, Any]] = []
         jobs = [(s, b, fs) for s in cfg.strategies for b in cfg.budgets for fs in cfg.finetune_seeds]
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(jobs), desc="fine-tune runs", unit="run")
+        bar = progress.bar(len(jobs), "fine-tune runs", unit="run")
         for strategy, budget, fseed in jobs:
             t0 = time.perf_counter()
             counts = class_counts(budget, cfg.unknown_ratio * budget)
@@ -330,13 +327,10 @@ def run_finetune_experiment(
                 "seconds": round(time.perf_counter() - t0, 1),
             }
             runs.append(run)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep.mean_f:.1f}")
-            else:
-                log(f"{strategy} x{budget}: F {rep.mean_f:.1f}")
-        if bar is not None:
-            bar.close()
+            bar.update()
+            bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep.mean_f:.1f}")
+            log(f"{strategy} x{budget}: F {rep.mean_f:.1f}")
+        bar.close()
     finally:
         torch.set_num_threads(threads_before)
 

@@ -87,6 +87,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.errors import ConfigError
+from pipeline.progress import QUIET, Progress
 from pipeline.training import split_by_track
 from research.experiments.data import SceneSamples, prepare_scene, route_part
 from research.simulation.style import get_style
@@ -352,7 +353,7 @@ def run_paper(
     out: str | Path,
     cfg: PaperConfig | None = None,
     cache: str | Path | None = None,
-    progress: bool = True,
+    progress: Progress = QUIET,
     log: Any = None,
 ) -> dict[str, Any]:
     """Run the experiment; writes OUT/paper.md, paper.json, paper_train.png, paper_test.png."""
@@ -397,11 +398,7 @@ def run_paper(
     results: dict[str, Any] = {}
     data_table: dict[str, Any] = {}
     names = list(cfg.settings)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(names), desc="settings", unit="setting", position=0)
+    bar = progress.bar(len(names), "settings", unit="setting", position=0)
     models: dict[str, Any] = {}
     for name in names:
         labelled, pairs, weights = setting_data(name, scene, split, cfg.unknown_constraints)
@@ -455,10 +452,8 @@ def run_paper(
         models[name] = res.model
         log(f"{name}: {len(labelled)} labels, {len(pairs)} pairs, {t_train:.0f} s; F train/val "
             f"{row['train_val']['mean_f']:.1f}, val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+        bar.update()
+    bar.close()
     c100_test = results.get("constraint100", {}).get("test", {})
     adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), c100_test.get("confusion"),
                         test, test_idx, log, progress)
@@ -505,7 +500,7 @@ def _adapt(
     test: SceneSamples,
     test_idx: np.ndarray,
     log: Any,
-    progress: bool,
+    progress: Progress,
 ) -> dict[str, Any]:
     """Step 5: constraint100 trained further on D's verified constraints alone (M = 0), without
     and with the class-balance term. No labels of D are used, for training or for selection (the

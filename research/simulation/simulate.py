@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from pipeline.io.semantickitti import (
     write_poses,
     write_times,
 )
+from pipeline.progress import QUIET, Progress
 from pipeline.sensors import PRESETS, SensorModel
 from research.simulation.raycast import cast, ray_directions, ray_windows
 from research.simulation.returns import BEAM_BIAS, Returns, make_returns
@@ -152,20 +152,12 @@ def _prepare(out: Path) -> None:
     labels.mkdir(parents=True, exist_ok=True)
 
 
-def _frames(n: int, progress: bool) -> Iterable[int]:
-    if not progress:
-        return range(n)
-    from tqdm import tqdm
-
-    return tqdm(range(n), desc="simulate", unit="frame")
-
-
 def simulate_sequence(
     out: str | Path,
     frames: int,
     seed: int,
     start: int = 0,
-    progress: bool = False,
+    progress: Progress = QUIET,
     crowd: float = 1.0,
     cyclists: float = 1.0,
     style: str = "a",
@@ -201,7 +193,7 @@ def simulate_sequence(
     class_points = np.zeros(256, np.int64)
     seen: dict[int, int] = {}
     stages: dict[str, float] = {}
-    for i in _frames(frames, progress):
+    for i in progress.iterate(range(frames), "simulate"):
         k = start + i
         pose, ret = simulate_frame(scene, k, dirs, stages)
         poses[i] = pose

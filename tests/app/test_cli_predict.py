@@ -118,3 +118,4 @@ def test_cli_predict_bad_points_one_label_and_confidence_per_input_point(sim, ck
         assert label.shape == (n,) and conf.shape == (n,)
     label = np.fromfile(out / "labels" / "000000.label", dtype=np.uint32)
     assert not label[:50].any()  # the NaN rows are unlabelled
+

@@ -242,7 +242,7 @@ def test_train_progress_callback_reports_each_epoch(blob_data):
     x, y, val = blob_data
     seen = []
     data = TrainingData.build(x[:96], np.arange(96), y[:96])
-    train(data, _cfg(epochs=2, batch_labelled=16), TINY, SAMPLES, val=val, progress=seen.append)
+    train(data, _cfg(epochs=2, batch_labelled=16), TINY, SAMPLES, val=val, report=seen.append)
     ends = [p for p in seen if p.epoch_done]
     assert [p.epoch for p in ends] == [0, 1]
     assert ends[-1].fraction == 1.0 and ends[-1].val_f is not None
@@ -301,7 +301,7 @@ def test_train_threads_option_applies_during_the_run_only(blob_data):
     during = []
     data = TrainingData.build(x[:32], np.arange(32), y[:32])
     try:
-        train(data, _cfg(epochs=1, threads=1), TINY, SAMPLES, progress=lambda _p: during.append(torch.get_num_threads()))
+        train(data, _cfg(epochs=1, threads=1), TINY, SAMPLES, report=lambda _p: during.append(torch.get_num_threads()))
         after = torch.get_num_threads()
     finally:
         torch.set_num_threads(original)
