@@ -543,6 +543,117 @@ def train(
         torch.set_num_threads(threads_before)
 
 
+class _BatchDraw:
+    """What each step trains on: m labelled samples and n = pairs_per_label * m pairs."""
+
+    def __init__(self, data: TrainingData, config: TrainingConfig,
+                 annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None, rng: np.random.Generator) -> None:
+        num_l, num_p = len(data.labelled), len(data.pairs)
+        self.data = data
+        self.m = min(config.batch_labelled, num_l)
+        self.n = min(config.pairs_per_label * config.batch_labelled, num_p)
+        if self.m == 0 and self.n == 0:  # constraints only with pairs_per_label = 0: m pairs per step instead
+            self.n = min(config.batch_labelled, num_p)
+        m, n = self.m, self.n
+        steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
+        self.steps = max(steps, 1)
+        self.labels: _Cycler | _BalancedCycler | _AnnotationDraw | None = None
+        if m and annotations is not None:
+            self.labels = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
+        elif m:
+            self.labels = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
+        self.pairs = _Cycler(num_p, rng) if n else None
+        self.partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
+
+    def draw(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(li (m,) into labelled, pi (n,) into pairs, idx (m + 2n,) into samples: labelled, left, right)."""
+        li = self.labels.take(self.m) if self.labels else np.zeros(0, np.int64)
+        pi = self.pairs.take(self.n) if self.pairs else np.zeros(0, np.int64)
+        left = self.data.pairs[pi, 0]
+        right = self.partners.draw(left) if self.partners is not None else self.data.pairs[pi, 1]
+        return li, pi, np.concatenate([self.data.labelled[li], left, right])
+
+
+class _Stepper:
+    """One optimisation step on a drawn batch; the training pool is kept on the device."""
+
+    def __init__(self, model: SampleCNN, data: TrainingData, config: TrainingConfig, sample_config: SampleConfig,
+                 device: torch.device, total_steps: int) -> None:
+        self.model, self.config, self.device, self.total_steps = model, config, device, total_steps
+        self.opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.gen = torch.Generator().manual_seed(config.seed)
+        self.samples = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8
+        self.labels = torch.from_numpy(data.labels).to(device)  # (L,)
+        self.weights = torch.from_numpy(data.pair_weights).to(device)  # (P,)
+        self.use_weights = config.weighted_pairs and bool(np.any(data.pair_weights != 1.0))
+        self.max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
+
+    def __call__(self, li: np.ndarray, pi: np.ndarray, idx: np.ndarray, global_step: int) -> LossParts:
+        m, cfg = len(li), self.config
+        x = to_input(self.samples[torch.from_numpy(idx).to(self.device)])  # (m + 2n, C, S, S)
+        if cfg.augment:
+            x = augment_batch(x, self.max_shift, self.gen)
+        logits = self.model(x)  # (m + 2n, K)
+        pw = self.weights[torch.from_numpy(pi).to(self.device)] if self.use_weights else None  # (n,)
+        parts = semi_supervised_loss(logits[:m], self.labels[torch.from_numpy(li).to(self.device)],
+                                     logits[m : m + len(pi)], logits[m + len(pi) :], gamma=cfg.gamma,
+                                     pair_weights=pw, balance_weight=cfg.balance_weight)
+        if not torch.isfinite(parts.total):
+            raise ConfigError(f"training diverged (loss {float(parts.total)}) at step {global_step}; lower training.lr")
+        if cfg.lr_schedule != "constant":
+            for g in self.opt.param_groups:
+                g["lr"] = learning_rate(cfg, global_step, self.total_steps)
+        self.opt.zero_grad(set_to_none=True)
+        parts.total.backward()
+        self.opt.step()
+        return parts
+
+
+@dataclass
+class _EpochRun:
+    sums: np.ndarray  # (4,) summed total, labelled, constraint and balance losses
+    seen: int  # canvases through the network
+    done: int  # steps run
+    cancelled: bool
+
+
+def _run_epoch(epoch: int, draw: _BatchDraw, step_fn: _Stepper, config: TrainingConfig, bar: Any,
+               report: Callable[[TrainProgress], None] | None, stop: Callable[[], bool] | None) -> _EpochRun:
+    run = _EpochRun(np.zeros(4), 0, 0, False)
+    every = max(1, draw.steps // 10)
+    step_fn.model.train()
+    for step in range(draw.steps):
+        if stop is not None and stop():
+            run.cancelled = True
+            break
+        li, pi, idx = draw.draw()
+        parts = step_fn(li, pi, idx, epoch * draw.steps + step)
+        run.sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
+        run.seen += len(idx)
+        run.done = step + 1
+        bar.update()
+        if report is not None and run.done % every == 0 and run.done < draw.steps:
+            report(TrainProgress(epoch, config.epochs, run.done, draw.steps, run.sums[0] / run.done))
+    return run
+
+
+@dataclass
+class _Selection:
+    """The epochs so far and the weights of the one the paper's rule currently selects."""
+
+    history: list[EpochRecord] = field(default_factory=list)
+    state: dict[str, torch.Tensor] | None = None
+    report: ClassificationReport | None = None
+
+    def add(self, rec: EpochRecord, model: SampleCNN, val_report: ClassificationReport | None, threshold: float) -> None:
+        self.history.append(rec)
+        # The final choice is always an epoch that was the choice when it finished, so one copy
+        # of the weights suffices.
+        if _select(self.history, threshold)[0] == rec.epoch:
+            self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            self.report = val_report
+
+
 def _train(
     data: TrainingData,
     config: TrainingConfig,
@@ -556,124 +667,54 @@ def _train(
     stop: Callable[[], bool] | None,
     annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TrainResult:
-    num_l, num_p = len(data.labelled), len(data.pairs)
     seed_everything(config.seed)
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
-    gen = torch.Generator().manual_seed(config.seed)
-
     net = NetConfig.from_configs(model_config, sample_config)
     model = copy.deepcopy(init_model) if init_model is not None else build_model(net)
     if model.config != net:
         raise ConfigError(f"init model {model.config} does not match configs {net}")
     model.to(device).train()
-    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    draw = _BatchDraw(data, config, annotations, rng)
+    step_fn = _Stepper(model, data, config, sample_config, device, max(config.epochs * draw.steps, 1))
 
-    # batch composition: m labelled samples and n = pairs_per_label * m pairs per step
-    m = min(config.batch_labelled, num_l)
-    n = min(config.pairs_per_label * config.batch_labelled, num_p)
-    if m == 0 and n == 0:  # constraints only with pairs_per_label = 0: m pairs per step instead
-        n = min(config.batch_labelled, num_p)
-    steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
-    steps = max(steps, 1)
-    lab_cycle: _Cycler | _BalancedCycler | _AnnotationDraw | None = None
-    if m and annotations is not None:
-        lab_cycle = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
-    elif m:
-        lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
-    pair_cycle = _Cycler(num_p, rng) if n else None
-    partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
-    total_steps = max(config.epochs * steps, 1)
-
-    samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
-    labels_t = torch.from_numpy(data.labels).to(device)  # (L,)
-    pairs_np = data.pairs
-    use_w = config.weighted_pairs and bool(np.any(data.pair_weights != 1.0))
-    weights_t = torch.from_numpy(data.pair_weights).to(device)  # (P,)
-    max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
-
-    bar = progress.bar(config.epochs * steps, "train", unit="step", leave=False)
-    every = max(1, steps // 10)
-
-    history: list[EpochRecord] = []
-    selected_state: dict[str, torch.Tensor] | None = None
-    selected_report: ClassificationReport | None = None
+    chosen = _Selection()
     cancelled = False
-    try:
+    with progress.bar(config.epochs * draw.steps, "train", unit="step", leave=False) as bar:
         for epoch in range(config.epochs):
             t0 = time.perf_counter()
-            model.train()
-            sums = np.zeros(4)
-            seen = 0
-            done = 0
-            for step in range(steps):
-                if stop is not None and stop():
-                    cancelled = True
-                    break
-                li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
-                pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
-                left = pairs_np[pi, 0]
-                right = partners.draw(left) if partners is not None else pairs_np[pi, 1]
-                idx = np.concatenate([data.labelled[li], left, right])  # (m + 2n,)
-                x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
-                if config.augment:
-                    x = augment_batch(x, max_shift, gen)
-                logits = model(x)  # (m + 2n, K)
-                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w else None  # (n,)
-                parts = semi_supervised_loss(
-                    logits[:m],
-                    labels_t[torch.from_numpy(li).to(device)],
-                    logits[m : m + len(pi)],
-                    logits[m + len(pi) :],
-                    gamma=config.gamma,
-                    pair_weights=pw,
-                    balance_weight=config.balance_weight,
-                )
-                if not torch.isfinite(parts.total):
-                    raise ConfigError(f"training diverged (loss {float(parts.total)}) at epoch {epoch}; lower training.lr")
-                if config.lr_schedule != "constant":
-                    for g in opt.param_groups:
-                        g["lr"] = learning_rate(config, epoch * steps + step, total_steps)
-                opt.zero_grad(set_to_none=True)
-                parts.total.backward()
-                opt.step()
-                sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
-                seen += len(idx)
-                done = step + 1
-                bar.update()
-                if report is not None and done % every == 0 and done < steps:
-                    report(TrainProgress(epoch, config.epochs, done, steps, sums[0] / done))
-            if done == 0:
+            run = _run_epoch(epoch, draw, step_fn, config, bar, report, stop)
+            cancelled = run.cancelled
+            if run.done == 0:
                 break
-            means = sums / done
             val_report = evaluate(model, val, config.eval_batch) if val is not None and len(val) else None
             val_f = val_report.mean_f if val_report is not None else float("nan")
             seconds = time.perf_counter() - t0
-            rec = EpochRecord(epoch, *map(float, means), val_f, seconds, seen / max(seconds, 1e-9))
-            history.append(rec)
-            # The final choice is always an epoch that was the choice when it finished, so one
-            # copy of the weights suffices.
-            if _select(history, config.loss_threshold)[0] == epoch:
-                selected_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
-                selected_report = val_report
+            rec = EpochRecord(epoch, *map(float, run.sums / run.done), val_f, seconds, run.seen / max(seconds, 1e-9))
+            chosen.add(rec, model, val_report, config.loss_threshold)
             if report is not None:
-                report(TrainProgress(epoch, config.epochs, done, steps, rec.loss, val_f, epoch_done=True))
+                report(TrainProgress(epoch, config.epochs, run.done, draw.steps, rec.loss, val_f, epoch_done=True))
             bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
             if cancelled:
                 break
-    finally:
-        bar.close()
+    metrics = {"num_labelled": len(data.labelled), "num_pairs": len(data.pairs), "device": str(device)}
+    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir)
 
+
+def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: bool, metrics: dict[str, Any],
+            config: TrainingConfig, model_config: ModelConfig, sample_config: SampleConfig,
+            checkpoint_dir: str | Path | None) -> TrainResult:
+    """Load the selected epoch's weights, gather the metrics, write best.pt / last.pt and plots."""
+    history = chosen.history
     selected, how = _select(history, config.loss_threshold)
     last_state = None
     if selected >= 0:
-        assert selected_state is not None
+        assert chosen.state is not None
         if selected != len(history) - 1:
-            last_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
-        model.load_state_dict(selected_state)
+            last_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        model.load_state_dict(chosen.state)
     model.eval()
-
-    metrics: dict[str, Any] = {
+    metrics = {
         "selected_epoch": selected,
         "selection": how,
         "epochs_run": len(history),
@@ -681,13 +722,9 @@ def _train(
         "train_loss": [r.loss for r in history],
         "val_f": [None if math.isnan(r.val_f) else r.val_f for r in history],
         "samples_per_s": float(np.mean([r.samples_per_s for r in history])) if history else None,
-        "num_labelled": num_l,
-        "num_pairs": num_p,
-        "device": str(device),
-    }
-    if selected_report is not None:
-        metrics["val"] = selected_report.to_dict()
-
+    } | metrics
+    if chosen.report is not None:
+        metrics["val"] = chosen.report.to_dict()
     ckpt = None
     if checkpoint_dir is not None and selected >= 0:
         out = Path(checkpoint_dir)
@@ -697,5 +734,5 @@ def _train(
             last = build_model(net)
             last.load_state_dict(last_state)
         save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config)
-        write_training_plots(out, history, selected, selected_report, config.loss_threshold)
-    return TrainResult(model, history, selected, how, selected_report, ckpt, cancelled, metrics)
+        write_training_plots(out, history, selected, chosen.report, config.loss_threshold)
+    return TrainResult(model, history, selected, how, chosen.report, ckpt, cancelled, metrics)

@@ -27,11 +27,11 @@
    - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
      weighted by its association score (no label closure: it would trust every link).
    A constraint setting's step holds as many canvases as the paper's (m = 16 labels + n = 80
-   pairs), but split 58 labels + 58 pairs (`constraint_pairs_per_label` 1): with the paper's
+   pairs), but split 58 labels + 58 pairs (the product's TrainingConfig default): with the paper's
    split the cross-entropy saw each of constraint100's ~8,000 labels (via constraints) about 3
    times in 1600 steps, and the constraint term amplified the few-label model's confusions
    (building -> car in constraint60). Chosen on the validation split (README).
-   Those six are the default. With `--ablations` (ABLATIONS) also:
+   Those six are the default. With `--config paper-ablations` (ABLATIONS) also:
    - constraint100_tracks_only: the paper's constraints, track links alone. The verified
      constraints of constraint30/60/100 also hold the fragment links of the stitches the operator
      confirmed (`research.experiments.data`: pieces of one object in other tracks), so that an
@@ -44,7 +44,7 @@
    - constraint100_closure_only: no constraint term (L_c): all 176 canvases of a step are labels
      via constraints (the annotations spread over their components), so it measures what L_c adds;
    - constraint100_sample_closure: labels via constraints drawn uniformly over the closure's
-     samples (stop 18's default) instead of per annotation (`closure_draw`): an annotation then
+     samples (an earlier default) instead of per annotation (`closure_draw`): an annotation then
      weighs as its component is large, and a long track, likelier to hold a drawn label in the
      first place, takes much of its class's draws;
    - constraint100_no_unknown: the paper's constraint set, none from unknown tracks (the default
@@ -100,7 +100,7 @@ SETTINGS: tuple[str, ...] = (  # the issue's: the paper's five and automatic con
     "baseline_max",
     "constraint100_auto",
 )
-ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnostics (`--ablations`)
+ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnostics (`--config paper-ablations`)
     "constraint100_tracks_only",
     "constraint100_paper_pairs",
     "constraint100_no_mask",
