@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check pipeline app annotator_ui tests bench
+	$(VENV)/bin/ruff check pipeline research app annotator_ui tests bench
 	$(VENV)/bin/lint-imports
 
 test: $(STAMP)

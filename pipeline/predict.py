@@ -36,8 +36,9 @@ from pipeline.classes import GROUND, UNLABELLED, to_ours, to_semantickitti
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.metrics import point_iou
-from pipeline.model import load_checkpoint, predict
+from pipeline.model import default_model_path, load_checkpoint, predict
 from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.progress import QUIET, Progress
 from pipeline.sequence import open_sequence
 
 __all__ = ["FramePrediction", "SegmentClassifier", "predict_frame_classes", "run_predict"]
@@ -141,7 +142,7 @@ class _TrackSmoother:
 
 def run_predict(
     seq: str | Path,
-    checkpoint: str | Path,
+    checkpoint: str | Path | None,
     out: str | Path,
     config: PipelineConfig | None = None,
     size: int | None = None,
@@ -150,7 +151,7 @@ def run_predict(
     device: str = "auto",
     smooth_tracks: bool = False,
     evaluate: bool = True,
-    progress: bool = False,
+    progress: Progress = QUIET,
     log: Callable[[str], None] | None = None,
     fmt: str = "auto",
     batch_frames: int = 8,
@@ -158,13 +159,14 @@ def run_predict(
 ) -> dict[str, Any]:
     """Classify every valid segment of a sequence and write per-frame labels; returns the summary.
 
+    checkpoint: None = the shipped default model (`pipeline.model.default_model_path`).
     size: the sample size asked for on the command line (None = the model's); a mismatch with the
     checkpoint is a DataError. evaluate: compute point IoU when the sequence carries labels.
     The samples of up to `batch_frames` frames (or `batch_samples` samples) go through the CNN in
     one forward pass.
     """
     log = log or (lambda _m: None)
-    clf = SegmentClassifier(checkpoint, device)
+    clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, device)
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, size)
     out = Path(out)
     opened = open_sequence(seq, fmt, sensor if sensor != "auto" else config.sensor.name, poses, progress)

@@ -23,7 +23,7 @@ TINY = ModelConfig(width=8, max_width=16, depth=2, dropout=0.0)
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     out = tmp_path_factory.mktemp("sim") / "seq"
     simulate_sequence(out, frames=3, seed=5)
@@ -118,3 +118,4 @@ def test_cli_predict_bad_points_one_label_and_confidence_per_input_point(sim, ck
         assert label.shape == (n,) and conf.shape == (n,)
     label = np.fromfile(out / "labels" / "000000.label", dtype=np.uint32)
     assert not label[:50].any()  # the NaN rows are unlabelled
+

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.simulation.actors import Actor, actor_poses, ground_frame
-from pipeline.simulation.ground import GroundModel, lateral_grid, make_waves
-from pipeline.simulation.layout import (
+from research.simulation.actors import Actor, actor_poses, ground_frame
+from research.simulation.ground import GroundModel, lateral_grid, make_waves
+from research.simulation.layout import (
     InstanceInfo,
     Layout,
     Registry,
@@ -25,10 +25,10 @@ from pipeline.simulation.layout import (
     populate,
     static_primitives,
 )
-from pipeline.simulation.population import populate_actors
-from pipeline.simulation.route import EgoProfile, Route, make_ego_profile, make_route
-from pipeline.simulation.shapes import PrimitiveSet, concat
-from pipeline.simulation.style import get_style
+from research.simulation.population import populate_actors
+from research.simulation.route import EgoProfile, Route, make_ego_profile, make_route
+from research.simulation.shapes import PrimitiveSet, concat
+from research.simulation.style import get_style
 
 SENSOR_HEIGHT = 1.8  # metres above the road, on the ego vehicle's roof
 
@@ -55,7 +55,7 @@ class Scene:
     crossings: np.ndarray
     crowd: float = 1.0  # moving-actor density factor the scene was drawn with
     cyclists: float = 1.0  # extra factor on the number of cyclists
-    style: str = "a"  # campus style (pipeline.simulation.style)
+    style: str = "a"  # campus style (research.simulation.style)
 
     def sensor_pose(self, t: float) -> np.ndarray:
         """(4, 4) T_scene_lidar at time t: the ego in its lane, tilted with the road."""
@@ -98,7 +98,7 @@ class Scene:
 def build_scene(seed: int, crowd: float = 1.0, cyclists: float = 1.0, style: str = "a") -> Scene:
     """Draw the whole campus from `seed`; `crowd` scales the number of moving actors, `cyclists`
     that of cyclists on top of it; `style` names the distributions objects are drawn from
-    (`pipeline.simulation.style`)."""
+    (`research.simulation.style`)."""
     campus = get_style(style)
     # spawn(7)'s first five children are spawn(5)'s: the plain styles' draws do not change
     streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(7)]

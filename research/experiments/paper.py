@@ -2,9 +2,9 @@
 
 1. Simulate a training route (seed S) and a test scene D (seed S + 1000: another layout), run the
    real perception pipeline and let the ground-truth-checking operator review every track
-   (`pipeline.experiments.data`). Split the route by distance travelled into A (0-30 %),
+   (`research.experiments.data`). Split the route by distance travelled into A (0-30 %),
    B (30-60 %) and C (60-100 %). D is also of another campus style (`test_style`: other car
-   models, trees, shrubs, clothes; `pipeline.simulation.style`), as a new scene is. The campus is busier than the simulator's default (`crowd`,
+   models, trees, shrubs, clothes; `research.simulation.style`), as a new scene is. The campus is busier than the simulator's default (`crowd`,
    `cyclists`): a route of the default campus holds only ~35 people and ~5 cyclists, so 30 labels
    per class already cover nearly every object, and neither more labels nor constraints can help.
    Both scenes are of the varied styles (`train_style` "a+", `test_style` "b+"): every class has a
@@ -27,14 +27,14 @@
    - constraint100_auto: baseline_min's labels + every automatic link of A+B+C (unverified),
      weighted by its association score (no label closure: it would trust every link).
    A constraint setting's step holds as many canvases as the paper's (m = 16 labels + n = 80
-   pairs), but split 58 labels + 58 pairs (`constraint_pairs_per_label` 1): with the paper's
+   pairs), but split 58 labels + 58 pairs (the product's TrainingConfig default): with the paper's
    split the cross-entropy saw each of constraint100's ~8,000 labels (via constraints) about 3
    times in 1600 steps, and the constraint term amplified the few-label model's confusions
    (building -> car in constraint60). Chosen on the validation split (README).
-   Those six are the default. With `--ablations` (ABLATIONS) also:
+   Those six are the default. With `--config paper-ablations` (ABLATIONS) also:
    - constraint100_tracks_only: the paper's constraints, track links alone. The verified
      constraints of constraint30/60/100 also hold the fragment links of the stitches the operator
-     confirmed (`pipeline.experiments.data`: pieces of one object in other tracks), so that an
+     confirmed (`research.experiments.data`: pieces of one object in other tracks), so that an
      object's parallel and broken tracks become one component of the must-link graph.
    Extensions, each measured against constraint100 (see `pipeline.training`):
    - constraint100_paper_pairs: the paper's consecutive pairs only (the default draws any two
@@ -44,7 +44,7 @@
    - constraint100_closure_only: no constraint term (L_c): all 176 canvases of a step are labels
      via constraints (the annotations spread over their components), so it measures what L_c adds;
    - constraint100_sample_closure: labels via constraints drawn uniformly over the closure's
-     samples (stop 18's default) instead of per annotation (`closure_draw`): an annotation then
+     samples (an earlier default) instead of per annotation (`closure_draw`): an annotation then
      weighs as its component is large, and a long track, likelier to hold a drawn label in the
      first place, takes much of its class's draws;
    - constraint100_no_unknown: the paper's constraint set, none from unknown tracks (the default
@@ -77,17 +77,20 @@ import json
 import os
 import platform
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.errors import ConfigError
-from pipeline.experiments.data import SceneSamples, prepare_scene, route_part
-from pipeline.simulation.style import get_style
+from pipeline.progress import QUIET, Progress
+from pipeline.training import split_by_track
+from research.experiments.data import SceneSamples, prepare_scene, route_part
+from research.simulation.style import get_style
 
 SETTINGS: tuple[str, ...] = (  # the issue's: the paper's five and automatic constraints
     "baseline_min",
@@ -97,7 +100,7 @@ SETTINGS: tuple[str, ...] = (  # the issue's: the paper's five and automatic con
     "baseline_max",
     "constraint100_auto",
 )
-ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnostics (`--ablations`)
+ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnostics (`--config paper-ablations`)
     "constraint100_tracks_only",
     "constraint100_paper_pairs",
     "constraint100_no_mask",
@@ -117,134 +120,104 @@ ORACLE_PER_OBJECT = 20  # oracle_objects20: labels per object, spread over the o
 TEST_SEED_OFFSET = 1000
 
 
-@dataclass(frozen=True)
-class PaperConfig:
+class PaperConfig(BaseModel):
+    """The experiment's settings; named variants are YAML files in research/configs (paper-full,
+    paper-ablations, paper-smoke), loaded by `research.configs.load_experiment_config`.
+
+    `training` is the product's TrainingConfig: constraint100 trains with exactly its defaults
+    (the REST train job's), the other settings change only what they name (`setting_config`).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
     seed: int = 0
-    frames: int = 1200  # training route; A/B/C by distance (the paper: 1373 frames, 630 m)
-    test_frames: int = 465  # test scene D (the paper: 465)
-    size: int = 64
-    labels_per_class: int = 30  # baseline_min (the paper: 350 of 531-10103 per class)
-    steps: int = 1600  # per setting (~2.5 min for a constraint setting at S=64 on 2 idle cores)
-    evals: int = 8  # model-selection checkpoints (epochs) over the steps
-    batch_labelled: int = 16  # m; n = pairs_per_label * m pairs (the paper's step; see constraint_pairs_per_label)
-    pairs_per_label: int = 5
-    # pairs per label of the constraint settings, at the same canvases per step as the paper's
-    # m (1 + 2 pairs_per_label): 1 gives 58 labels + 58 pairs instead of 16 + 80 (5 = the paper's
-    # step; 0 = labels via constraints alone, no L_c). Chosen on the validation split (README
-    # "Result of the default run"); constraint100_paper_batch measures the paper's 16 + 80.
-    constraint_pairs_per_label: int = 1
-    gamma: float = 1.0
-    lr: float = 1e-3
-    lr_schedule: str = "cosine"  # constant (the paper) | cosine: steadier last epochs to select from
-    transitive_pairs: bool = True  # any two samples of a track are a pair (constraint100_paper_pairs: off)
-    component_power: float | None = None  # pair draws per component ~ size**p (None: per link; see training)
-    balance_weight: float = 0.0
-    closure_labels: bool = True  # each label spreads over its must-link component (constraint100_no_closure: off)
-    # how labels via constraints are drawn: "annotation" (one of the operator's annotations, then a
-    # member of its component: each annotation weighs as without constraints) or "sample" (every
-    # sample of the closure alike, so an annotation weighs as its component is large; stop 18's
-    # default, the ablation constraint100_sample_closure). Chosen on the validation split (README)
-    closure_draw: str = "annotation"
-    augment: bool = True
-    val_fraction: float = 0.3
-    select_val: int = 2100  # validation samples used for model selection (stratified subsample)
-    eval_max: int = 6000  # each evaluation set is a random subsample of at most this many samples (0 = all)
-    balanced_labels: bool = True  # class-uniform label draws (matters for baseline_max's imbalanced labels)
-    # labels per step of the labels-only settings: "m" (as many as a constraint setting's labels,
-    # so 11x fewer canvases per step than a constraint step), "equal" (m (1 + 2 pairs_per_label):
-    # a constraint step's canvases) or "select" (train both, keep the better validation F)
-    labels_only_batch: str = "select"
-    threads: int = 0  # torch CPU threads (0 = torch's default; 1 is faster on a busy shared 2-core box)
-    crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars (1 = the default campus)
-    cyclists: float = 3.0  # simulator: further factor on cyclists
-    train_style: str = "a+"  # campus style of the training route (pipeline.simulation.style)
-    test_style: str = "b+"  # campus style of D: another part of town (pipeline.simulation.style)
+    frames: int = Field(default=1200, ge=20)  # training route; A/B/C by distance (the paper: 1373 frames, 630 m)
+    test_frames: int = Field(default=465, ge=10)  # test scene D (the paper: 465)
+    size: int = Field(default=64, ge=8)
+    labels_per_class: int = Field(default=30, ge=1)  # baseline_min (the paper: 350 of 531-10103 per class)
+    steps: int = Field(default=1600, ge=1)  # per setting (~2.5 min for a constraint setting at S=64 on 2 idle cores)
+    evals: int = Field(default=8, ge=1)  # model-selection checkpoints (epochs) over the steps
+    # the paper's step: m labels + pairs_per_label x m pairs (16 + 80 = 176 canvases). The
+    # constraint settings run the training config's 58 + 58 in as many canvases;
+    # constraint100_paper_batch runs this one, and the labels-only settings try m and 176 labels.
+    paper_batch_labelled: int = Field(default=16, ge=1)
+    paper_pairs_per_label: int = Field(default=5, ge=0)
+    val_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)
+    select_val: int = Field(default=2100, ge=1)  # validation samples used for model selection (stratified subsample)
+    eval_max: int = Field(default=6000, ge=0)  # each evaluation set is a random subsample of at most this many samples (0 = all)
+    # labels per step of the labels-only settings: "m" (the paper's m), "equal" (a paper step's
+    # canvases) or "select" (train both, keep the better validation F)
+    labels_only_batch: Literal["m", "equal", "select"] = "select"
+    crowd: float = Field(default=3.0, ge=0.1, le=10.0)  # simulator: factor on people, cyclists and moving cars
+    cyclists: float = Field(default=3.0, ge=0.1, le=10.0)  # simulator: further factor on cyclists
+    train_style: str = "a+"  # campus style of the training route (research.simulation.style)
+    test_style: str = "b+"  # campus style of D: another part of town (research.simulation.style)
     # verified constraints of unknown tracks too (the paper has none: constraint100_no_unknown).
     # With labels drawn per annotation this gave constraint100 validation F 87.2 against 86.0
-    # (training seed 1: 87.0 against 85.6); chosen on the validation split (README)
+    # (training seed 1: 87.0 against 85.6); chosen on the validation split
     unknown_constraints: bool = True
     train_seed: int | None = None  # training seed (init, batches); None = seed. Scenes and split follow seed
     label_seed: int | None = None  # draw of baseline_min's labels; None: the split's stream. Scenes and split follow seed
-    adapt_steps: int = 200  # constraints-only adaptation on D (step 5)
+    adapt_steps: int = Field(default=200, ge=1)  # constraints-only adaptation on D (step 5)
     adapt_balance_weight: float = 1.0
     settings: tuple[str, ...] = SETTINGS
     adapt: tuple[str, ...] = ADAPT_SETTINGS
+    training: TrainingConfig = TrainingConfig()  # the product's defaults; epochs/steps/seed follow the fields above
 
-    def __post_init__(self) -> None:
-        if self.labels_only_batch not in ("m", "equal", "select"):
-            raise ConfigError(f"labels_only_batch: expected m, equal or select, got {self.labels_only_batch!r}")
-        if self.closure_draw not in ("annotation", "sample"):
-            raise ConfigError(f"closure_draw: expected annotation or sample, got {self.closure_draw!r}")
-        if self.constraint_pairs_per_label < 0:
-            raise ConfigError(f"constraint_pairs_per_label: expected >= 0, got {self.constraint_pairs_per_label}")
-
+    @field_validator("settings")
     @classmethod
-    def full(cls, **kw: Any) -> PaperConfig:
-        """Toward the paper's size: 1400 training frames, 350 labels per class, 6000 steps."""
-        return cls(**({"frames": 1400, "test_frames": 465, "labels_per_class": 350, "steps": 6000, "evals": 20,
-                        "eval_max": 0} | kw))
+    def _known_settings(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        bad = [name for name in v if name not in SETTINGS + ABLATIONS]
+        if bad:
+            raise ValueError(f"unknown {', '.join(bad)}; valid: {', '.join(SETTINGS + ABLATIONS)}")
+        return v
 
     def training_config(self) -> TrainingConfig:
+        """The product's training config with this run's step budget and training seed."""
         evals = max(1, min(self.evals, self.steps))
-        return TrainingConfig(
-            epochs=evals,
-            steps_per_epoch=max(1, self.steps // evals),
-            batch_labelled=self.batch_labelled,
-            pairs_per_label=self.pairs_per_label,
-            gamma=self.gamma,
-            lr=self.lr,
-            lr_schedule=self.lr_schedule,
-            transitive_pairs=self.transitive_pairs,
-            component_power=self.component_power,
-            closure_labels=self.closure_labels,
-            closure_draw=self.closure_draw,
-            seed=self.seed if self.train_seed is None else self.train_seed,
-            balance_weight=self.balance_weight,
-            augment=self.augment,
-            balanced_labels=self.balanced_labels,
-            threads=self.threads,
-        )
+        seed = self.seed if self.train_seed is None else self.train_seed
+        return self.training.model_copy(update={"epochs": evals, "steps_per_epoch": max(1, self.steps // evals),
+                                                "seed": seed})
+
+    def setting_config(self, name: str) -> TrainingConfig:
+        """The TrainingConfig one setting trains with (labels-only settings: before `batch_candidates`)."""
+        kind = "automatic" if name == "constraint100_auto" else "verified"
+        return self.training_config().for_constraints(kind).model_copy(update=self.setting_training(name))
 
     def setting_training(self, name: str) -> dict[str, Any]:
-        """Training-config changes of one setting (the extensions' switches)."""
-        out: dict[str, Any] = {"weighted_pairs": name == "constraint100_auto"}
+        """Training-config changes of one setting (the extensions' ablations)."""
+        out: dict[str, Any] = {}
         if name == "constraint100_paper_batch":  # the paper's step: m labels + 5 m pairs
-            out |= {"batch_labelled": self.batch_labelled, "pairs_per_label": self.pairs_per_label}
+            out |= {"batch_labelled": self.paper_batch_labelled, "pairs_per_label": self.paper_pairs_per_label}
         elif name == "constraint100_closure_only":  # no L_c: the step's canvases all labels via constraints
             out |= {"batch_labelled": self.equal_batch, "pairs_per_label": 0}
-        elif name not in LABELS_ONLY:
-            out |= self.constraint_batch
         if name == "constraint100_paper_pairs":
             out["transitive_pairs"] = False
         if name == "constraint100_sample_closure":
             out["closure_draw"] = "sample"
-        if name in ("constraint100_no_closure", "constraint100_auto"):
-            # closure trusts every pair: over unverified links (fragment links join other objects
-            # 9 % of the time) one label spreads to whatever the chains reach (seed-0 route:
-            # constraint100_auto fell to 68.3 | 66.2 train/val | D with closure; README)
+        if name == "constraint100_no_closure":
             out["closure_labels"] = False
         return out
 
     @property
     def constraint_batch(self) -> dict[str, int]:
-        """Labels and pairs per label of a constraint setting's step: `constraint_pairs_per_label`
-        pairs per label, as many labels as fit the paper's step (m + 2n canvases, never more)."""
-        c = self.constraint_pairs_per_label
-        return {"batch_labelled": max(1, self.equal_batch // (1 + 2 * c)), "pairs_per_label": c}
+        """Labels and pairs per label of a constraint setting's step (the training config's)."""
+        return {"batch_labelled": self.training.batch_labelled, "pairs_per_label": self.training.pairs_per_label}
 
     @property
     def equal_batch(self) -> int:
-        """Labels per step that make a labels-only step as large as a constraint step (m + 2n)."""
-        return self.batch_labelled * (1 + 2 * self.pairs_per_label)
+        """Labels per step that make a labels-only step as large as the paper's step (m + 2n)."""
+        return self.paper_batch_labelled * (1 + 2 * self.paper_pairs_per_label)
 
     def batch_candidates(self, name: str) -> tuple[int | None, ...]:
         """Labels-per-step values a setting is trained with (None: the training config's); with
         several, the one of the best validation F is kept. The paper trains every classifier to a
         loss below 1e-4; with a fixed number of steps, m = 16 labels per step would show
         baseline_max's 104k labels a quarter of an epoch while a constraint step runs 176 canvases."""
-        if name not in LABELS_ONLY or self.labels_only_batch == "m":
+        if name not in LABELS_ONLY:
             return (None,)
-        return (self.batch_labelled, self.equal_batch) if self.labels_only_batch == "select" else (self.equal_batch,)
+        m, equal = self.paper_batch_labelled, self.equal_batch
+        return {"m": (m,), "equal": (equal,), "select": (m, equal)}[self.labels_only_batch]
 
 
 @dataclass
@@ -262,17 +235,9 @@ def split_scene(scene: SceneSamples, cfg: PaperConfig) -> Split:
     (drawn from `label_seed` when set, else from the split's own random stream)."""
     rng = np.random.default_rng(cfg.seed)
     lab = scene.labelled
-    cls = scene.label[lab]
-    trk = scene.track[lab]
-    val_tracks: list[np.ndarray] = []
-    for k in range(NUM_SAMPLE_CLASSES):
-        tracks = np.unique(trk[cls == k])
-        tracks = tracks[rng.permutation(len(tracks))]
-        n_val = int(round(len(tracks) * cfg.val_fraction))
-        val_tracks.append(tracks[: min(n_val, max(len(tracks) - 1, 0))])
-    vt = np.unique(np.concatenate(val_tracks)) if val_tracks else np.zeros(0, np.int64)
-    in_val = np.isin(trk, vt)
-    train_l, val_l = lab[~in_val], lab[in_val]
+    tr, va = split_by_track(scene.label[lab], scene.track[lab], cfg.val_fraction, rng)
+    train_l, val_l = lab[tr], lab[va]
+    vt = np.unique(scene.track[val_l])
     if cfg.label_seed is not None:  # another draw of the few labels; same split and evaluation sets
         rng = np.random.default_rng([cfg.seed, cfg.label_seed])
     mins = []
@@ -388,7 +353,7 @@ def run_paper(
     out: str | Path,
     cfg: PaperConfig | None = None,
     cache: str | Path | None = None,
-    progress: bool = True,
+    progress: Progress = QUIET,
     log: Any = None,
 ) -> dict[str, Any]:
     """Run the experiment; writes OUT/paper.md, paper.json, paper_train.png, paper_test.png."""
@@ -433,11 +398,7 @@ def run_paper(
     results: dict[str, Any] = {}
     data_table: dict[str, Any] = {}
     names = list(cfg.settings)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(names), desc="settings", unit="setting", position=0)
+    bar = progress.bar(len(names), "settings", unit="setting", position=0)
     models: dict[str, Any] = {}
     for name in names:
         labelled, pairs, weights = setting_data(name, scene, split, cfg.unknown_constraints)
@@ -446,7 +407,7 @@ def run_paper(
         pool = scene.samples if mask else np.ascontiguousarray(scene.samples[:, channels])
         data = TrainingData.build(pool, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
         pair_cls = scene.label[pairs[:, 0]] if name != "constraint100_auto" else scene.gt_class[pairs[:, 0]]
-        setting_cfg = tcfg.model_copy(update=cfg.setting_training(name))
+        setting_cfg = cfg.setting_config(name)
         closed = (closure_labels(labelled, scene.label[labelled], pairs, len(scene))[1]
                   if setting_cfg.closure_labels and len(pairs) else scene.label[labelled])
         data_table[name] = {
@@ -475,8 +436,8 @@ def run_paper(
         row: dict[str, Any] = {"train_seconds": round(t_train, 1), "selected_epoch": res.selected_epoch,
                                "selection": res.selection, "train_loss": [round(r.loss, 5) for r in res.history],
                                "val_select_f": [round(r.val_f, 3) for r in res.history],
-                               "training": cfg.setting_training(name) | {"foreground_channel": mask,
-                                                                         "batch_labelled": chosen}}
+                               "training": _changed(setting_cfg, tcfg) | {"foreground_channel": mask,
+                                                                          "batch_labelled": chosen}}
         if len(tried) > 1:  # labels per step -> validation F (selection set) of its selected checkpoint
             row["batch_select"] = tried
         for key, idx in evals.items():
@@ -491,16 +452,14 @@ def run_paper(
         models[name] = res.model
         log(f"{name}: {len(labelled)} labels, {len(pairs)} pairs, {t_train:.0f} s; F train/val "
             f"{row['train_val']['mean_f']:.1f}, val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
-        if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+        bar.update()
+    bar.close()
     c100_test = results.get("constraint100", {}).get("test", {})
     adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), c100_test.get("confusion"),
                         test, test_idx, log, progress)
 
     doc: dict[str, Any] = {
-        "config": asdict(cfg) | {"settings": list(cfg.settings), "constraint_batch": cfg.constraint_batch},
+        "config": cfg.model_dump(mode="json") | {"constraint_batch": cfg.constraint_batch},
         "training": tcfg.model_dump(mode="json"),
         "model": model_cfg.model_dump(mode="json"),
         "scenes": {"train": scene.summary(), "test": test.summary()},
@@ -516,13 +475,19 @@ def run_paper(
         "targets": targets(results),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_start": load0,
                     "load_average_end": os.getloadavg() if hasattr(os, "getloadavg") else None,
-                    "device": str(resolve_device(tcfg.device)), "threads": cfg.threads or None},
+                    "device": str(resolve_device(tcfg.device)), "threads": tcfg.threads or None},
         "seconds": {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)},
     }
     (out / "paper.json").write_text(json.dumps(doc, indent=1))
     (out / "paper.md").write_text(markdown(doc))
     _plots(doc, out)
     return doc
+
+
+def _changed(cfg: TrainingConfig, base: TrainingConfig) -> dict[str, Any]:
+    """The fields of `cfg` that differ from `base`, as JSON values."""
+    new, old = cfg.model_dump(mode="json"), base.model_dump(mode="json")
+    return {k: v for k, v in new.items() if v != old[k]}
 
 
 def _adapt(
@@ -535,7 +500,7 @@ def _adapt(
     test: SceneSamples,
     test_idx: np.ndarray,
     log: Any,
-    progress: bool,
+    progress: Progress,
 ) -> dict[str, Any]:
     """Step 5: constraint100 trained further on D's verified constraints alone (M = 0), without
     and with the class-balance term. No labels of D are used, for training or for selection (the
@@ -622,12 +587,12 @@ def markdown(doc: dict[str, Any]) -> str:
         f"Test scene D: seed {cfg['seed'] + TEST_SEED_OFFSET}, campus style {cfg.get('test_style', 'a')}, "
         f"{cfg['test_frames']} frames, {te['labels']} labelled samples. "
         f"S={cfg['size']}, {cfg['steps']} steps per setting; a constraint setting's step holds "
-        f"{_constraint_step(cfg)}, gamma={cfg['gamma']}, "
+        f"{_constraint_step(cfg)}, gamma={cfg['training']['gamma']}, "
         f"70/30 train/validation split by track.{_batch_note(res)}",
         "",
         "**Training data per setting** (like the paper's Table 6; constraints by the class of their track; "
         "labels via constraints: the annotations spread over their must-link components, `closure_labels`, "
-        f"drawn {_closure_draw(cfg)}):",
+        f"drawn {_closure_draw(cfg['training'])}):",
         "",
         *data_rows,
         "",
@@ -663,7 +628,7 @@ def _closure_draw(cfg: dict[str, Any]) -> str:
 
 def _constraint_step(cfg: dict[str, Any]) -> str:
     """'58 labels + 58 pairs (the paper's step: 16 + 80)' from a doc's config (its `constraint_batch`)."""
-    m, ppl = cfg["batch_labelled"], cfg["pairs_per_label"]
+    m, ppl = cfg["paper_batch_labelled"], cfg["paper_pairs_per_label"]
     cm, c = cfg["constraint_batch"]["batch_labelled"], cfg["constraint_batch"]["pairs_per_label"]
     own = f"{cm} labels + {cm * c} pairs"
     return own if (cm, c) == (m, ppl) else f"{own} (the paper's step: {m} + {m * ppl})"

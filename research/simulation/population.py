@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.simulation import models as m
-from pipeline.simulation.actors import Actor, LanePath, PolylinePath, lane_offsets_smoothed
-from pipeline.simulation.ground import GroundModel
-from pipeline.simulation.layout import Layout, Registry, RoadSpec
-from pipeline.simulation.route import EgoProfile, Route
-from pipeline.simulation.shapes import PrimitiveBuilder
-from pipeline.simulation.style import STYLES, CampusStyle
+from research.simulation import models as m
+from research.simulation.actors import Actor, LanePath, PolylinePath, lane_offsets_smoothed
+from research.simulation.ground import GroundModel
+from research.simulation.layout import Layout, Registry, RoadSpec
+from research.simulation.route import EgoProfile, Route
+from research.simulation.shapes import PrimitiveBuilder
+from research.simulation.style import STYLES, CampusStyle
 
 
 def populate_actors(

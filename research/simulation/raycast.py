@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit
 
 from pipeline.sensors import SensorModel
-from pipeline.simulation.ground import GroundModel, ground_hit
-from pipeline.simulation.shapes import BOX, CAPSULE, CYLINDER, PrimitiveSet
+from research.simulation.ground import GroundModel, ground_hit
+from research.simulation.shapes import BOX, CAPSULE, CYLINDER, PrimitiveSet
 
 NO_HIT = -1
 # Ground hits are stored as hit id -(2 + region).

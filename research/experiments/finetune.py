@@ -2,7 +2,7 @@
 
 1. Prepare a training route (seed `train_seed`) and a new scene D (seed `test_seed`: another
    layout, and campus style `test_style`: other cars, trees, shrubs and clothes) with
-   `pipeline.experiments.data` (simulation, the real perception pipeline, and a
+   `research.experiments.data` (simulation, the real perception pipeline, and a
    ground-truth-checking operator who gives labels and verified constraints).
 2. Pretrain on the training route, 70/30 train/validation, the paper's selection rule:
    - baseline_min: `min_labels` labelled samples per class (the paper: 350; scaled to our data);
@@ -30,68 +30,90 @@ import hashlib
 import json
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from pipeline.anchors import DEFAULT_STRATEGY, STRATEGIES, TRACK_STRATEGIES, class_counts, propose
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
-from pipeline.experiments.data import SceneSamples, ground_truth_label, prepare_scene
-from pipeline.finetune import finetune, finetune_config, finetune_data
+from pipeline.finetune import finetune, finetune_data
 from pipeline.metrics import classification_report
 from pipeline.model import SampleCNN, embed, load_checkpoint, predict
-from pipeline.training import LabelledSamples, TrainingData, stratified_split, train
+from pipeline.progress import QUIET, Progress
+from pipeline.training import LabelledSamples, TrainingData, split_by_track, train
+from research.experiments.data import SceneSamples, ground_truth_label, prepare_scene
 
 K = NUM_SAMPLE_CLASSES
 UNKNOWN = K - 1
 
 
-@dataclass(frozen=True)
-class FinetuneExperimentConfig:
-    """Sizes of the experiment. The defaults run in about 45 minutes on 2 CPU cores (most of it the 20 fine-tuning runs)."""
+class FinetuneExperimentConfig(BaseModel):
+    """Sizes of the experiment (named variants: research/configs/finetune-*.yaml). The defaults run
+    in about 45 minutes on 2 CPU cores (most of it the 20 fine-tuning runs). Pretraining and
+    fine-tuning train with the product's defaults: `TrainingConfig()` and
+    `TrainingConfig().finetuning()` (the REST train and finetune jobs' configs)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     train_seed: int = 0
     test_seed: int = 1000  # the same new scene D as `tracklabel experiment paper`
-    train_frames: int = 1200  # the same route and new scene as `tracklabel experiment paper`
-    test_frames: int = 465
-    crowd: float = 3.0  # simulator: factor on people, cyclists and moving cars
-    cyclists: float = 3.0  # simulator: further factor on cyclists
-    test_style: str = "b"  # campus style of the new scene (pipeline.simulation.style)
-    size: int = 64
-    min_labels: int = 30  # baseline_min labels per class (paper: 350)
+    train_frames: int = Field(default=1200, ge=20)  # the same route and new scene as `tracklabel experiment paper`
+    test_frames: int = Field(default=465, ge=10)
+    crowd: float = Field(default=3.0, ge=0.1, le=10.0)  # simulator: factor on people, cyclists and moving cars
+    cyclists: float = Field(default=3.0, ge=0.1, le=10.0)  # simulator: further factor on cyclists
+    test_style: str = "b"  # campus style of the new scene (research.simulation.style)
+    size: int = Field(default=64, ge=8)
+    min_labels: int = Field(default=30, ge=1)  # baseline_min labels per class (paper: 350)
     strategies: tuple[str, ...] = STRATEGIES
-    budgets: tuple[int, ...] = (2, 5, 10, 20)  # proposals per class; unknown gets unknown_ratio x
-    unknown_ratio: int = 5
-    constraints: str = "verified"  # D's constraints while fine-tuning: verified | automatic | none
+    budgets: tuple[int, ...] = Field(default=(2, 5, 10, 20), min_length=1)  # proposals per class; unknown: unknown_ratio x
+    unknown_ratio: int = Field(default=5, ge=1)
+    constraints: Literal["verified", "automatic", "none"] = "verified"  # D's constraints while fine-tuning
     min_track_samples: int = 3
-    pretrain_evals: int = 8  # epochs (validation points) of each pretraining run
-    pretrain_label_steps: int = 1200  # steps of the labels-only runs (batch 32)
-    pretrain_pair_steps: int = 800  # steps of constraint100 (16 labels + 80 pairs per step)
-    pretrain_lr_schedule: str = "cosine"  # as the paper experiment
-    transitive_pairs: bool = True  # constraint100 pretraining: any two samples of a track are a pair
+    pretrain_evals: int = Field(default=8, ge=1)  # epochs (validation points) of each pretraining run
+    pretrain_label_steps: int = Field(default=1200, ge=1)  # steps of the labels-only runs
+    pretrain_pair_steps: int = Field(default=800, ge=1)  # steps of constraint100
     val_max: int = 2000  # validation samples per pretraining run (a random subset)
-    finetune_epochs: int = 8
-    finetune_steps_per_epoch: int = 100
-    finetune_batch: int = 16  # labelled anchors per step
-    finetune_pairs_per_label: int = 2  # constraint pairs per anchor in a step
-    finetune_lr: float = 1e-3
-    finetune_lr_schedule: str = "cosine"
-    finetune_transitive_pairs: bool = True  # any two samples of one of D's tracks are a pair
     balance: bool = True  # draw the anchors' classes evenly (pipeline.finetune.balance_classes)
-    finetune_seeds: tuple[int, ...] = (0,)  # each point is the mean over fine-tuning runs of these seeds
+    finetune_seeds: tuple[int, ...] = Field(default=(0,), min_length=1)  # each point: the mean over these seeds
     seed: int = 0
-    threads: int = 1
+    threads: int = Field(default=1, ge=0, le=256)  # torch CPU threads (0 = torch's default)
+
+    @field_validator("strategies")
+    @classmethod
+    def _known_strategies(cls, v: tuple[str, ...]) -> tuple[str, ...]:
+        bad = [s for s in v if s not in STRATEGIES]
+        if bad or not v:
+            raise ValueError(f"unknown {', '.join(bad) or 'none given'}; valid: {', '.join(STRATEGIES)}")
+        return v
+
+    @field_validator("budgets")
+    @classmethod
+    def _positive_budgets(cls, v: tuple[int, ...]) -> tuple[int, ...]:
+        if min(v) < 1:
+            raise ValueError("give budgets >= 1")
+        return v
+
+    def pretrain_config(self, with_pairs: bool) -> TrainingConfig:
+        """The product's training config at this experiment's step budget."""
+        steps = self.pretrain_pair_steps if with_pairs else self.pretrain_label_steps
+        return TrainingConfig(epochs=self.pretrain_evals, steps_per_epoch=max(1, steps // self.pretrain_evals),
+                              seed=self.seed, threads=self.threads)
+
+    def finetune_config(self, seed: int) -> TrainingConfig:
+        """The product's fine-tuning config (`TrainingConfig.finetuning`, the finetune job's)."""
+        return TrainingConfig(seed=seed, threads=self.threads).finetuning().for_constraints(self.constraints)
 
     def key(self, scene: SceneSamples | None = None) -> str:
         """Hash of what the pretrained models depend on (they are cached under this key): these
-        settings and the training scene (its summary changes with the pipeline's config)."""
-        fields_ = ("train_seed", "train_frames", "crowd", "cyclists", "size", "min_labels", "pretrain_evals",
-                   "pretrain_label_steps", "pretrain_pair_steps", "pretrain_lr_schedule", "transitive_pairs",
-                   "val_max", "seed")
-        data = {k: getattr(self, k) for k in fields_}
+        settings, the training configs and the training scene (its summary changes with the
+        pipeline's config)."""
+        fields_ = ("train_seed", "train_frames", "crowd", "cyclists", "size", "min_labels", "val_max", "seed")
+        data: dict[str, Any] = {k: getattr(self, k) for k in fields_}
+        data["training"] = [self.pretrain_config(p).model_dump(mode="json", exclude={"threads"}) for p in (False, True)]
         if scene is not None:
             data["scene"] = scene.summary()
         blob = json.dumps(data, sort_keys=True)
@@ -137,7 +159,7 @@ def _pretrain_sets(scene: SceneSamples, cfg: FinetuneExperimentConfig) -> dict[s
         ("baseline_max", lab, None),
     ):
         yy = scene.label[idx].astype(np.int64)
-        tr, va = stratified_split(yy, 0.3, cfg.seed)
+        tr, va = split_by_track(yy, scene.track[idx], 0.3, cfg.seed)
         if len(va) > cfg.val_max:
             va = np.sort(rng.choice(va, cfg.val_max, replace=False))
         data = TrainingData.build(scene.samples, idx[tr], yy[tr], pairs)
@@ -146,7 +168,7 @@ def _pretrain_sets(scene: SceneSamples, cfg: FinetuneExperimentConfig) -> dict[s
 
 
 def _pretrain(
-    scene: SceneSamples, cfg: FinetuneExperimentConfig, models_dir: Path, log: Callable[[str], None], progress: bool
+    scene: SceneSamples, cfg: FinetuneExperimentConfig, models_dir: Path, log: Callable[[str], None], progress: Progress
 ) -> dict[str, Path]:
     paths: dict[str, Path] = {}
     mc = ModelConfig()
@@ -158,18 +180,7 @@ def _pretrain(
             log(f"{name}: reusing {ckpt}")
             paths[name] = ckpt
             continue
-        pairs = len(data.pairs) > 0
-        steps = cfg.pretrain_pair_steps if pairs else cfg.pretrain_label_steps
-        tc = TrainingConfig(
-            epochs=cfg.pretrain_evals,
-            steps_per_epoch=max(1, steps // cfg.pretrain_evals),
-            batch_labelled=16 if pairs else 32,
-            augment=True,
-            lr_schedule=cfg.pretrain_lr_schedule,
-            transitive_pairs=cfg.transitive_pairs,
-            seed=cfg.seed,
-            threads=cfg.threads,
-        )
+        tc = cfg.pretrain_config(with_pairs=len(data.pairs) > 0)
         t0 = time.perf_counter()
         res = train(data, tc, mc, sc, val=val, checkpoint_dir=out, progress=progress)
         log(
@@ -239,7 +250,7 @@ def run_finetune_experiment(
     out: str | Path,
     cfg: FinetuneExperimentConfig | None = None,
     cache: str | Path | None = None,
-    progress: bool = True,
+    progress: Progress = QUIET,
     log: Callable[[str], None] = print,
 ) -> dict[str, Any]:
     """Run the experiment (module docstring) and write its outputs under `out`; returns the JSON."""
@@ -248,9 +259,6 @@ def run_finetune_experiment(
     from pipeline.plots import plot_f_bars
 
     cfg = cfg or FinetuneExperimentConfig()
-    for s in cfg.strategies:
-        if s not in STRATEGIES:
-            raise ValueError(f"unknown strategy {s!r}; valid: {', '.join(STRATEGIES)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cache = Path(cache) if cache is not None else out / "cache"
@@ -283,11 +291,7 @@ def run_finetune_experiment(
             pairs, scores, verified = test_scene.verified_pairs, None, None
         runs: list[dict[str, Any]] = []
         jobs = [(s, b, fs) for s in cfg.strategies for b in cfg.budgets for fs in cfg.finetune_seeds]
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(jobs), desc="fine-tune runs", unit="run")
+        bar = progress.bar(len(jobs), "fine-tune runs", unit="run")
         for strategy, budget, fseed in jobs:
             t0 = time.perf_counter()
             counts = class_counts(budget, cfg.unknown_ratio * budget)
@@ -300,16 +304,7 @@ def run_finetune_experiment(
                 "automatic" if cfg.constraints == "automatic" else cfg.constraints,
                 balance=cfg.balance,
             )
-            tc = finetune_config(
-                TrainingConfig(seed=fseed, threads=cfg.threads),
-                epochs=cfg.finetune_epochs,
-                steps_per_epoch=cfg.finetune_steps_per_epoch,
-                batch_labelled=cfg.finetune_batch,
-                pairs_per_label=cfg.finetune_pairs_per_label,
-                lr=cfg.finetune_lr,
-                lr_schedule=cfg.finetune_lr_schedule,
-                transitive_pairs=cfg.finetune_transitive_pairs,
-            )
+            tc = cfg.finetune_config(fseed)
             res = finetune((pre_model, pre_meta), data, tc)
             p_new = predict(res.model, test_scene.samples)
             rep = evaluate_on(res.model, test_scene, probs=p_new)
@@ -332,13 +327,10 @@ def run_finetune_experiment(
                 "seconds": round(time.perf_counter() - t0, 1),
             }
             runs.append(run)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep.mean_f:.1f}")
-            else:
-                log(f"{strategy} x{budget}: F {rep.mean_f:.1f}")
-        if bar is not None:
-            bar.close()
+            bar.update()
+            bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep.mean_f:.1f}")
+            log(f"{strategy} x{budget}: F {rep.mean_f:.1f}")
+        bar.close()
     finally:
         torch.set_num_threads(threads_before)
 
@@ -373,7 +365,7 @@ def run_finetune_experiment(
         rows["baseline_max"],
     ]
     result: dict[str, Any] = {
-        "config": asdict(cfg),
+        "config": cfg.model_dump(mode="json"),
         "default_strategy": DEFAULT_STRATEGY,
         "train_scene": train_scene.summary(),
         "test_scene": test_scene.summary(),

@@ -4,6 +4,6 @@ pedestrians, written as a SemanticKITTI sequence with ground-truth labels."""
 
 from __future__ import annotations
 
-from pipeline.simulation.simulate import SimulationSummary, simulate_frame, simulate_sequence
+from research.simulation.simulate import SimulationSummary, simulate_frame, simulate_sequence
 
 __all__ = ["SimulationSummary", "simulate_frame", "simulate_sequence"]

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y
+from research.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y
 
 # SemanticKITTI ids used by the simulator.
 CAR, BICYCLE, PERSON, BICYCLIST = 10, 11, 30, 31

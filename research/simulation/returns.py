@@ -29,9 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.sensors import SensorModel
-from pipeline.simulation.ground import REGION_MATERIAL, REGION_SEMANTIC
-from pipeline.simulation.raycast import CastResult
-from pipeline.simulation.shapes import PrimitiveSet
+from research.simulation.ground import REGION_MATERIAL, REGION_SEMANTIC
+from research.simulation.raycast import CastResult
+from research.simulation.shapes import PrimitiveSet
 
 RANGE_SIGMA = 0.005
 RANGE_SIGMA_PER_M = 0.0004

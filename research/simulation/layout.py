@@ -25,13 +25,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.classes import POINT_CLASSES, to_ours
-from pipeline.simulation import contacts as ct
-from pipeline.simulation import models as m
-from pipeline.simulation.actors import ground_frame
-from pipeline.simulation.ground import GRID_CELL, GroundModel
-from pipeline.simulation.route import SAMPLE_STEP, Route
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_x, rot_z
-from pipeline.simulation.style import STYLES, CampusStyle
+from research.simulation import contacts as ct
+from research.simulation import models as m
+from research.simulation.actors import ground_frame
+from research.simulation.ground import GRID_CELL, GroundModel
+from research.simulation.route import SAMPLE_STEP, Route
+from research.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, concat, rot_x, rot_z
+from research.simulation.style import STYLES, CampusStyle
 
 TRUNK_SHRUB_P = 0.25  # trees with a shrub grown against the trunk
 GARDEN_FENCE_P = 0.5  # hedge stretches with a fence behind the sidewalk (planting against it)

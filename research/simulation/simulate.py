@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,11 +33,12 @@ from pipeline.io.semantickitti import (
     write_poses,
     write_times,
 )
+from pipeline.progress import QUIET, Progress
 from pipeline.sensors import PRESETS, SensorModel
-from pipeline.simulation.raycast import cast, ray_directions, ray_windows
-from pipeline.simulation.returns import BEAM_BIAS, Returns, make_returns
-from pipeline.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
-from pipeline.simulation.style import get_style
+from research.simulation.raycast import cast, ray_directions, ray_windows
+from research.simulation.returns import BEAM_BIAS, Returns, make_returns
+from research.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
+from research.simulation.style import get_style
 
 SENSOR = "hdl32e"
 GENERATOR = "tracklabel simulate"
@@ -152,20 +152,12 @@ def _prepare(out: Path) -> None:
     labels.mkdir(parents=True, exist_ok=True)
 
 
-def _frames(n: int, progress: bool) -> Iterable[int]:
-    if not progress:
-        return range(n)
-    from tqdm import tqdm
-
-    return tqdm(range(n), desc="simulate", unit="frame")
-
-
 def simulate_sequence(
     out: str | Path,
     frames: int,
     seed: int,
     start: int = 0,
-    progress: bool = False,
+    progress: Progress = QUIET,
     crowd: float = 1.0,
     cyclists: float = 1.0,
     style: str = "a",
@@ -176,7 +168,7 @@ def simulate_sequence(
     cyclists: a further factor on the number of cyclists.
     style: the campus style, the distributions objects are drawn from ("a" = default; "b" =
     another part of town; "a+" / "b+" the same with more kinds per class, see
-    `pipeline.simulation.style`).
+    `research.simulation.style`).
     """
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
@@ -201,7 +193,7 @@ def simulate_sequence(
     class_points = np.zeros(256, np.int64)
     seen: dict[int, int] = {}
     stages: dict[str, float] = {}
-    for i in _frames(frames, progress):
+    for i in progress.iterate(range(frames), "simulate"):
         k = start + i
         pose, ret = simulate_frame(scene, k, dirs, stages)
         poses[i] = pose

@@ -22,11 +22,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pipeline.simulation import models as m
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y, rot_z
+from research.simulation import models as m
+from research.simulation.shapes import Material, PrimitiveBuilder, rot_x, rot_y, rot_z
 
 if TYPE_CHECKING:
-    from pipeline.simulation.layout import Facade, Layout
+    from research.simulation.layout import Facade, Layout
 
 PLANTING_KINDS = ("hedge_flush", "hedge_gap", "ivy", "shrub_row")  # instance kinds too
 WALL_PLANTING_P = (0.35, 0.15, 0.15, 0.2)  # of a building front; the rest have none

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from pipeline.simulation import models as m
+from research.simulation import models as m
 
 
 @dataclass(frozen=True)

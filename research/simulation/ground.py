@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import distance_transform_edt
 
-from pipeline.simulation.route import SAMPLE_STEP, Route
+from research.simulation.route import SAMPLE_STEP, Route
 
 # Region codes of ground hits (the ray caster stores them as negative hit ids).
 ROAD, MARKING, PARKING, SIDEWALK, CURB, TERRAIN = range(6)

@@ -12,13 +12,13 @@ from pipeline.classes import POINT_CLASSES, to_ours
 from pipeline.errors import DataError
 from pipeline.io.semantickitti import read_bin, read_calib_tr, read_label, read_matrix_lines
 from pipeline.sensors import PRESETS
-from pipeline.simulation import models as m
-from pipeline.simulation import simulate_frame, simulate_sequence
-from pipeline.simulation.ground import GroundModel
-from pipeline.simulation.raycast import Windows, cast, ray_directions, ray_windows
-from pipeline.simulation.returns import BEAM_BIAS, make_returns
-from pipeline.simulation.scene import build_scene
-from pipeline.simulation.shapes import (
+from research.simulation import models as m
+from research.simulation import simulate_frame, simulate_sequence
+from research.simulation.ground import GroundModel
+from research.simulation.raycast import Windows, cast, ray_directions, ray_windows
+from research.simulation.returns import BEAM_BIAS, make_returns
+from research.simulation.scene import build_scene
+from research.simulation.shapes import (
     Material,
     PrimitiveBuilder,
     rot_x,
@@ -245,7 +245,7 @@ def test_simulate_crowd_scales_moving_actors_and_leaves_the_static_campus(scene)
 
 
 def test_simulate_style_b_shifts_what_objects_are_drawn_from(scene):
-    from pipeline.simulation.style import STYLES
+    from research.simulation.style import STYLES
 
     other = build_scene(SEED, crowd=3.0, style="b")
     base = build_scene(SEED, crowd=3.0)
@@ -265,7 +265,7 @@ def test_simulate_varied_style_adds_kinds_and_keeps_the_plain_draws():
     """Style "a+" is style "a" (same route, traffic, trees, people) plus the long tail of kinds
     drawn from its own streams: other car bodies, groups, child / cargo / scooter cyclists, tree
     guards, street furniture, kiosks."""
-    from pipeline.simulation.models import EXTRA_CAR_KINDS, add_car
+    from research.simulation.models import EXTRA_CAR_KINDS, add_car
 
     plain = build_scene(SEED, crowd=3.0)
     varied = build_scene(SEED, crowd=3.0, style="a+")
@@ -289,9 +289,9 @@ def test_simulate_varied_style_adds_kinds_and_keeps_the_plain_draws():
     g = groups[0]
     prims = g.primitives(2.0, varied.ground)
     assert set(prims.instance.tolist()) == {g.instance}
-    from pipeline.simulation.models import add_person
-    from pipeline.simulation.shapes import PrimitiveBuilder
-    from pipeline.simulation.style import STYLES
+    from research.simulation.models import add_person
+    from research.simulation.shapes import PrimitiveBuilder
+    from research.simulation.style import STYLES
 
     def person_prims(shape) -> int:
         b = PrimitiveBuilder()
@@ -434,7 +434,7 @@ def test_simulate_walls_smooth_foliage_scattered(seq: Path):
     """On the written campus (HDL-32E) walls scatter like SemanticKITTI's walls (row residual
     median ~1 cm) and foliage several times more (docs/simulator.md)."""
     from pipeline.sequence import open_sequence
-    from pipeline.simulation.texture import texture_statistics
+    from research.simulation.texture import texture_statistics
 
     source = open_sequence(seq).source
     stats = texture_statistics((source.frame(k) for k in (0, FRAMES - 1)), SENSOR)
@@ -445,7 +445,7 @@ def test_simulate_walls_smooth_foliage_scattered(seq: Path):
 
 
 def test_texture_line_residual_zero_on_a_ramp_and_sigma_on_noise():
-    from pipeline.simulation.texture import line_residual
+    from research.simulation.texture import line_residual
 
     rng = np.random.default_rng(0)
     ramp = np.tile(5.0 + 0.01 * np.arange(200.0), (4, 1))
@@ -460,7 +460,7 @@ def test_texture_line_residual_zero_on_a_ramp_and_sigma_on_noise():
 
 
 def test_texture_holes_are_gaps_within_one_class():
-    from pipeline.simulation.texture import holes
+    from research.simulation.texture import holes
 
     cls = np.array([[50, -1, -1, 50, -1, 70, -1, -1, -1, -1, 70, 70]])
     # 1-2: between two walls; 4: between two classes; 7-8: within 3 columns of the shrub both ways
@@ -497,7 +497,7 @@ def test_simulate_campus_has_the_contacts_of_real_streets(scene):
 
 def test_simulation_code_is_in_the_scene_cache_fingerprint(monkeypatch):
     """A change to any simulator module gives the experiments' cached scenes a new key."""
-    from pipeline.experiments import data
+    from research.experiments import data
 
     before = data._code_fingerprint()
     real_read = Path.read_bytes

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.simulation.ground import GroundModel
-from pipeline.simulation.models import (
+from research.simulation.ground import GroundModel
+from research.simulation.models import (
     CarShape,
     PersonShape,
     add_bicycle,
@@ -26,8 +26,8 @@ from pipeline.simulation.models import (
     add_rider,
     add_scooter,
 )
-from pipeline.simulation.route import SAMPLE_STEP, EgoProfile, Route
-from pipeline.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, rot_z
+from research.simulation.route import SAMPLE_STEP, EgoProfile, Route
+from research.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, rot_z
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ import numpy as np
 
 from pipeline.classes import GROUND, NUM_SAMPLE_CLASSES, UNLABELLED, to_ours
 from pipeline.config import PipelineConfig
+from pipeline.progress import QUIET, Progress
 
 CACHE_VERSION = 2
 UNKNOWN = NUM_SAMPLE_CLASSES - 1
@@ -238,7 +239,7 @@ def _route_progress(poses: np.ndarray) -> np.ndarray:
     return (dist / max(dist[-1], 1e-9)).astype(np.float32)
 
 
-def process_scene(seq: str | Path, config: PipelineConfig, progress: bool = False) -> SceneSamples:
+def process_scene(seq: str | Path, config: PipelineConfig, progress: Progress = QUIET) -> SceneSamples:
     """Run the perception pipeline over a labelled sequence and let the operator review it."""
     from pipeline.processing import SequenceProcessor
     from pipeline.sequence import open_sequence
@@ -299,7 +300,7 @@ def prepare_scene(
     size: int = 64,
     start: int = 0,
     config: PipelineConfig | None = None,
-    progress: bool = False,
+    progress: Progress = QUIET,
     keep_sequence: bool = False,
     crowd: float = 1.0,
     cyclists: float = 1.0,
@@ -307,7 +308,7 @@ def prepare_scene(
 ) -> SceneSamples:
     """Simulate (seed, frames from `start`, `crowd`, `cyclists`, `style`), process and review a
     scene; cached under `cache`."""
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     config = (config or PipelineConfig()).override({"samples": {"size": size}})
     cache = Path(cache)

@@ -7,8 +7,8 @@ import numpy as np
 from typer.testing import CliRunner
 
 from app.cli import app
-from pipeline.experiments.data import SceneSamples
-from pipeline.experiments.finetune import simulated_answers
+from research.experiments.data import SceneSamples
+from research.experiments.finetune import simulated_answers
 
 runner = CliRunner()
 
@@ -50,10 +50,10 @@ def test_simulated_operator_labels_whole_tracks_as_reviewed():
 
 def test_cli_refuses_bad_arguments(tmp_path):
     for args, msg in (
-        (["--strategies", "random"], "unknown random"),
-        (["--budgets", "2,x"], "comma-separated integers"),
-        (["--budgets", "0"], "budget >= 1"),
-        (["--constraints", "all"], "verified, automatic or none"),
+        (["--set", "strategies=[random]"], "unknown random"),
+        (["--set", "budgets=[2,x]"], "budgets"),
+        (["--set", "budgets=[0]"], "budgets >= 1"),
+        (["--set", "constraints=all"], "constraints"),
     ):
         r = runner.invoke(app, ["experiment", "finetune", "--out", str(tmp_path), *args])
         assert r.exit_code == 2 and msg in r.output, (args, r.output)

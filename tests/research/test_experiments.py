@@ -5,9 +5,8 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
 
-from pipeline.experiments.data import (
+from research.experiments.data import (
     SceneSamples,
     confirm_stitches,
     operator_review,
@@ -98,7 +97,7 @@ def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:
 
 
 def test_paper_split_by_track_and_settings_grow_constraints():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, setting_data, split_scene
 
     scene = _toy_scene()
     split = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -119,7 +118,7 @@ def test_paper_split_by_track_and_settings_grow_constraints():
 
 
 def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
-    from pipeline.experiments.paper import PaperConfig, split_scene
+    from research.experiments.paper import PaperConfig, split_scene
 
     scene = _toy_scene(n_tracks=70, length=5)
     base = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -135,7 +134,7 @@ def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
 
 
 def test_oracle_objects_label_every_view_of_the_labelled_objects_only():
-    from pipeline.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, oracle_object_labels, setting_data, split_scene
 
     scene = _toy_scene(n_tracks=40, length=9)
     scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
@@ -157,7 +156,7 @@ def test_oracle_object_pairs_make_each_labelled_object_one_component():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from pipeline.experiments.paper import PaperConfig, oracle_object_pairs, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, oracle_object_pairs, setting_data, split_scene
 
     scene = _toy_scene(n_tracks=40, length=6)
     scene.gt_object[:] = (scene.track - 1) // 2  # each object spans two tracks
@@ -184,7 +183,7 @@ def test_operator_confirms_stitches_of_one_object_only():
 
 
 def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene
+    from research.experiments.paper import PaperConfig, setting_data, split_scene
 
     scene = _toy_scene()
     split = split_scene(scene, PaperConfig(labels_per_class=2))
@@ -200,39 +199,54 @@ def test_paper_constraints_add_confirmed_stitches_of_training_tracks_only():
 
 
 def test_paper_constraint_step_keeps_the_papers_canvases():
-    from pipeline.errors import ConfigError
-    from pipeline.experiments.paper import PaperConfig
+    from research.experiments.paper import PaperConfig
 
     cfg = PaperConfig()  # the paper's step: 16 labels + 80 pairs = 176 canvases
     assert cfg.equal_batch == 176
     assert cfg.constraint_batch == {"batch_labelled": 58, "pairs_per_label": 1}  # 174 canvases, never more
-    assert PaperConfig(constraint_pairs_per_label=5).constraint_batch == {"batch_labelled": 16, "pairs_per_label": 5}
-    assert PaperConfig(constraint_pairs_per_label=0).constraint_batch == {"batch_labelled": 176, "pairs_per_label": 0}
-    assert "batch_labelled" not in cfg.setting_training("baseline_min")  # labels only: batch_candidates decides
-    assert cfg.setting_training("constraint60")["batch_labelled"] == 58
-    assert cfg.setting_training("constraint100_auto")["pairs_per_label"] == 1
-    paper = cfg.setting_training("constraint100_paper_batch")
-    assert (paper["batch_labelled"], paper["pairs_per_label"]) == (16, 5)
-    with pytest.raises(ConfigError, match="constraint_pairs_per_label"):
-        PaperConfig(constraint_pairs_per_label=-1)
+    assert cfg.batch_candidates("baseline_min") == (16, 176)  # labels only: both tried
+    assert cfg.batch_candidates("constraint60") == (None,)
+    assert cfg.setting_config("constraint60").batch_labelled == 58
+    assert cfg.setting_config("constraint100_auto").pairs_per_label == 1
+    paper = cfg.setting_config("constraint100_paper_batch")
+    assert (paper.batch_labelled, paper.pairs_per_label) == (16, 5)
+    only = cfg.setting_config("constraint100_closure_only")
+    assert (only.batch_labelled, only.pairs_per_label) == (176, 0)
 
 
 def test_paper_labels_via_constraints_are_drawn_per_annotation_unless_asked():
-    from pipeline.errors import ConfigError
-    from pipeline.experiments.paper import ABLATIONS, PaperConfig
+    from research.experiments.paper import ABLATIONS, PaperConfig
 
     cfg = PaperConfig()
     assert cfg.training_config().closure_draw == "annotation" and cfg.training_config().closure_labels
     assert "constraint100_sample_closure" in ABLATIONS
-    assert cfg.setting_training("constraint100_sample_closure")["closure_draw"] == "sample"
-    assert "closure_draw" not in cfg.setting_training("constraint100")
-    assert PaperConfig(closure_draw="sample").training_config().closure_draw == "sample"
-    with pytest.raises(ConfigError, match="closure_draw"):
-        PaperConfig(closure_draw="track")
+    assert cfg.setting_config("constraint100_sample_closure").closure_draw == "sample"
+    assert not cfg.setting_config("constraint100_no_closure").closure_labels
+    assert not cfg.setting_config("constraint100_auto").closure_labels  # unverified links spread no labels
+    assert not cfg.setting_config("constraint100_paper_pairs").transitive_pairs
+
+
+def test_paper_constraint100_trains_with_the_train_jobs_config():
+    """One training path: the REST train job's default config is the experiment's constraint100."""
+    from app.jobs.train import TrainParams, train_config
+    from pipeline.config import TrainingConfig
+    from research.experiments.finetune import FinetuneExperimentConfig
+    from research.experiments.paper import PaperConfig
+
+    job = train_config(TrainParams(sequence_ids=[1]))
+    assert job == PaperConfig().setting_config("constraint100") == TrainingConfig()
+    assert train_config(TrainParams(sequence_ids=[1], constraints="automatic")) == PaperConfig().setting_config(
+        "constraint100_auto")
+    # the fine-tuning experiment pretrains and fine-tunes with the jobs' configs too
+    ft = FinetuneExperimentConfig(threads=0)
+    assert ft.pretrain_config(with_pairs=True).model_copy(update={"steps_per_epoch": 200}) == TrainingConfig()
+    from app.jobs.finetune import FinetuneParams, finetune_job_config
+
+    assert ft.finetune_config(0) == finetune_job_config(FinetuneParams(sequence_id=1, model_id=1))
 
 
 def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ablation():
-    from pipeline.experiments.paper import PaperConfig, setting_data, split_scene, verified_constraints
+    from research.experiments.paper import PaperConfig, setting_data, split_scene, verified_constraints
 
     scene = _toy_scene()
     cfg = PaperConfig(labels_per_class=2)
