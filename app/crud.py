@@ -28,6 +28,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session
 
+from app import leases
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
 from app.core.security import hash_token, new_token, token_display_prefix
 from app.models import (
@@ -333,10 +334,14 @@ def apply_action(
     start: int | None = None,
     end: int | None = None,
     sample_classes: tuple[str, ...] = (),
+    override_lease: bool = False,
+    lease_seconds: float | None = None,
 ) -> Track:
     """Apply one review action if `version` is current; write its event; commit.
 
-    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid.
+    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
+    user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
+    `lease_seconds`.
     """
     track = session.get(Track, track_id, with_for_update=True)
     if track is None:
@@ -344,6 +349,7 @@ def apply_action(
     seq_status = session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": track.sequence_id})
     if seq_status != "ready":
         raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
+    leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
     if track.version != version:
         raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
 
@@ -377,15 +383,7 @@ def apply_action(
         raise Invalid(f"unknown action {action!r}")
 
     if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
-        length, n_samples = session.execute(
-            select(func.count(), func.coalesce(func.sum(Segment.valid.cast(Integer)), 0)).where(
-                Segment.track_id == track_id,
-                Segment.frame_index.between(after["keep_start"], after["keep_end"]),
-            )
-        ).one()
-        if length == 0:
-            raise Invalid(f"frame range {after['keep_start']}..{after['keep_end']} keeps no segment of the track")
-        track.length, track.n_samples = int(length), int(n_samples)
+        _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
     now = utcnow()
     track.status, track.label = after["status"], after["label"]
@@ -407,6 +405,23 @@ def apply_action(
     _refresh_labels(session, track, user.id, sample_classes)
     session.commit()
     return track
+
+
+def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
+    """Set the track's length, samples, points and mean range from its segments in
+    `keep_start..keep_end` (what ingest computes over the whole track). Invalid when none is kept."""
+    length, n_samples, n_points, range_sum = session.execute(
+        select(
+            func.count(),
+            func.coalesce(func.sum(Segment.valid.cast(Integer)), 0),
+            func.coalesce(func.sum(Segment.n_points), 0),
+            func.coalesce(func.sum(Segment.range), 0.0),
+        ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
+    ).one()
+    if length == 0:
+        raise Invalid(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
+    track.length, track.n_samples = int(length), int(n_samples)
+    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
 
 
 def _last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:

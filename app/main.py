@@ -19,7 +19,6 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
 
-from app.api.deps import TokenCache
 from app.api.main import api_router
 from app.api.routes import health
 from app.artifacts import ArtifactMissing, ArtifactStore
@@ -91,7 +90,6 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     app.state.settings = settings
     app.state.db = db or Database.from_settings(settings)
     app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
-    app.state.token_cache = TokenCache(settings.auth_cache_seconds)
 
     app.add_middleware(ServerTiming)
 

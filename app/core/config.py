@@ -44,9 +44,12 @@ class Settings(BaseSettings):
     # Review queue: how long `next` reserves a track for its operator.
     review_lease_seconds: float = Field(default=300.0, gt=0)
 
-    # Viewer frame payloads kept in memory (LRU), and how long a token lookup is trusted.
+    # Viewer frame payloads kept in memory (LRU).
     frame_cache_mb: int = Field(default=256, ge=0)
-    auth_cache_seconds: float = Field(default=10.0, ge=0)
+    # Tokens: days a new token is valid unless its issuer says otherwise (`--expires-days`).
+    token_expiry_days: float = Field(default=90.0, gt=0, le=36500)
+    # Largest request body accepted (bytes); a longer one gets 413 without being read.
+    max_body_bytes: int = Field(default=1 << 20, ge=1024)
 
     # HTTP server (`tracklabel serve`).
     host: str = "127.0.0.1"
