@@ -177,9 +177,12 @@ def sequence_stats(session: Session, seq: Sequence) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- jobs
 
 
-def create_job(session: Session, job_type: str, params: dict[str, Any], user_id: int | None) -> Job:
-    """Queue a job (params already validated by its job type). Flushes, does not commit."""
-    job = Job(type=job_type, params=params, status="queued", created_by_id=user_id, message="queued")
+def create_job(
+    session: Session, job_type: str, params: dict[str, Any], user_id: int | None, priority: int = 0
+) -> Job:
+    """Queue a job (params already validated by its job type, the caller authorised by
+    app.jobs.policy). Flushes, does not commit."""
+    job = Job(type=job_type, params=params, status="queued", created_by_id=user_id, message="queued", priority=priority)
     session.add(job)
     session.flush()
     return job

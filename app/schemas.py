@@ -239,6 +239,10 @@ class JobTypePublic(BaseModel):
     admin_only: bool
     description: str
     params_schema: dict[str, Any]
+    operators_may_queue: bool
+    operator_max_values: dict[str, float] = Field(description="Upper bounds of params for operators.")
+    admin_only_params: list[str] = Field(description="Switches only an admin may turn on.")
+    max_run_seconds: float = Field(description="A job running longer is stopped and marked failed.")
 
 
 # ----------------------------------------------------------------------------- exports

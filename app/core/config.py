@@ -35,6 +35,11 @@ class Settings(BaseSettings):
     job_heartbeat_seconds: float = Field(default=5.0, gt=0)
     job_max_attempts: int = Field(default=3, ge=1)
     worker_poll_seconds: float = Field(default=1.0, gt=0)
+    # Job policy (app/jobs/policy.py): per-user limits and per-type run-time overrides (seconds,
+    # JSON in the env: '{"finetune": 600}').
+    job_max_queued_per_user: int = Field(default=5, ge=1)
+    job_max_running_per_user: int = Field(default=2, ge=1)
+    job_max_run_seconds: dict[str, float] = Field(default_factory=dict)
     # Extra modules imported at start-up that register job types (plugins, tests).
     job_modules: Annotated[list[str], NoDecode] = Field(default_factory=list)
     ingest_batch_frames: int = Field(default=10, ge=1)

@@ -21,6 +21,7 @@ from sqlalchemy import delete, insert, select
 
 from app.core.errors import Conflict, Invalid, NotFound
 from app.jobs.context import JobContext
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
 from app.models import AnchorProposal, Frame, ModelVersion, Segment, Sequence, Track, utcnow
 
@@ -203,5 +204,7 @@ register(
         admin_only=False,
         description="Score a sequence's samples with a model and propose anchors (per class) to confirm.",
         prepare=prepare_propose,
+        operator_rule=OperatorRule(max_values={"per_class": 200, "unknown": 500, "batch": 1024}),
+        max_run_seconds=1800.0,
     )
 )

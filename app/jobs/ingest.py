@@ -453,6 +453,17 @@ def active_ingest_job(s: Session, sequence_id: int) -> int | None:
     return None
 
 
+def note_queued(s: Session, sequence_id: int, job_id: int) -> None:
+    """Point a sequence that is not ingested yet at its queued ingest job (`ingest_job_id`).
+
+    A ready sequence keeps the id of the job that made it until the forced re-ingest starts:
+    `run_ingest` reads "ready with my job id" as "I finished before a crash" and returns at once,
+    so pointing a ready sequence at a queued job would turn `force` into a no-op."""
+    seq = s.get(Sequence, sequence_id)
+    if seq is not None and seq.status != "ready":
+        seq.ingest_job_id = job_id
+
+
 def prepare_ingest(s: Session, params: IngestParams) -> None:
     """Checked when an ingest job is created: the sequence exists, is not being ingested already,
     and is not ready unless `force`."""

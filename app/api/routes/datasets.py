@@ -6,6 +6,8 @@ from sqlalchemy import select
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
 from app.core.errors import Invalid, NotFound
+from app.jobs import policy
+from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
 from app.models import Dataset, Job, Sequence
 from app.schemas import (
@@ -38,10 +40,8 @@ def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_
     params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force, "poses": poses})
     assert ingest.prepare is not None
     ingest.prepare(session, params)
-    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id)
-    seq = session.get(Sequence, sequence_id)
-    assert seq is not None
-    seq.ingest_job_id = job.id
+    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id, policy.ADMIN_PRIORITY)
+    note_queued(session, sequence_id, job.id)
     return job
 
 
