@@ -6,6 +6,7 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path, PurePath
@@ -189,6 +190,34 @@ def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
     if not inside:
         raise Forbidden("path is outside the configured data roots")
     raise NotFound(f"no such file or folder under the data roots: {raw}")
+
+
+def check_tree_inside_roots(path: Path, roots: list[Path]) -> None:
+    """Forbidden (403) naming the first file or folder under `path` (or `path` itself) whose real
+    path (symlinks resolved) lies outside every root: a link inside a root must not smuggle in a
+    file from elsewhere. Checked at registration and again when ingest opens the sequence."""
+    real_roots = [r.resolve() for r in roots]
+
+    def inside(p: Path) -> bool:
+        real = p.resolve()
+        return any(real == r or real.is_relative_to(r) for r in real_roots)
+
+    if not inside(path):
+        raise Forbidden(f"{path.name} resolves outside the configured data roots")
+    if not path.is_dir():
+        return
+    for folder, dirs, files in os.walk(path, followlinks=False):
+        for name in (*dirs, *files):
+            entry = Path(folder) / name
+            if entry.is_symlink() and not inside(entry):
+                raise Forbidden(
+                    f"{entry.relative_to(path)} is a link to outside the configured data roots; refused"
+                )
+
+
+def registered_sequence_id(session: Session, path: Path) -> int | None:
+    """The id of a sequence already registered at `path` (resolved), if any."""
+    return session.scalar(select(Sequence.id).where(Sequence.path == str(path)).order_by(Sequence.id).limit(1))
 
 
 def create_dataset(

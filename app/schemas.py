@@ -85,6 +85,9 @@ class DatasetCreate(DatasetBase):
     ingest: bool = Field(default=True, description="Queue the ingest job right away.")
     config: dict[str, Any] | None = Field(default=None, description="Pipeline config overrides for ingest.")
     poses: IngestPoses = Field(default="file", description=POSES_HELP)
+    reregister: bool = Field(
+        default=False, description="Register the folder again although a sequence of it exists (else 409)."
+    )
 
 
 class SequencePublic(_Public):

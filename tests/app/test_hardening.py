@@ -40,8 +40,82 @@ def test_hardening_force_reingest_really_reruns(client, factory, db, settings):
 
 def test_hardening_operator_cannot_run_predict_through_finetune(client, factory):
     # defect 2: finetune's `predict: true` queued the admin-only predict job for an operator
+    from tests.app.test_job_policy import _model, _review_one
+
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     op = factory.user("operator")
-    r = client.post("/api/v1/jobs", json={"type": "finetune", "params": {"sequence_id": seq, "model_id": 1, "predict": True}},
-                    headers=op.headers)
+    _review_one(client, op)
+    params = {"sequence_id": seq, "model_id": _model(factory.db), "predict": True}
+    r = client.post("/api/v1/jobs", json={"type": "finetune", "params": params}, headers=op.headers)
     assert r.status_code == 403 and "predict" in r.json()["detail"]
+
+
+def test_hardening_symlinked_frame_out_of_roots_is_refused_at_registration(client, factory, tmp_path):
+    # defect 5: a frame file linking outside the roots was registered, ingested and served
+    import os
+
+    admin = factory.user("admin")
+    folder = factory.sequence_folder("seq")
+    secret = tmp_path / "secret.bin"
+    secret.write_bytes(b"\0" * 16)
+    os.symlink(secret, folder / "velodyne" / "000001.bin")
+    r = client.post("/api/v1/datasets", json={"path": "seq"}, headers=admin.headers)
+    assert r.status_code == 403 and "000001.bin" in r.json()["detail"] and str(tmp_path) not in r.json()["detail"]
+
+
+def test_hardening_symlink_added_after_registration_fails_the_ingest(client, factory, db, settings, tmp_path):
+    import os
+
+    admin = factory.user("admin")
+    folder = factory.sequence_folder("seq")
+    r = client.post("/api/v1/datasets", json={"path": "seq"}, headers=admin.headers)
+    seq = r.json()["sequences"][0]
+    (tmp_path / "secret.bin").write_bytes(b"\0" * 16)
+    os.symlink(tmp_path / "secret.bin", folder / "velodyne" / "000001.bin")
+    assert _run_worker_with_fake(settings, db, n_frames=2, n_objects=1)
+    with db.read() as s:
+        job = s.get(Job, seq["ingest_job_id"])
+        assert job.status == "failed" and "000001.bin" in job.error
+        assert s.get(Sequence, seq["id"]).status == "failed"
+
+
+def test_hardening_symlink_inside_roots_is_fine(client, factory, settings):
+    import os
+
+    admin = factory.user("admin")
+    folder = factory.sequence_folder("seq")
+    other = settings.data_roots[0] / "shared.bin"
+    other.write_bytes(b"\0" * 16)
+    os.symlink(other, folder / "velodyne" / "000001.bin")
+    assert client.post("/api/v1/datasets", json={"path": "seq"}, headers=admin.headers).status_code == 201
+
+
+def test_hardening_duplicate_registration_is_409_with_the_existing_id(client, factory):
+    # defect 7: one folder registered 67 times
+    admin = factory.user("admin")
+    factory.sequence_folder("seq")
+    first = client.post("/api/v1/datasets", json={"path": "seq", "ingest": False}, headers=admin.headers).json()
+    seq_id = first["sequences"][0]["id"]
+    r = client.post("/api/v1/datasets", json={"path": "seq", "ingest": False}, headers=admin.headers)
+    assert r.status_code == 409 and r.json()["sequence_id"] == seq_id and str(seq_id) in r.json()["detail"]
+    r = client.post("/api/v1/datasets", json={"path": "seq", "ingest": False, "reregister": True}, headers=admin.headers)
+    assert r.status_code == 201 and r.json()["sequences"][0]["id"] != seq_id
+
+
+def test_hardening_large_body_is_413_without_echo(client, factory):
+    # defect 6: a 20 MB body got a 422 that echoed all of it
+    op = factory.user("operator")
+    big = b'{"version": "' + b"x" * (3 << 20) + b'"}'
+    r = client.post("/api/v1/tracks/1/accept", content=big, headers={**op.headers, "content-type": "application/json"})
+    assert r.status_code == 413 and len(r.content) < 200
+
+
+def test_hardening_large_chunked_body_is_413(client, factory):
+    op = factory.user("operator")
+
+    def chunks():
+        for _ in range(40):
+            yield b"x" * (64 << 10)
+
+    r = client.post("/api/v1/tracks/1/accept", content=chunks(), headers={**op.headers, "content-type": "application/json"})
+    assert r.status_code == 413 and len(r.content) < 200

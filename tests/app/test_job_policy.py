@@ -13,30 +13,42 @@ def _queue(client, caller, job_type, **params):
     return client.post("/api/v1/jobs", json={"type": job_type, "params": params}, headers=caller.headers)
 
 
+def _model(db) -> int:
+    from app.models import ModelVersion
+
+    with db.write() as s:
+        mv = ModelVersion(name="m", kind="train", path="m.pt")
+        s.add(mv)
+        s.commit()
+        return mv.id
+
+
 def _review_one(client, op):
     track = client.post("/api/v1/review/next", headers=op.headers).json()
     client.post(f"/api/v1/tracks/{track['id']}/accept", json={"version": track["version"]}, headers=op.headers)
 
 
-def test_job_policy_operator_params_are_bounded(client, factory):
+def test_job_policy_operator_params_are_bounded(client, factory, db):
     # defect 3: epochs 1000 x steps 100000 was accepted and held the worker
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    model_id = _model(db)
     op = factory.user("operator")
     _review_one(client, op)
-    r = _queue(client, op, "finetune", sequence_id=seq, model_id=1, epochs=1000, steps_per_epoch=100000)
+    r = _queue(client, op, "finetune", sequence_id=seq, model_id=model_id, epochs=1000, steps_per_epoch=100000)
     assert r.status_code == 403 and "params.epochs" in r.json()["detail"]
+    assert _queue(client, op, "finetune", sequence_id=seq, model_id=model_id, epochs=5).status_code == 202
     admin = factory.user("admin")
-    r = _queue(client, admin, "finetune", sequence_id=seq, model_id=1, epochs=1000)
-    assert r.status_code == 404  # past the policy: the model does not exist
+    assert _queue(client, admin, "finetune", sequence_id=seq, model_id=model_id, epochs=1000).status_code == 202
 
 
-def test_job_policy_operator_only_on_sequences_they_work_on(client, factory):
+def test_job_policy_operator_only_on_sequences_they_work_on(client, factory, db):
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    model_id = _model(db)
     op = factory.user("operator")
-    r = _queue(client, op, "propose_anchors", sequence_id=seq)
+    r = _queue(client, op, "propose_anchors", sequence_id=seq, model_id=model_id)
     assert r.status_code == 403 and f"sequence {seq}" in r.json()["detail"]
     _review_one(client, op)
-    assert _queue(client, op, "propose_anchors", sequence_id=seq).status_code != 403
+    assert _queue(client, op, "propose_anchors", sequence_id=seq, model_id=model_id).status_code == 202
 
 
 def test_job_policy_operator_cannot_queue_admin_types(client, factory):

@@ -48,9 +48,9 @@ def create_job(body: JobCreate, user: CurrentUser, session: WriteSessionDep, set
     except ValidationError as exc:
         first = exc.errors()[0]
         raise Invalid(f"params.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
-    priority = policy.authorize(session, user, jt, params, settings)
-    if jt.prepare is not None:
+    if jt.prepare is not None:  # 404/409 for what the job needs come first; nothing is committed yet
         jt.prepare(session, params)
+    priority = policy.authorize(session, user, jt, params, settings)
     job = crud.create_job(session, jt.name, params.model_dump(mode="json"), user.id, priority)
     if jt.name == "ingest":
         from app.jobs.ingest import note_queued
