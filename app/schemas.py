@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-Role = Literal["operator", "admin"]
+Role = Literal["operator", "reviewer", "admin"]
 TrackStatus = Literal["pending", "accepted", "discarded"]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
@@ -30,8 +30,32 @@ class UserBase(_Request):
     role: Role = "operator"
 
 
+EXPIRES_HELP = "Days the token is valid; the service's token_expiry_days (90) when omitted."
+
+
 class UserCreate(UserBase):
-    pass
+    expires_days: float | None = Field(default=None, gt=0, le=36500, description=EXPIRES_HELP)
+
+
+class TokenCreate(_Request):
+    expires_days: float | None = Field(default=None, gt=0, le=36500, description=EXPIRES_HELP)
+
+
+class TokenPublic(_Public):
+    id: int
+    prefix: str = Field(description="The token's first characters (to tell tokens apart, and to revoke one).")
+    created_at: datetime
+    created_by_id: int | None
+    expires_at: datetime | None
+    revoked_at: datetime | None
+
+
+class TokenRevoke(_Request):
+    prefix: str = Field(min_length=6, max_length=64, description="Revoke the live tokens starting with this.")
+
+
+class RevokeResult(BaseModel):
+    revoked: int
 
 
 class UserPublic(_Public):
@@ -61,6 +85,9 @@ class DatasetCreate(DatasetBase):
     ingest: bool = Field(default=True, description="Queue the ingest job right away.")
     config: dict[str, Any] | None = Field(default=None, description="Pipeline config overrides for ingest.")
     poses: IngestPoses = Field(default="file", description=POSES_HELP)
+    reregister: bool = Field(
+        default=False, description="Register the folder again although a sequence of it exists (else 409)."
+    )
 
 
 class SequencePublic(_Public):
@@ -239,6 +266,10 @@ class JobTypePublic(BaseModel):
     admin_only: bool
     description: str
     params_schema: dict[str, Any]
+    operators_may_queue: bool
+    operator_max_values: dict[str, float] = Field(description="Upper bounds of params for operators.")
+    admin_only_params: list[str] = Field(description="Switches only an admin may turn on.")
+    max_run_seconds: float = Field(description="A job running longer is stopped and marked failed.")
 
 
 # ----------------------------------------------------------------------------- exports

@@ -22,6 +22,7 @@ from sqlalchemy import delete, insert, select
 from app.core.errors import Invalid
 from app.jobs.context import JobContext
 from app.jobs.models_util import choose_model, ready_sequence, score_stored_samples
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
 from app.models import AnchorProposal, Frame, Segment, Track, utcnow
 
@@ -159,5 +160,7 @@ register(
         admin_only=False,
         description="Score a sequence's samples with a model and propose anchors (per class) to confirm.",
         prepare=prepare_propose,
+        operator_rule=OperatorRule(max_values={"per_class": 200, "unknown": 500, "batch": 1024}),
+        max_run_seconds=1800.0,
     )
 )

@@ -15,11 +15,13 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from sqlalchemy import select
 
 from app.anchors import confirmed_sample_anchors
 from app.core.errors import Conflict, Invalid, ServiceError
 from app.jobs import models_util
 from app.jobs.context import JobContext
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, get_job_type, register
 from app.jobs.training_params import job_training_config, with_training_fields
 from pipeline.config import TrainingConfig
@@ -153,7 +155,10 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
         mv_id = mv.id
         s.commit()
     predict_error = None
-    if params.predict:
+    if params.predict and not _created_by_admin(ctx):
+        # queued before the policy refused it for operators: predict stays an admin's decision
+        predict_error = "predict needs the admin role"
+    elif params.predict:
         try:
             with ctx.db.write() as s:
                 predict_job_id = _queue_predict(s, params.sequence_id, mv_id, ctx.user_id)
@@ -170,6 +175,13 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
         "predict_job_id": predict_job_id,
         "predict_error": predict_error,
     }
+
+
+def _created_by_admin(ctx: JobContext) -> bool:
+    from app.models import User
+
+    with ctx.db.read() as s:
+        return s.scalar(select(User.role).where(User.id == ctx.user_id)) == "admin"
 
 
 def _queue_predict(s: Any, sequence_id: int, model_version_id: int, user_id: int | None) -> int:
@@ -193,5 +205,12 @@ register(
         admin_only=False,
         description="Fine-tune a model on a sequence's confirmed anchors and constraints; register it; optionally predict.",
         prepare=prepare_finetune,
+        # operators: a run of minutes on the shared worker, and no predict (it rewrites every
+        # track's predicted class, an admin decision)
+        operator_rule=OperatorRule(
+            max_values={"epochs": 50, "steps_per_epoch": 1000, "batch_labelled": 256, "threads": 8},
+            admin_switches=("predict",),
+        ),
+        max_run_seconds=3600.0,
     )
 )

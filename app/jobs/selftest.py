@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from app.jobs.context import JobContext
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
 
 
@@ -31,5 +32,7 @@ register(
         handler=run_selftest,
         admin_only=False,
         description="Sleep in steps and report progress (checks that a worker runs).",
+        operator_rule=OperatorRule(max_values={"steps": 500, "step_seconds": 1.0}, own_sequence=False),
+        max_run_seconds=600.0,
     )
 )

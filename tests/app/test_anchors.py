@@ -35,6 +35,8 @@ def model_id(db, tmp_path: Path) -> int:
 
 
 def _run_job(client, settings, db, caller, type_: str, **params) -> dict:
+    if caller.role != "admin":  # operators queue jobs on sequences they review (app/jobs/policy.py)
+        client.post("/api/v1/review/next", params={"sequence_id": params["sequence_id"]}, headers=caller.headers)
     r = client.post("/api/v1/jobs", json={"type": type_, "params": params}, headers=caller.headers)
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
@@ -203,7 +205,8 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
     tid = items[3]["track_id"]
     t = client.get(f"/api/v1/tracks/{tid}", headers=op.headers).json()
     client.post(f"/api/v1/tracks/{tid}/label", json={"version": t["version"], "label": "car"}, headers=op.headers)
-    res = _run_job(client, settings, db, op, "finetune", sequence_id=seq, model_id=model_id,
+    admin = factory.user("admin")  # the chained predict rewrites every track's prediction: admins only
+    res = _run_job(client, settings, db, admin, "finetune", sequence_id=seq, model_id=model_id,
                    epochs=2, steps_per_epoch=2, threads=1, predict=True)
     # the chained predict job re-labels the sequence's tracks with the new model
     assert res["predict_job_id"] and res["predict_error"] is None
@@ -211,11 +214,11 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
     with db.read() as s:
         job = s.get(Job, res["predict_job_id"])
         assert job is not None and job.status == "succeeded", job.error
-        assert job.params["model_id"] == res["model_id"] and job.created_by_id == op.id
+        assert job.params["model_id"] == res["model_id"] and job.created_by_id == admin.id
         assert s.scalar(select(func.count()).select_from(Track).where(Track.predicted_class.is_(None))) == 0
     with db.read() as s:
         mv = s.get(ModelVersion, res["model_id"])
-        assert mv is not None and mv.kind == "finetune" and mv.parent_id == model_id and mv.created_by_id == op.id
+        assert mv is not None and mv.kind == "finetune" and mv.parent_id == model_id and mv.created_by_id == admin.id
         assert Path(mv.path).is_file()
         n_track = s.scalar(select(func.count()).select_from(Label).where(Label.track_id == tid))
         pairs = s.scalar(select(Track.n_samples).where(Track.id == tid)) - 1

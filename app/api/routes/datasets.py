@@ -5,7 +5,9 @@ from sqlalchemy import select
 
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
-from app.core.errors import Invalid, NotFound
+from app.core.errors import Conflict, Invalid, NotFound
+from app.jobs import policy
+from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
 from app.models import Dataset, Job, Sequence
 from app.schemas import (
@@ -38,10 +40,8 @@ def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_
     params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force, "poses": poses})
     assert ingest.prepare is not None
     ingest.prepare(session, params)
-    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id)
-    seq = session.get(Sequence, sequence_id)
-    assert seq is not None
-    seq.ingest_job_id = job.id
+    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id, policy.ADMIN_PRIORITY)
+    note_queued(session, sequence_id, job.id)
     return job
 
 
@@ -51,13 +51,21 @@ def register_dataset(
 ) -> DatasetPublic:
     """Register a sequence by its path under a configured data root (admin).
 
-    A path with `..` or outside the roots is refused with 403. With `ingest` (default) the ingest
-    job is queued at once; its id is the sequence's `ingest_job_id`.
+    A path with `..`, outside the roots, or holding a link to outside them is refused with 403; a
+    folder registered before with 409 and the existing `sequence_id` (unless `reregister`). With
+    `ingest` (default) the ingest job is queued at once; its id is the sequence's `ingest_job_id`.
     """
     from pipeline.errors import TracklabelError
     from pipeline.io.registry import detect_format, reader_names
 
     path = crud.resolve_registration_path(body.path, settings.data_roots)
+    crud.check_tree_inside_roots(path, settings.data_roots)
+    existing = crud.registered_sequence_id(session, path)
+    if existing is not None and not body.reregister:
+        raise Conflict(
+            f"this folder is already registered as sequence {existing}; pass reregister=true to register it again",
+            sequence_id=existing,
+        )
     if body.format != "auto" and body.format not in reader_names():
         raise Invalid(f"unknown format {body.format!r}; known: {', '.join(reader_names())}")
     if body.config:
