@@ -4,7 +4,15 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.regions import Box, HalfSpace, Prism, ScreenLasso, points_in_polygon, quaternion_matrix, select_points
+from pipeline.regions import (
+    Box,
+    HalfSpace,
+    Prism,
+    ScreenLasso,
+    points_in_polygon,
+    quaternion_matrix,
+    select_points,
+)
 
 coords = st.floats(-50, 50, allow_nan=False, allow_infinity=False)
 
