@@ -305,7 +305,9 @@ def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
     """The frame's artifact file (atomic rename); the row pointing at it commits later."""
     db_track = _db_tracks(state, fr)
     point_seg = np.asarray(fr.segment, dtype=np.int32)
-    point_track = np.where(point_seg >= 0, db_track[np.maximum(point_seg, 0)], 0).astype(np.int64)
+    point_track = np.zeros(len(point_seg), np.int64)  # a frame without segments indexes nothing
+    segmented = point_seg >= 0
+    point_track[segmented] = db_track[point_seg[segmented]]
     return ctx.artifacts.write_frame(
         state.sequence_id,
         fr.index,
