@@ -462,7 +462,7 @@ def _drop_track(session: Session, track: Track) -> None:
 def _undo_split(session: Session, track: Track, ev: AnnotationEvent, user: AuthUser, version: int) -> Track:
     d = ev.detail or {}
     new = session.get(Track, d["new_track"], with_for_update=True)
-    if new is None or new.version != 1:
+    if new is None or _live_events(session, new.id):
         raise Conflict(f"track {d['new_track']} cut off by this split has changed since; undo its actions first")
     before = crud.review_state(track)
     created = d["created_segments"]
@@ -481,6 +481,14 @@ def _undo_split(session: Session, track: Track, ev: AnnotationEvent, user: AuthU
     _refresh_labels(session, user, track)
     session.commit()
     return track
+
+
+def _live_events(session: Session, track_id: int) -> int:
+    """How many actions on the track no undo has reverted (0: it is as the split made it)."""
+    reverted = select(AnnotationEvent.reverts_event_id).where(
+        AnnotationEvent.track_id == track_id, AnnotationEvent.reverts_event_id.is_not(None))
+    return int(session.scalar(select(func.count()).select_from(AnnotationEvent).where(
+        AnnotationEvent.track_id == track_id, AnnotationEvent.action != "undo", AnnotationEvent.id.not_in(reverted))) or 0)
 
 
 def _bind_id() -> Any:

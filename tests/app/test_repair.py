@@ -212,6 +212,9 @@ def test_repair_undo_split_refused_when_the_new_track_changed(client, factory):
     _post(client, op, new["id"], "accept", {"version": 1})
     r = client.post(f"/api/v1/tracks/{tid}/undo", json={"version": 2}, headers=op.headers)
     assert r.status_code == 409 and "changed since" in r.json()["detail"]
+    _post(client, op, new["id"], "undo", {"version": 2})  # its action undone: the split can go
+    _post(client, op, tid, "undo", {"version": 2})
+    _post(client, op, new["id"], "accept", {"version": 3}, status=404)
 
 
 def test_repair_undo_with_nothing_to_undo_says_so(client, factory):
