@@ -18,7 +18,7 @@ from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 from tests.annotator_ui.test_browser import ARGS, CANVAS, CHROMIUM
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-BUILDING, VEGETATION = 50, 70  # SemanticKITTI ids the simulator writes for walls and hedges
+BUILDING, VEGETATION, CAR = 50, 70, 10  # SemanticKITTI ids the simulator writes
 
 pytestmark = [pytest.mark.browser, pytest.mark.skipif(CHROMIUM is None, reason="chromium is absent")]
 
@@ -177,6 +177,81 @@ def test_browser_split_wall_and_hedge_with_the_box_label_both_export_undo(browse
         assert httpx.get(f"{live_api.url}/api/v1/tracks/{new_id}",
                          headers={"Authorization": f"Bearer {live_api.admin_token}"}).status_code == 404
         assert not page.errors
+    finally:
+        page.close()
+        viewer.stop()
+
+
+def test_browser_merge_the_tracks_of_a_stitch(browser, live_api):
+    st = api(live_api, "GET", "/stitches", params={"status": "pending", "limit": 50}).json()["items"]
+    pending = [s for s in st if api(live_api, "GET", f"/tracks/{s['track_b_id']}").json()["status"] == "pending"
+               and api(live_api, "GET", f"/tracks/{s['track_a_id']}").json()["status"] == "pending"]
+    assert pending, "the demo scene has no stitch of two pending tracks"
+    a, b = int(pending[0]["track_a_id"]), int(pending[0]["track_b_id"])
+    n = api(live_api, "GET", f"/tracks/{a}").json()["n_points"] + api(live_api, "GET", f"/tracks/{b}").json()["n_points"]
+    viewer, page = open_viewer(browser, live_api)
+    try:
+        tab = the_tab(viewer)
+        tab.gui_goto.value = str(a)
+        page.get_by_role("button", name="Open track").click()
+        wait(lambda: tab.session.track_id == a, what="track a opened")
+        page.get_by_role("tab", name="Stitches").click()
+        wait(lambda: f"of track {a}" in tab.stitches.gui_status.content, what="the track's stitches")
+        page.get_by_role("button", name="Merge").first.click()
+        wait(lambda: api(live_api, "GET", f"/tracks/{b}").json()["status"] == "merged", what="the merge")
+        assert api(live_api, "GET", f"/tracks/{a}").json()["n_points"] == n
+        page.keyboard.press("z")
+        wait(lambda: api(live_api, "GET", f"/tracks/{b}").json()["status"] == "pending", what="the undo")
+        assert not page.errors
+    finally:
+        page.close()
+        viewer.stop()
+
+
+def test_browser_aggregated_view_and_orthographic_images(browser, live_api):
+    viewer, page = open_viewer(browser, live_api)
+    try:
+        tab = the_tab(viewer)
+        frames = api(live_api, "GET", f"/sequences/{live_api.sequence_id}/frames", params={"limit": 1000}).json()["items"]
+        tracks = api(live_api, "GET", "/tracks", params={"sequence_id": live_api.sequence_id, "status": "pending",
+                                                         "min_length": 5, "sort": "-n_points", "limit": 30}).json()["items"]
+        target = next(t for t in tracks if np.mean(ground_truth(live_api, frames, t["id"])[2] == CAR) > 0.9)
+        tab.gui_goto.value = str(target["id"])
+        page.get_by_role("button", name="Open track").click()
+        wait(lambda: tab.session.track_id == target["id"], what="the track opened")
+        page.get_by_text("Aggregate kept frames").click()
+        wait(lambda: tab.views.aggregated, what="the aggregate switch")
+        time.sleep(2.0)  # the kept frames' payloads load, the cloud and images are drawn
+        page.screenshot(path=str(DOCS / "aggregated_view.png"))
+        assert not page.errors
+    finally:
+        page.close()
+        viewer.stop()
+
+
+def test_browser_key_help_is_visible_without_scrolling_at_1400x900(browser, live_api):
+    viewer, page = open_viewer(browser, live_api, 1400, 900)
+    try:
+        the_tab(viewer)
+        help_text = page.get_by_text("truncate before / after").first
+        help_text.wait_for(timeout=20_000)
+        box = help_text.bounding_box()
+        assert box is not None and box["y"] + box["height"] <= 900
+        assert page.get_by_role("button", name="1 person").count() == 1  # number keys on the class buttons
+    finally:
+        page.close()
+        viewer.stop()
+
+
+def test_browser_sign_in_page_is_dark_and_masks_the_token(browser, live_api):
+    viewer, page = open_viewer(browser, live_api, token=False)
+    try:
+        field = page.get_by_role("textbox").first
+        field.wait_for(timeout=20_000)
+        assert field.evaluate("e => getComputedStyle(e).webkitTextSecurity") == "disc"
+        background = page.evaluate("() => getComputedStyle(document.querySelector('.mantine-Paper-root, body')).backgroundColor")
+        r, g, b = (int(v) for v in background[background.index("(") + 1 : background.index(")")].split(",")[:3])
+        assert max(r, g, b) < 80, background
     finally:
         page.close()
         viewer.stop()
