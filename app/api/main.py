@@ -12,6 +12,7 @@ from app.api.routes import (
     health,
     jobs,
     models,
+    repair,
     review,
     stitches,
     tracks,
@@ -19,5 +20,5 @@ from app.api.routes import (
 )
 
 api_router = APIRouter()
-for module in (health, users, datasets, frames, tracks, review, exports, jobs, models, anchors, stitches):
+for module in (health, users, datasets, frames, tracks, repair, review, exports, jobs, models, anchors, stitches):
     api_router.include_router(module.router)
