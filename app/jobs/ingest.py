@@ -179,7 +179,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         state.skipped.append(f"frame {index}: {error}")
 
     batch: list[Any] = []
-    for fr in processor.iter_frames(source, progress=False, workers=1, poses=opened.poses, on_skip=on_skip):
+    for fr in processor.iter_frames(source, workers=1, poses=opened.poses, on_skip=on_skip):
         if _input_row_count(fr) == 0:
             # an empty file is a truncated copy, never a scan: skipped and reported like a corrupt
             # frame, not stored as a frame with nothing to label
