@@ -77,7 +77,8 @@ def build_default_model(
     to `out` with the suffix .json."""
     cfg = cfg or DefaultModelConfig()
     out = Path(out)
-    cache = Path(cache) if cache is not None else out.parent / "default_model_cache"
+    # not beside OUT: the shipped model lives in the package, the scenes take gigabytes
+    cache = Path(cache) if cache is not None else Path("data") / "default_model_cache"
     t0 = time.perf_counter()
     sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
     log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames, style {cfg.train_style}) and "
