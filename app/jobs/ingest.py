@@ -147,7 +147,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         state.skipped.append(f"frame {index}: {error}")
 
     batch: list[Any] = []
-    for fr in processor.iter_frames(source, progress=False, workers=1, poses=opened.poses, on_skip=on_skip):
+    for fr in processor.iter_frames(source, workers=1, poses=opened.poses, on_skip=on_skip):
         batch.append(fr)
         if len(batch) >= ctx.settings.ingest_batch_frames:
             _write_batch(ctx, state, batch)
