@@ -252,7 +252,7 @@ def experiment_default_model(
     out: Annotated[Path, typer.Option("--out", help="Checkpoint to write (the shipped one: pipeline/models/default.pt).")] = Path("data/default_model/default.pt"),
     config: ConfigNames = None,
     set_: ConfigSets = None,
-    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default beside OUT).")] = None,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default data/default_model_cache).")] = None,
 ) -> None:
     """Train the default model on the simulated campus with the product's training (the model
     `predict` and anchor proposals use when none is given); writes OUT and OUT's .json summary."""

@@ -47,6 +47,46 @@ def prepare_propose(s: Any, params: ProposeAnchorsParams) -> None:
     choose_model(s, params.model_id)
 
 
+def _excluded(rows: list[Any], answered: list[Any], track_level: bool) -> np.ndarray:
+    """(N,) bool: samples not to propose: of discarded or labelled tracks, answered already (and
+    with a track strategy, of tracks answered already)."""
+    seg_ids = np.array([r[0] for r in rows], np.int64)
+    exclude = np.array([(r[4] == "discarded") or (r[5] is not None) for r in rows], bool)
+    done_segments = {int(a) for a, _t, lvl in answered if a is not None and lvl == "sample"}
+    exclude |= np.isin(seg_ids, list(done_segments))
+    if track_level:
+        done_tracks = {int(t) for _a, t, lvl in answered if lvl == "track"}
+        exclude |= np.isin(np.array([r[1] for r in rows], np.int64), list(done_tracks))
+    return exclude
+
+
+def _proposal_rows(ctx: JobContext, params: ProposeAnchorsParams, out: Any, classes: tuple[str, ...],
+                   seg_ids: np.ndarray, track_ids: np.ndarray, mv_id: int | None, level: str) -> list[dict[str, Any]]:
+    """The anchor_proposals rows of `out` (pipeline.anchors.Proposals), ranked within each class."""
+    rank = np.zeros(len(out), np.int64)
+    for k in range(len(classes)):
+        m = out.proposed == k
+        rank[m] = np.arange(int(m.sum()))
+    now = utcnow()
+    return [
+        {
+            "sequence_id": params.sequence_id,
+            "track_id": int(track_ids[i]),
+            "segment_id": int(seg_ids[i]),
+            "model_version_id": mv_id,
+            "proposed_class": classes[int(k)],
+            "score": float(sc),
+            "status": "proposed",
+            "level": level,
+            "strategy": params.strategy,
+            "rank": int(r),
+            "job_id": ctx.job_id,
+            "created_at": now,
+        }
+        for i, k, sc, r in zip(out.index, out.proposed, out.score, rank, strict=True)
+    ]
+
+
 def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]:
     from pipeline.anchors import TRACK_STRATEGIES, class_counts, propose
     from pipeline.model import load_checkpoint
@@ -87,45 +127,12 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
                                   features=params.strategy in ("diverse", "track_diverse"), on_file=scored)
     probs, feats = scores.probs, scores.features
 
-    exclude = np.array([(r[4] == "discarded") or (r[5] is not None) for r in rows], bool)
-    done_segments = {int(a) for a, _t, lvl in answered if a is not None and lvl == "sample"}
-    done_tracks = {int(t) for _a, t, lvl in answered if lvl == "track"}
-    exclude |= np.isin(seg_ids, list(done_segments))
-    if params.strategy in TRACK_STRATEGIES:
-        exclude |= np.isin(track_ids, list(done_tracks))
+    exclude = _excluded(rows, answered, params.strategy in TRACK_STRATEGIES)
     counts = class_counts(params.per_class, params.unknown, classes)
-    out = propose(
-        probs,
-        params.strategy,
-        counts,
-        features=feats,
-        tracks=track_ids,
-        exclude=exclude,
-        min_track_samples=params.min_track_samples,
-    )
+    out = propose(probs, params.strategy, counts, features=feats, tracks=track_ids, exclude=exclude,
+                  min_track_samples=params.min_track_samples)
     level = "track" if params.strategy in TRACK_STRATEGIES else "sample"
-    rank = np.zeros(len(out), np.int64)
-    for k in range(len(classes)):
-        m = out.proposed == k
-        rank[m] = np.arange(int(m.sum()))
-    now = utcnow()
-    values = [
-        {
-            "sequence_id": params.sequence_id,
-            "track_id": int(track_ids[i]),
-            "segment_id": int(seg_ids[i]),
-            "model_version_id": mv_id,
-            "proposed_class": classes[int(k)],
-            "score": float(sc),
-            "status": "proposed",
-            "level": level,
-            "strategy": params.strategy,
-            "rank": int(r),
-            "job_id": ctx.job_id,
-            "created_at": now,
-        }
-        for i, k, sc, r in zip(out.index, out.proposed, out.score, rank, strict=True)
-    ]
+    values = _proposal_rows(ctx, params, out, classes, seg_ids, track_ids, mv_id, level)
     ctx.checkpoint()
     with ctx.db.write() as s:
         removed = 0

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -27,6 +29,7 @@ from sqlalchemy.orm import Session
 from app.core.errors import Conflict, Invalid
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.models_util import (
+    TrainingSet,
     load_training_set,
     model_dir,
     model_version_for_job,
@@ -37,7 +40,7 @@ from app.jobs.models_util import (
 from app.jobs.registry import JobType, register
 from app.jobs.training_params import job_training_config, with_training_fields
 from app.models import Job, Sequence
-from pipeline.config import TrainingConfig
+from pipeline.config import SampleConfig, TrainingConfig
 
 MODEL_SIZES: dict[str, dict[str, int]] = {
     "tiny": {"width": 8, "max_width": 16, "depth": 2},
@@ -89,14 +92,18 @@ def _record(ctx: JobContext, result: dict[str, Any]) -> None:
         s.commit()
 
 
-def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
-    from pipeline.config import ModelConfig
-    from pipeline.training import LabelledSamples, TrainingData, split_by_track, train
+@dataclass
+class _JobData:
+    """What a train job reads: the training set, the sample config its samples were made with,
+    the optional validation sequences' set and the user who queued the job."""
 
-    with ctx.db.read() as s:
-        done = model_version_for_job(s, ctx.job_id)
-        if done is not None:
-            return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
+    ts: TrainingSet
+    samples_cfg: SampleConfig
+    val_set: TrainingSet | None
+    user_id: int | None
+
+
+def _read(ctx: JobContext, params: Any) -> _JobData:
     ctx.progress(0.0, "reading labels and constraints")
 
     def reading(done: int, total: int) -> None:
@@ -110,49 +117,60 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
         seq = s.get(Sequence, params.sequence_ids[0])
         assert seq is not None  # load_training_set checked it
         samples_cfg = sample_config_for(ctx.settings, seq)
-        val_set = None
-        if params.val_sequence_ids:
-            val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none")
+        val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none") if params.val_sequence_ids else None
         job = s.get(Job, ctx.job_id)
         user_id = None if job is None else job.created_by_id
-    data = ts.data
-    shape = data.samples.shape[1:]
+    shape = ts.data.samples.shape[1:]
     if params.size is not None and shape[1] != params.size:
         raise Invalid(f"the sequences' samples are {shape[1]}x{shape[2]}, params.size asks for {params.size}")
     if shape != (samples_cfg.channels, samples_cfg.size, samples_cfg.size):
         # the stored samples are the truth; adopt their size/channels
         samples_cfg = samples_cfg.model_copy(update={"size": int(shape[1]), "foreground_channel": shape[0] == 4})
-    if len(data.labelled) == 0:
+    if len(ts.data.labelled) == 0:
         raise Invalid(f"sequences {params.sequence_ids} hold no verified labels: review some tracks first")
+    return _JobData(ts, samples_cfg, val_set, user_id)
 
-    labels = data.labels
-    if val_set is not None:
+
+def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
+    """(training data, validation samples or None, indices of the training labels): the
+    validation sequences, else a split by track of the labels, else no validation."""
+    from pipeline.training import LabelledSamples, TrainingData, split_by_track
+
+    data = job.ts.data
+    labels, shape = data.labels, data.samples.shape[1:]
+    if job.val_set is not None:
         train_sel = np.arange(len(labels))
-        val = LabelledSamples(val_set.data.samples[val_set.data.labelled], val_set.data.labels)
+        val = LabelledSamples(job.val_set.data.samples[job.val_set.data.labelled], job.val_set.data.labels)
         if val.samples.shape[1:] != shape:
             raise Invalid(f"validation samples are {val.samples.shape[1:]}, training samples {shape}")
     elif params.val_fraction > 0:
-        train_sel, val_sel = split_by_track(labels, ts.label_track_ids, params.val_fraction, params.seed)
+        train_sel, val_sel = split_by_track(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
         val = LabelledSamples(data.samples[data.labelled[val_sel]], labels[val_sel])
     else:
         train_sel, val = np.arange(len(labels)), None
     train_data = TrainingData.build(
         data.samples, data.labelled[train_sel], labels[train_sel], data.pairs, data.pair_weights
     )
+    return train_data, val, train_sel
 
-    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
-    cfg = train_config(params)
-    counts = {
+
+def _counts(job: _JobData, train_sel: np.ndarray, val: Any, num_classes: int) -> dict[str, Any]:
+    from pipeline.classes import SAMPLE_CLASSES
+
+    data = job.ts.data
+    binc = np.bincount(data.labels[train_sel], minlength=num_classes)
+    return {
         "labelled_train": int(len(train_sel)),
         "labelled_val": 0 if val is None else len(val),
         "pairs": int(len(data.pairs)),
-        "pairs_verified": int(ts.pair_verified.sum()),
-        "labels_per_class": {},
+        "pairs_verified": int(job.ts.pair_verified.sum()),
+        "labels_per_class": {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(num_classes)},
     }
-    from pipeline.classes import SAMPLE_CLASSES
 
-    binc = np.bincount(labels[train_sel], minlength=model_cfg.num_classes)
-    counts["labels_per_class"] = {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(model_cfg.num_classes)}
+
+def _reporter(ctx: JobContext, counts: dict[str, Any]) -> Callable[[Any], None]:
+    """The training report callback: progress into the job row, and each finished epoch's loss
+    and validation F into its running result."""
     history: list[dict[str, Any]] = []
 
     def on_progress(p: Any) -> None:
@@ -168,10 +186,26 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
         except JobStopped:
             pass  # the flag is set: `stop` ends training at the next step
 
+    return on_progress
+
+
+def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
+    from pipeline.config import ModelConfig
+    from pipeline.training import train
+
+    with ctx.db.read() as s:
+        done = model_version_for_job(s, ctx.job_id)
+        if done is not None:
+            return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
+    job = _read(ctx, params)
+    train_data, val, train_sel = _split(job, params)
+    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
+    cfg = train_config(params)
+    counts = _counts(job, train_sel, val, model_cfg.num_classes)
     out = model_dir(ctx.settings, "train", ctx.job_id)
     ctx.progress(0.05, f"training on {counts['labelled_train']} labels and {counts['pairs']} pairs")
     result = train(
-        train_data, cfg, model_cfg, samples_cfg, val=val, checkpoint_dir=out, report=on_progress,
+        train_data, cfg, model_cfg, job.samples_cfg, val=val, checkpoint_dir=out, report=_reporter(ctx, counts),
         stop=lambda: ctx.cancelled.is_set() or ctx.lease_lost.is_set(),
     )
     if result.cancelled:
@@ -184,13 +218,13 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
         "params": params.model_dump(mode="json"),
         "training": cfg.model_dump(mode="json"),
         "model": model_cfg.model_dump(mode="json"),
-        "samples": samples_cfg.model_dump(mode="json"),
+        "samples": job.samples_cfg.model_dump(mode="json"),
     }
     name = params.name or f"train {params.constraints} seq {','.join(map(str, params.sequence_ids))} (job {ctx.job_id})"
     with ctx.db.write() as s:
         mv = register_model_version(
             s, name=name, kind="train", path=result.checkpoint.resolve(), metrics=metrics, config=config,
-            job_id=ctx.job_id, created_by_id=user_id,
+            job_id=ctx.job_id, created_by_id=job.user_id,
         )
         s.commit()
         model_id = mv.id

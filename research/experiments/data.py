@@ -205,19 +205,24 @@ def confirm_stitches(pairs: np.ndarray, label: np.ndarray, gt_object: np.ndarray
 
 
 # Code that shapes the samples: a change to any of these files invalidates cached scenes.
-_SOURCES = ("simulation", "io", "sequence.py", "range_image.py", "ground.py", "segmentation.py", "samples.py",
-            "association.py", "processing.py", "sensors.py", "classes.py", "experiments/data.py")
+# the code that shapes a scene's samples (paths from the repository root): a change to any of it
+# makes a new cache entry
+_SOURCES = ("research/simulation", "pipeline/io", "pipeline/sequence.py", "pipeline/range_image.py",
+            "pipeline/ground.py", "pipeline/segmentation.py", "pipeline/samples.py", "pipeline/association.py",
+            "pipeline/processing.py", "pipeline/sensors.py", "pipeline/classes.py", "research/experiments/data.py")
 
 
 def _code_fingerprint() -> str:
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     h = hashlib.sha256()
     for name in _SOURCES:
         p = root / name
-        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
-            if f.is_file():
-                h.update(f.relative_to(root).as_posix().encode())
-                h.update(f.read_bytes())
+        files = sorted(p.rglob("*.py")) if p.is_dir() else [p]
+        if not files or not all(f.is_file() for f in files):
+            raise FileNotFoundError(f"cache fingerprint: {p} is missing")  # a moved module must not go unseen
+        for f in files:
+            h.update(f.relative_to(root).as_posix().encode())
+            h.update(f.read_bytes())
     return h.hexdigest()
 
 

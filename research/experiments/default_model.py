@@ -4,8 +4,9 @@
    the real perception pipeline, then the ground-truth-checking operator labels every track and
    accepts its constraints) and a test scene D of another layout and campus style.
 2. Split the operator's labelled tracks 70/30 by track (`pipeline.training.split_by_track`).
-3. Train with the product's training, `pipeline.training.train` with `TrainingConfig()`: the
-   defaults of the REST train job, on the training tracks' labels and their verified
+3. Train with the product's training, `pipeline.training.train` with the REST train job's
+   `TrainingConfig()` defaults (a quarter of the steps, see `training` below), on the training
+   tracks' labels and their verified
    constraints (those of unknown tracks too, as the job); model selection on the validation
    tracks.
 4. Evaluate on D and write the checkpoint (its metrics hold the validation report, D's report
@@ -50,7 +51,9 @@ class DefaultModelConfig(BaseModel):
     test_style: str = "b+"
     val_fraction: float = Field(default=0.3, gt=0.0, lt=1.0)
     val_max: int = Field(default=2000, ge=1)  # validation samples for model selection (random subset)
-    training: TrainingConfig = TrainingConfig()
+    # the product's defaults but 8 x 50 steps instead of 8 x 200 and one torch thread: the full
+    # budget takes over an hour on a busy 2-core machine
+    training: TrainingConfig = TrainingConfig(steps_per_epoch=50, threads=1)
 
 
 def _split(scene: SceneSamples, cfg: DefaultModelConfig) -> tuple[TrainingData, LabelledSamples]:
@@ -77,7 +80,8 @@ def build_default_model(
     to `out` with the suffix .json."""
     cfg = cfg or DefaultModelConfig()
     out = Path(out)
-    cache = Path(cache) if cache is not None else out.parent / "default_model_cache"
+    # not beside OUT: the shipped model lives in the package, the scenes take gigabytes
+    cache = Path(cache) if cache is not None else Path("data") / "default_model_cache"
     t0 = time.perf_counter()
     sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
     log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames, style {cfg.train_style}) and "

@@ -79,6 +79,7 @@ class FinetuneExperimentConfig(BaseModel):
     val_max: int = 2000  # validation samples per pretraining run (a random subset)
     balance: bool = True  # draw the anchors' classes evenly (pipeline.finetune.balance_classes)
     finetune_seeds: tuple[int, ...] = Field(default=(0,), min_length=1)  # each point: the mean over these seeds
+    finetune_steps_per_epoch: int | None = Field(default=None, ge=1)  # None = the product's (smoke runs: fewer)
     seed: int = 0
     threads: int = Field(default=1, ge=0, le=256)  # torch CPU threads (0 = torch's default)
 
@@ -105,7 +106,10 @@ class FinetuneExperimentConfig(BaseModel):
 
     def finetune_config(self, seed: int) -> TrainingConfig:
         """The product's fine-tuning config (`TrainingConfig.finetuning`, the finetune job's)."""
-        return TrainingConfig(seed=seed, threads=self.threads).finetuning().for_constraints(self.constraints)
+        cfg = TrainingConfig(seed=seed, threads=self.threads).finetuning().for_constraints(self.constraints)
+        if self.finetune_steps_per_epoch is not None:
+            cfg = cfg.model_copy(update={"steps_per_epoch": self.finetune_steps_per_epoch})
+        return cfg
 
     def key(self, scene: SceneSamples | None = None) -> str:
         """Hash of what the pretrained models depend on (they are cached under this key): these
@@ -246,93 +250,54 @@ def _table(rows: list[RunResult]) -> str:
     return "\n".join(lines)
 
 
-def run_finetune_experiment(
-    out: str | Path,
-    cfg: FinetuneExperimentConfig | None = None,
-    cache: str | Path | None = None,
-    progress: Progress = QUIET,
-    log: Callable[[str], None] = print,
-) -> dict[str, Any]:
-    """Run the experiment (module docstring) and write its outputs under `out`; returns the JSON."""
-    import torch
+def _one_finetune(cfg: FinetuneExperimentConfig, test_scene: SceneSamples, pretrained: tuple[SampleCNN, Any],
+                  probs: np.ndarray, feats: np.ndarray, strategy: str, budget: int, fseed: int) -> dict[str, Any]:
+    """One fine-tuning run: proposals of `strategy`, the simulated operator's answers to `budget`
+    per class, fine-tuning on them and D's constraints, and F on D (all, and held out)."""
+    if cfg.constraints == "automatic":
+        pairs, scores, verified = test_scene.auto_pairs, test_scene.auto_scores, None
+    else:
+        pairs, scores, verified = test_scene.verified_pairs, None, None
+    t0 = time.perf_counter()
+    counts = class_counts(budget, cfg.unknown_ratio * budget)
+    props = propose(
+        probs, strategy, counts, features=feats, tracks=test_scene.track, min_track_samples=cfg.min_track_samples
+    )
+    idx, y, n_conf, n_rej = simulated_answers(test_scene, props.index, props.track, strategy in TRACK_STRATEGIES)
+    data = finetune_data(
+        test_scene.samples, idx, y, pairs, scores, verified,
+        "automatic" if cfg.constraints == "automatic" else cfg.constraints,
+        balance=cfg.balance,
+    )
+    tc = cfg.finetune_config(fseed)
+    res = finetune(pretrained, data, tc)
+    p_new = predict(res.model, test_scene.samples)
+    rep = evaluate_on(res.model, test_scene, probs=p_new)
+    held = np.ones(len(test_scene), bool)
+    held[idx] = False
+    rep_held = evaluate_on(res.model, test_scene, mask=held, probs=p_new)
+    run = {
+        "strategy": strategy,
+        "budget": budget,
+        "seed": fseed,
+        "proposals": len(props),
+        "confirmed": n_conf,
+        "rejected": n_rej,
+        "labelled_samples": int(len(idx)),
+        "labelled_per_class": np.bincount(y, minlength=K).tolist(),
+        "pairs": int(len(data.pairs)),
+        "f": _f_list(rep),
+        "mean_f": round(rep.mean_f, 2),
+        "held_out_mean_f": round(rep_held.mean_f, 2),
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    return run
 
+
+def _report(out: Path, cfg: FinetuneExperimentConfig, rows: dict[str, RunResult], runs: list[dict[str, Any]],
+            train_scene: SceneSamples, test_scene: SceneSamples) -> dict[str, Any]:
+    """The experiment's JSON (without timings), finetune.md, the curve JSON and the plots."""
     from pipeline.plots import plot_f_bars
-
-    cfg = cfg or FinetuneExperimentConfig()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    cache = Path(cache) if cache is not None else out / "cache"
-    t_start = time.perf_counter()
-    threads_before = torch.get_num_threads()
-    if cfg.threads:
-        torch.set_num_threads(cfg.threads)
-    try:
-        log(f"preparing the training route (seed {cfg.train_seed}, {cfg.train_frames} frames) and new scene "
-            f"(seed {cfg.test_seed}, {cfg.test_frames} frames)")
-        sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
-        train_scene = prepare_scene(cache, cfg.train_seed, cfg.train_frames, cfg.size, progress=progress, **sim)
-        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress,
-                                   style=cfg.test_style, **sim)
-        t_data = time.perf_counter() - t_start
-        paths = _pretrain(train_scene, cfg, out / "models", log, progress)
-        rows: dict[str, RunResult] = {}
-        models = {name: load_checkpoint(p) for name, p in paths.items()}
-        for name, (model, _meta) in models.items():
-            rep = evaluate_on(model, test_scene)
-            rows[name] = RunResult(name, _f_list(rep), round(rep.mean_f, 2), {"report": rep.to_dict()})
-            log(f"{name} on the new scene: average F {rep.mean_f:.1f}")
-
-        pre_model, pre_meta = models["constraint100"]
-        probs = predict(pre_model, test_scene.samples)
-        feats = embed(pre_model, test_scene.samples)
-        if cfg.constraints == "automatic":
-            pairs, scores, verified = test_scene.auto_pairs, test_scene.auto_scores, None
-        else:
-            pairs, scores, verified = test_scene.verified_pairs, None, None
-        runs: list[dict[str, Any]] = []
-        jobs = [(s, b, fs) for s in cfg.strategies for b in cfg.budgets for fs in cfg.finetune_seeds]
-        bar = progress.bar(len(jobs), "fine-tune runs", unit="run")
-        for strategy, budget, fseed in jobs:
-            t0 = time.perf_counter()
-            counts = class_counts(budget, cfg.unknown_ratio * budget)
-            props = propose(
-                probs, strategy, counts, features=feats, tracks=test_scene.track, min_track_samples=cfg.min_track_samples
-            )
-            idx, y, n_conf, n_rej = simulated_answers(test_scene, props.index, props.track, strategy in TRACK_STRATEGIES)
-            data = finetune_data(
-                test_scene.samples, idx, y, pairs, scores, verified,
-                "automatic" if cfg.constraints == "automatic" else cfg.constraints,
-                balance=cfg.balance,
-            )
-            tc = cfg.finetune_config(fseed)
-            res = finetune((pre_model, pre_meta), data, tc)
-            p_new = predict(res.model, test_scene.samples)
-            rep = evaluate_on(res.model, test_scene, probs=p_new)
-            held = np.ones(len(test_scene), bool)
-            held[idx] = False
-            rep_held = evaluate_on(res.model, test_scene, mask=held, probs=p_new)
-            run = {
-                "strategy": strategy,
-                "budget": budget,
-                "seed": fseed,
-                "proposals": len(props),
-                "confirmed": n_conf,
-                "rejected": n_rej,
-                "labelled_samples": int(len(idx)),
-                "labelled_per_class": np.bincount(y, minlength=K).tolist(),
-                "pairs": int(len(data.pairs)),
-                "f": _f_list(rep),
-                "mean_f": round(rep.mean_f, 2),
-                "held_out_mean_f": round(rep_held.mean_f, 2),
-                "seconds": round(time.perf_counter() - t0, 1),
-            }
-            runs.append(run)
-            bar.update()
-            bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep.mean_f:.1f}")
-            log(f"{strategy} x{budget}: F {rep.mean_f:.1f}")
-        bar.close()
-    finally:
-        torch.set_num_threads(threads_before)
 
     target = rows["baseline_max"].mean_f
     points = _mean_over_seeds(runs)
@@ -381,9 +346,7 @@ def run_finetune_experiment(
             "best_strategy": best,
             "met_within_20": any(b is not None and b <= 20 for b in reaching.values()),
         },
-        "seconds": {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)},
     }
-    (out / "finetune.json").write_text(json.dumps(result, indent=2))
     (out / "finetune_curve.json").write_text(
         json.dumps({"curves": curves, "baseline_max": target, "constraint100": rows["constraint100"].mean_f}, indent=2)
     )
@@ -408,6 +371,63 @@ def run_finetune_experiment(
     plot_f_bars(f_mat, [r.name for r in rows_out], SAMPLE_CLASSES, out / "finetune_f.png", "F on the new scene")
     _curve_plot(curves, {"baseline_max": target, "constraint100": rows["constraint100"].mean_f,
                          "baseline_min": rows["baseline_min"].mean_f}, out / "finetune_curve.png")
+    return result
+
+
+def run_finetune_experiment(
+    out: str | Path,
+    cfg: FinetuneExperimentConfig | None = None,
+    cache: str | Path | None = None,
+    progress: Progress = QUIET,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Run the experiment (module docstring) and write its outputs under `out`; returns the JSON."""
+    import torch
+
+    cfg = cfg or FinetuneExperimentConfig()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(cache) if cache is not None else out / "cache"
+    t_start = time.perf_counter()
+    threads_before = torch.get_num_threads()
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    try:
+        log(f"preparing the training route (seed {cfg.train_seed}, {cfg.train_frames} frames) and new scene "
+            f"(seed {cfg.test_seed}, {cfg.test_frames} frames)")
+        sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists}
+        train_scene = prepare_scene(cache, cfg.train_seed, cfg.train_frames, cfg.size, progress=progress, **sim)
+        test_scene = prepare_scene(cache, cfg.test_seed, cfg.test_frames, cfg.size, progress=progress,
+                                   style=cfg.test_style, **sim)
+        t_data = time.perf_counter() - t_start
+        paths = _pretrain(train_scene, cfg, out / "models", log, progress)
+        rows: dict[str, RunResult] = {}
+        models = {name: load_checkpoint(p) for name, p in paths.items()}
+        for name, (model, _meta) in models.items():
+            rep = evaluate_on(model, test_scene)
+            rows[name] = RunResult(name, _f_list(rep), round(rep.mean_f, 2), {"report": rep.to_dict()})
+            log(f"{name} on the new scene: average F {rep.mean_f:.1f}")
+
+        pre_model, pre_meta = models["constraint100"]
+        probs = predict(pre_model, test_scene.samples)
+        feats = embed(pre_model, test_scene.samples)
+        runs: list[dict[str, Any]] = []
+        jobs = [(s, b, fs) for s in cfg.strategies for b in cfg.budgets for fs in cfg.finetune_seeds]
+        bar = progress.bar(len(jobs), "fine-tune runs", unit="run")
+        for strategy, budget, fseed in jobs:
+            run = _one_finetune(cfg, test_scene, (pre_model, pre_meta), probs, feats, strategy, budget, fseed)
+            rep_f = run["mean_f"]
+            runs.append(run)
+            bar.update()
+            bar.set_postfix(strategy=strategy, budget=budget, F=f"{rep_f:.1f}")
+            log(f"{strategy} x{budget}: F {rep_f:.1f}")
+        bar.close()
+    finally:
+        torch.set_num_threads(threads_before)
+
+    result = _report(out, cfg, rows, runs, train_scene, test_scene)
+    result["seconds"] = {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)}
+    (out / "finetune.json").write_text(json.dumps(result, indent=2))
     return result
 
 

@@ -87,6 +87,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.errors import ConfigError
+from pipeline.model import resolve_device
 from pipeline.progress import QUIET, Progress
 from pipeline.training import split_by_track
 from research.experiments.data import SceneSamples, prepare_scene, route_part
@@ -349,6 +350,117 @@ def _f_row(report: Any) -> dict[str, Any]:
             "confusion": d["confusion"]}
 
 
+@dataclass
+class _Run:
+    """What every setting of one run shares: scenes, split, evaluation sets and configs."""
+
+    cfg: PaperConfig
+    scene: SceneSamples
+    test: SceneSamples
+    split: Split
+    val_select: Any  # LabelledSamples for model selection
+    evals: dict[str, np.ndarray]  # train_val / val: sample indices into scene
+    test_idx: np.ndarray  # sample indices into test
+    sample_cfg: Any
+    model_cfg: ModelConfig
+    tcfg: TrainingConfig
+    progress: Progress
+
+
+def _prepare(cfg: PaperConfig, cache: Path, progress: Progress, log: Any) -> _Run:
+    """Steps 1 and 2: the reviewed scenes, the split and the evaluation sets."""
+    from pipeline.training import LabelledSamples
+
+    log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames) and test scene D "
+        f"(seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames) at S={cfg.size}")
+    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
+    scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, style=cfg.train_style, **sim)
+    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
+                         style=cfg.test_style, **sim)
+    split = split_scene(scene, cfg)
+    n_select = min(cfg.select_val, cfg.eval_max) if cfg.eval_max > 0 else cfg.select_val
+    sel = _stratified_subsample(split.val_labelled, scene.label[split.val_labelled], n_select, cfg.seed)
+    sub = _random_subsample
+    evals = {
+        "train_val": sub(np.sort(np.concatenate([split.train_labelled, split.val_labelled])), cfg.eval_max, cfg.seed),
+        "val": sub(split.val_labelled, cfg.eval_max, cfg.seed + 1),
+    }
+    return _Run(cfg, scene, test, split, LabelledSamples(scene.samples[sel], scene.label[sel].astype(np.int64)),
+                evals, sub(test.labelled, cfg.eval_max, cfg.seed + 2),
+                PipelineConfig().samples.model_copy(update={"size": cfg.size}), ModelConfig(), cfg.training_config(),
+                progress)
+
+
+def _data_row(name: str, run: _Run, labelled: np.ndarray, pairs: np.ndarray, closure: bool) -> dict[str, Any]:
+    """A setting's row of the training-data table (the paper's Table 6)."""
+    from pipeline.training import closure_labels
+
+    scene, k = run.scene, NUM_SAMPLE_CLASSES
+    pair_cls = scene.label[pairs[:, 0]] if name != "constraint100_auto" else scene.gt_class[pairs[:, 0]]
+    closed = (closure_labels(labelled, scene.label[labelled], pairs, len(scene))[1]
+              if closure and len(pairs) else scene.label[labelled])
+    return {
+        "labels": np.bincount(scene.label[labelled], minlength=k).tolist(),
+        "constraints": np.bincount(np.clip(pair_cls.astype(np.int64), 0, k), minlength=k + 1)[:k].tolist(),
+        "pairs": int(len(pairs)),
+        # labels the training draws from: the annotations spread over their components
+        "closure_labels": np.bincount(closed, minlength=k).tolist(),
+    }
+
+
+def _train_setting(name: str, run: _Run, data: Any, mask: bool) -> tuple[Any, dict[str, Any]]:
+    """(the selected training result, {labels per step: validation F}) of a setting: trained with
+    each of its batch candidates, the best on the selection set kept."""
+    from pipeline.training import LabelledSamples, train
+
+    setting_cfg = run.cfg.setting_config(name)
+    vs = run.val_select if mask else LabelledSamples(np.ascontiguousarray(run.val_select.samples[:, :3]),
+                                                     run.val_select.labels)
+    net_samples = run.sample_cfg if mask else run.sample_cfg.model_copy(update={"foreground_channel": False})
+    res, best_f, tried = None, float("-inf"), {}
+    for batch in run.cfg.batch_candidates(name):
+        run_cfg = setting_cfg if batch is None else setting_cfg.model_copy(update={"batch_labelled": batch})
+        cand = train(data, run_cfg, run.model_cfg, net_samples, val=vs, progress=run.progress)
+        cand_f = cand.val_report.mean_f if cand.val_report is not None else float("-inf")
+        tried[str(run_cfg.batch_labelled)] = round(cand_f, 3)
+        if res is None or cand_f > best_f:  # ties keep the earlier (smaller) batch
+            res, best_f = cand, cand_f
+    return res, tried
+
+
+def _run_setting(name: str, run: _Run) -> tuple[dict[str, Any], dict[str, Any], Any]:
+    """(result row, data row, selected model) of one setting (step 3 and 4)."""
+    from pipeline.training import LabelledSamples, TrainingData, evaluate
+
+    scene, test = run.scene, run.test
+    labelled, pairs, weights = setting_data(name, scene, run.split, run.cfg.unknown_constraints)
+    mask = name != "constraint100_no_mask"
+    channels = slice(None) if mask else slice(0, 3)  # canvases without the foreground mask
+    pool = scene.samples if mask else np.ascontiguousarray(scene.samples[:, channels])
+    data = TrainingData.build(pool, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
+    setting_cfg = run.cfg.setting_config(name)
+    data_row = _data_row(name, run, labelled, pairs, setting_cfg.closure_labels)
+    t1 = time.perf_counter()
+    res, tried = _train_setting(name, run, data, mask)
+    chosen = int(max(tried, key=lambda b: (tried[b], -int(b))))  # the kept batch (ties: the smaller)
+    row: dict[str, Any] = {"train_seconds": round(time.perf_counter() - t1, 1), "selected_epoch": res.selected_epoch,
+                           "selection": res.selection, "train_loss": [round(r.loss, 5) for r in res.history],
+                           "val_select_f": [round(r.val_f, 3) for r in res.history],
+                           "training": _changed(setting_cfg, run.tcfg) | {"foreground_channel": mask,
+                                                                            "batch_labelled": chosen}}
+    if len(tried) > 1:  # labels per step -> validation F (selection set) of its selected checkpoint
+        row["batch_select"] = tried
+    for key, idx in run.evals.items():
+        row[key] = _f_row(evaluate(res.model, LabelledSamples(scene.samples[idx][:, channels],
+                                                              scene.label[idx].astype(np.int64))))
+    row["test"] = _f_row(evaluate(res.model, LabelledSamples(test.samples[run.test_idx][:, channels],
+                                                             test.label[run.test_idx].astype(np.int64))))
+    steps = len(res.history) * run.tcfg.steps_per_epoch  # type: ignore[operator]
+    row["steps"] = steps
+    row["seconds_per_step"] = round(sum(r.seconds for r in res.history) / max(steps, 1), 4)
+    return row, data_row, res.model
+
+
 def run_paper(
     out: str | Path,
     cfg: PaperConfig | None = None,
@@ -357,9 +469,6 @@ def run_paper(
     log: Any = None,
 ) -> dict[str, Any]:
     """Run the experiment; writes OUT/paper.md, paper.json, paper_train.png, paper_test.png."""
-    from pipeline.model import resolve_device
-    from pipeline.training import LabelledSamples, TrainingData, closure_labels, evaluate, train
-
     cfg = cfg or PaperConfig()
     log = log or (lambda _m: None)
     for field_name in ("train_style", "test_style"):  # before hours of work, not after the training route
@@ -369,119 +478,53 @@ def run_paper(
             raise ConfigError(f"{field_name}: {e}") from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    cache = Path(cache) if cache is not None else out / "cache"
     t_start = time.perf_counter()
     load0 = os.getloadavg() if hasattr(os, "getloadavg") else None
-
-    log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames) and test scene D "
-        f"(seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames) at S={cfg.size}")
-    t0 = time.perf_counter()
-    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
-    scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, style=cfg.train_style, **sim)
-    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
-                         style=cfg.test_style, **sim)
-    t_data = time.perf_counter() - t0
-    split = split_scene(scene, cfg)
-    n_select = min(cfg.select_val, cfg.eval_max) if cfg.eval_max > 0 else cfg.select_val
-    sel = _stratified_subsample(split.val_labelled, scene.label[split.val_labelled], n_select, cfg.seed)
-    val_select = LabelledSamples(scene.samples[sel], scene.label[sel].astype(np.int64))
-    sub = _random_subsample
-    evals = {
-        "train_val": sub(np.sort(np.concatenate([split.train_labelled, split.val_labelled])), cfg.eval_max, cfg.seed),
-        "val": sub(split.val_labelled, cfg.eval_max, cfg.seed + 1),
-    }
-    test_idx = sub(test.labelled, cfg.eval_max, cfg.seed + 2)
-
-    sample_cfg = PipelineConfig().samples.model_copy(update={"size": cfg.size})
-    model_cfg = ModelConfig()
-    tcfg = cfg.training_config()
+    run = _prepare(cfg, Path(cache) if cache is not None else out / "cache", progress, log)
+    t_data = time.perf_counter() - t_start
     results: dict[str, Any] = {}
     data_table: dict[str, Any] = {}
-    names = list(cfg.settings)
-    bar = progress.bar(len(names), "settings", unit="setting", position=0)
     models: dict[str, Any] = {}
-    for name in names:
-        labelled, pairs, weights = setting_data(name, scene, split, cfg.unknown_constraints)
-        mask = name != "constraint100_no_mask"
-        channels = slice(None) if mask else slice(0, 3)  # canvases without the foreground mask
-        pool = scene.samples if mask else np.ascontiguousarray(scene.samples[:, channels])
-        data = TrainingData.build(pool, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
-        pair_cls = scene.label[pairs[:, 0]] if name != "constraint100_auto" else scene.gt_class[pairs[:, 0]]
-        setting_cfg = cfg.setting_config(name)
-        closed = (closure_labels(labelled, scene.label[labelled], pairs, len(scene))[1]
-                  if setting_cfg.closure_labels and len(pairs) else scene.label[labelled])
-        data_table[name] = {
-            "labels": np.bincount(scene.label[labelled], minlength=NUM_SAMPLE_CLASSES).tolist(),
-            "constraints": np.bincount(
-                np.clip(pair_cls.astype(np.int64), 0, NUM_SAMPLE_CLASSES), minlength=NUM_SAMPLE_CLASSES + 1
-            )[:NUM_SAMPLE_CLASSES].tolist(),
-            "pairs": int(len(pairs)),
-            # labels the training draws from: the annotations spread over their components
-            "closure_labels": np.bincount(closed, minlength=NUM_SAMPLE_CLASSES).tolist(),
-        }
-        t1 = time.perf_counter()
-        vs = val_select if mask else LabelledSamples(np.ascontiguousarray(val_select.samples[:, channels]), val_select.labels)
-        net_samples = sample_cfg if mask else sample_cfg.model_copy(update={"foreground_channel": False})
-        res, best_f, chosen, tried = None, float("-inf"), setting_cfg.batch_labelled, {}
-        for batch in cfg.batch_candidates(name):
-            run_cfg = setting_cfg if batch is None else setting_cfg.model_copy(update={"batch_labelled": batch})
-            cand = train(data, run_cfg, model_cfg, net_samples, val=vs, progress=progress)
-            cand_f = cand.val_report.mean_f if cand.val_report is not None else float("-inf")
-            tried[str(run_cfg.batch_labelled)] = round(cand_f, 3)
-            if res is None or cand_f > best_f:  # ties keep the earlier (smaller) batch
-                res, best_f, chosen = cand, cand_f, run_cfg.batch_labelled
-        assert res is not None
-        t_train = time.perf_counter() - t1
-        del data, pool
-        row: dict[str, Any] = {"train_seconds": round(t_train, 1), "selected_epoch": res.selected_epoch,
-                               "selection": res.selection, "train_loss": [round(r.loss, 5) for r in res.history],
-                               "val_select_f": [round(r.val_f, 3) for r in res.history],
-                               "training": _changed(setting_cfg, tcfg) | {"foreground_channel": mask,
-                                                                          "batch_labelled": chosen}}
-        if len(tried) > 1:  # labels per step -> validation F (selection set) of its selected checkpoint
-            row["batch_select"] = tried
-        for key, idx in evals.items():
-            row[key] = _f_row(evaluate(res.model, LabelledSamples(scene.samples[idx][:, channels],
-                                                                  scene.label[idx].astype(np.int64))))
-        row["test"] = _f_row(evaluate(res.model, LabelledSamples(test.samples[test_idx][:, channels],
-                                                                 test.label[test_idx].astype(np.int64))))
-        steps = len(res.history) * tcfg.steps_per_epoch  # type: ignore[operator]
-        row["steps"] = steps
-        row["seconds_per_step"] = round(sum(r.seconds for r in res.history) / max(steps, 1), 4)
-        results[name] = row
-        models[name] = res.model
-        log(f"{name}: {len(labelled)} labels, {len(pairs)} pairs, {t_train:.0f} s; F train/val "
-            f"{row['train_val']['mean_f']:.1f}, val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
-        bar.update()
-    bar.close()
+    with progress.bar(len(cfg.settings), "settings", unit="setting", position=0) as bar:
+        for name in cfg.settings:
+            results[name], data_table[name], models[name] = _run_setting(name, run)
+            row = results[name]
+            log(f"{name}: {sum(data_table[name]['labels'])} labels, {data_table[name]['pairs']} pairs, "
+                f"{row['train_seconds']:.0f} s; F train/val {row['train_val']['mean_f']:.1f}, "
+                f"val {row['val']['mean_f']:.1f}, test D {row['test']['mean_f']:.1f}")
+            bar.update()
     c100_test = results.get("constraint100", {}).get("test", {})
-    adaptation = _adapt(cfg, tcfg, model_cfg, sample_cfg, models.get("constraint100"), c100_test.get("confusion"),
-                        test, test_idx, log, progress)
+    adaptation = _adapt(cfg, run.tcfg, run.model_cfg, run.sample_cfg, models.get("constraint100"),
+                        c100_test.get("confusion"), run.test, run.test_idx, log, progress)
+    doc = _document(run, results, data_table, adaptation)
+    doc["machine"] = {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_start": load0,
+                      "load_average_end": os.getloadavg() if hasattr(os, "getloadavg") else None,
+                      "device": str(resolve_device(run.tcfg.device)), "threads": run.tcfg.threads or None}
+    doc["seconds"] = {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)}
+    (out / "paper.json").write_text(json.dumps(doc, indent=1))
+    (out / "paper.md").write_text(markdown(doc))
+    _plots(doc, out)
+    return doc
 
-    doc: dict[str, Any] = {
+
+def _document(run: _Run, results: dict[str, Any], data_table: dict[str, Any], adaptation: dict[str, Any]) -> dict[str, Any]:
+    cfg, scene, test, split = run.cfg, run.scene, run.test, run.split
+    return {
         "config": cfg.model_dump(mode="json") | {"constraint_batch": cfg.constraint_batch},
-        "training": tcfg.model_dump(mode="json"),
-        "model": model_cfg.model_dump(mode="json"),
+        "training": run.tcfg.model_dump(mode="json"),
+        "model": run.model_cfg.model_dump(mode="json"),
         "scenes": {"train": scene.summary(), "test": test.summary()},
         "split": {"train_labelled": int(len(split.train_labelled)), "val_labelled": int(len(split.val_labelled)),
                   "val_tracks": int(len(split.val_tracks)), "test_labelled": int(len(test.labelled)),
-                  "evaluated": {"train_val": int(len(evals["train_val"])), "val": int(len(evals["val"])),
-                                "test": int(len(test_idx))},
+                  "evaluated": {"train_val": int(len(run.evals["train_val"])), "val": int(len(run.evals["val"])),
+                                "test": int(len(run.test_idx))},
                   "min_labels_per_class": np.bincount(scene.label[split.min_labelled],
                                                       minlength=NUM_SAMPLE_CLASSES).tolist()},
         "data": data_table,
         "results": results,
         "adaptation": adaptation,
         "targets": targets(results),
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_start": load0,
-                    "load_average_end": os.getloadavg() if hasattr(os, "getloadavg") else None,
-                    "device": str(resolve_device(tcfg.device)), "threads": tcfg.threads or None},
-        "seconds": {"data": round(t_data, 1), "total": round(time.perf_counter() - t_start, 1)},
     }
-    (out / "paper.json").write_text(json.dumps(doc, indent=1))
-    (out / "paper.md").write_text(markdown(doc))
-    _plots(doc, out)
-    return doc
 
 
 def _changed(cfg: TrainingConfig, base: TrainingConfig) -> dict[str, Any]:

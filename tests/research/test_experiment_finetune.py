@@ -57,3 +57,18 @@ def test_cli_refuses_bad_arguments(tmp_path):
     ):
         r = runner.invoke(app, ["experiment", "finetune", "--out", str(tmp_path), *args])
         assert r.exit_code == 2 and msg in r.output, (args, r.output)
+
+
+def test_cli_experiment_finetune_smoke_writes_tables_and_curves(tmp_path):
+    import json
+
+    out = tmp_path / "ft"
+    r = runner.invoke(app, ["experiment", "finetune", "--out", str(out), "--config", "finetune-smoke"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "finetune.json").read_text())
+    assert set(doc["pretrained"]) == {"baseline_min", "constraint100", "baseline_max"}
+    assert [(run["strategy"], run["budget"]) for run in doc["runs"]] == [("confident", 2), ("track_diverse", 2)]
+    assert doc["config"]["finetune_steps_per_epoch"] == 1 and doc["seconds"]["total"] > 0
+    assert "constraint100 + fine-tuning" in (out / "finetune.md").read_text()
+    for name in ("finetune_f.png", "finetune_curve.png", "finetune_curve.json"):
+        assert (out / name).stat().st_size > 100

@@ -506,3 +506,16 @@ def test_simulation_code_is_in_the_scene_cache_fingerprint(monkeypatch):
         assert data._code_fingerprint() != before, target.name
     monkeypatch.undo()
     assert data._code_fingerprint() == before
+
+
+def test_perception_code_is_in_the_scene_cache_fingerprint(monkeypatch):
+    """The pipeline modules that shape samples count too (they live in another package)."""
+    from research.experiments import data
+
+    before = data._code_fingerprint()
+    real_read = Path.read_bytes
+    root = Path(data.__file__).resolve().parents[2]
+    for target in (root / "pipeline" / "segmentation.py", root / "pipeline" / "processing.py"):
+        monkeypatch.setattr(Path, "read_bytes", lambda self, t=target: real_read(self) + (b"#" if self == t else b""))
+        assert data._code_fingerprint() != before, target.name
+    monkeypatch.undo()
