@@ -33,25 +33,37 @@ class _Public(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
 
-class _Request(BaseModel):
+class JsonModel(BaseModel):
+    """A request body (or job params) read as JSON Schema reads it: a number field takes a JSON
+    number only, an integer field one without fraction (`1` or `1.0`), a boolean field `true` or
+    `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`; the schema promises it is
+    refused (`{"version": "1"}` gets 422)."""
+
     model_config = ConfigDict(extra="forbid")
 
     @field_validator("*", mode="before")
     @classmethod
-    def _json_integers(cls, value: Any, info: ValidationInfo) -> Any:
-        """An integer field takes a JSON number with no fraction (`1` or `1.0`, as JSON Schema's
-        `integer`), never a string or a boolean: `{"version": "1"}` is refused, not coerced."""
+    def _json_scalars(cls, value: Any, info: ValidationInfo) -> Any:
         field = cls.model_fields.get(info.field_name or "")
-        if field is not None and _is_int_annotation(field.annotation) and isinstance(value, str | bool):
-            raise ValueError(f"must be a JSON integer, not {type(value).__name__}")
+        if field is None or value is None:
+            return value
+        kinds = _scalar_kinds(field.annotation)
+        if bool in kinds and not isinstance(value, bool) and not kinds & {int, float}:
+            raise ValueError(f"must be true or false, not {type(value).__name__}")
+        if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
+            raise ValueError(f"must be a JSON number, not {type(value).__name__}")
         return value
 
 
-def _is_int_annotation(annotation: Any) -> bool:
-    return annotation is int or (get_origin(annotation) in (Union, UnionType) and int in get_args(annotation))
+def _scalar_kinds(annotation: Any) -> set[type]:
+    """The scalar types an annotation admits (`int | None` -> {int}); empty for anything else."""
+    args = get_args(annotation) if get_origin(annotation) in (Union, UnionType) else (annotation,)
+    return {a for a in args if a in (int, float, bool)}
 
 
-# ----------------------------------------------------------------------------- users
+_Request = JsonModel
+
+
 class UserBase(_Request):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
     role: Role = "operator"

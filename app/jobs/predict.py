@@ -15,7 +15,7 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
@@ -26,9 +26,10 @@ from app.jobs.context import JobContext
 from app.jobs.models_util import get_model_version
 from app.jobs.registry import JobType, register
 from app.models import Frame, ModelVersion, Segment, Sequence, Track
+from app.schemas import JsonModel
 
 
-class PredictParams(BaseModel):
+class PredictParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     model_id: int = Field(ge=1, le=2**31 - 1)
     sequence_id: int = Field(ge=1, le=2**31 - 1)

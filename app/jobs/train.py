@@ -19,7 +19,7 @@ import shutil
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import update
 from sqlalchemy.orm import Session
 
@@ -34,6 +34,7 @@ from app.jobs.models_util import (
 )
 from app.jobs.registry import JobType, register
 from app.models import Job, Sequence
+from app.schemas import JsonModel
 
 MODEL_SIZES: dict[str, dict[str, int]] = {
     "tiny": {"width": 8, "max_width": 16, "depth": 2},
@@ -46,7 +47,7 @@ Id = Field(ge=1, le=2**31 - 1)
 SequenceId = Annotated[int, Field(ge=1, le=2**31 - 1)]  # in the schema, so that clients see the range
 
 
-class TrainParams(BaseModel):
+class TrainParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_ids: list[SequenceId] = Field(min_length=1, max_length=1000)  # labels and constraints from these
     val_sequence_ids: list[SequenceId] = Field(default_factory=list, max_length=1000)  # else a split by track
