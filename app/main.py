@@ -51,6 +51,22 @@ class ServerTiming:
         await self.app(scope, receive, timed_send)
 
 
+def _serve_job_schema(app: FastAPI) -> None:
+    """The OpenAPI document with `POST /jobs`'s body as one schema per registered job type."""
+    from fastapi.openapi.utils import get_openapi
+
+    from app.api.job_schema import patch_openapi
+    from app.jobs.registry import job_types
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            doc = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+            app.openapi_schema = patch_openapi(doc, f"{API_PREFIX}/jobs", job_types())
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def create_app(settings: Settings | None = None, db: Database | None = None) -> FastAPI:
     """Build the API for `settings` (from the environment when None)."""
     from pipeline import __version__
@@ -96,5 +112,6 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     errors.install(app)
 
     app.include_router(api_router, prefix=API_PREFIX)
+    _serve_job_schema(app)
     app.include_router(health.router, include_in_schema=False)  # plain /health for load balancers
     return app

@@ -15,6 +15,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, ConfigDict, ValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.api.redact import hide_paths
 from app.artifacts import ArtifactMissing
@@ -54,6 +55,13 @@ def install(app: FastAPI) -> None:
     @app.exception_handler(ArtifactMissing)
     async def _artifact_missing(_request: Request, exc: ArtifactMissing) -> JSONResponse:
         return JSONResponse({"detail": hide_paths(str(exc))}, status_code=404)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        if exc.status_code == 400:  # FastAPI's "error parsing the body": a malformed body is a 422 too
+            return JSONResponse({"detail": [{"loc": ["body"], "msg": "the body is not valid JSON", "type": "json_invalid"}]},
+                                status_code=422)
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
 
     @app.exception_handler(RequestValidationError)
     async def _request_invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import delete, insert, select
 
 from app.core.errors import Invalid
@@ -25,11 +25,12 @@ from app.jobs.models_util import choose_model, ready_sequence, score_stored_samp
 from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
 from app.models import AnchorProposal, Frame, Segment, Track, utcnow
+from app.schemas import JsonModel
 
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
 
 
-class ProposeAnchorsParams(BaseModel):
+class ProposeAnchorsParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     model_id: int | None = Field(default=None, ge=1, le=2**31 - 1,

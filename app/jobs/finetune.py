@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
 from sqlalchemy import select
 
 from app.anchors import confirmed_sample_anchors
@@ -24,10 +24,11 @@ from app.jobs.context import JobContext
 from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, get_job_type, register
 from app.jobs.training_params import job_training_config, with_training_fields
+from app.schemas import JsonModel
 from pipeline.config import TrainingConfig
 
 
-class _FinetuneJobParams(BaseModel):
+class _FinetuneJobParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1, description="The new scene.")
     model_id: int = Field(ge=1, le=2**31 - 1, description="The pretrained model (a model version id).")

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
@@ -30,10 +30,10 @@ from app.core.errors import Conflict, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
-from app.schemas import IngestPoses
+from app.schemas import IngestPoses, JsonModel
 
 
-class IngestParams(BaseModel):
+class IngestParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     force: bool = False  # re-ingest a ready sequence (drops its reviews)

@@ -15,7 +15,7 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
@@ -25,9 +25,10 @@ from app.jobs.context import JobContext
 from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.registry import JobType, register
 from app.models import Frame, Segment, Track
+from app.schemas import JsonModel
 
 
-class PredictParams(BaseModel):
+class PredictParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     model_id: int | None = Field(default=None, ge=1, le=2**31 - 1,
                                  description="None = the newest model, or the shipped default model while none is registered.")

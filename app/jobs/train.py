@@ -19,10 +19,10 @@ import json
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field
 from sqlalchemy import update
 from sqlalchemy.orm import Session
 
@@ -40,6 +40,7 @@ from app.jobs.models_util import (
 from app.jobs.registry import JobType, register
 from app.jobs.training_params import job_training_config, with_training_fields
 from app.models import Job, Sequence
+from app.schemas import JsonModel
 from pipeline.config import SampleConfig, TrainingConfig
 
 MODEL_SIZES: dict[str, dict[str, int]] = {
@@ -50,25 +51,19 @@ MODEL_SIZES: dict[str, dict[str, int]] = {
 }
 
 Id = Field(ge=1, le=2**31 - 1)
+SequenceId = Annotated[int, Field(ge=1, le=2**31 - 1)]  # in the schema, so that clients see the range
 
 
-class _TrainJobParams(BaseModel):
+class _TrainJobParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
-    sequence_ids: list[int] = Field(min_length=1, max_length=1000)  # labels and constraints from these
-    val_sequence_ids: list[int] = Field(default_factory=list, max_length=1000)  # else a split by track
+    sequence_ids: list[SequenceId] = Field(min_length=1, max_length=1000)  # labels and constraints from these
+    val_sequence_ids: list[SequenceId] = Field(default_factory=list, max_length=1000)  # else a split by track
     val_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0)  # automatic pairs below this are left out
     model_size: Literal["tiny", "small", "default", "large"] = "default"
     size: int | None = Field(default=None, ge=8, le=1024)  # expected sample size; None = as ingested
     name: str | None = Field(default=None, max_length=128)
-
-    @model_validator(mode="after")
-    def _ids(self) -> _TrainJobParams:
-        for v in (*self.sequence_ids, *self.val_sequence_ids):
-            if not 1 <= v <= 2**31 - 1:
-                raise ValueError(f"sequence id {v} out of range")
-        return self
 
 
 # The training options (epochs, lr, ...) are TrainingConfig's, with its defaults.

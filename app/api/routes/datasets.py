@@ -6,6 +6,7 @@ from sqlalchemy import select
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
 from app.core.errors import Conflict, Invalid, NotFound
+from app.crud import AuthUser
 from app.jobs import policy
 from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
@@ -109,22 +110,27 @@ def inspect_dataset(dataset_id: IdPath, _admin: AdminUser, session: SessionDep) 
 
 @router.get("/sequences")
 def list_sequences(
-    _user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
+    user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
 ) -> list[SequencePublic]:
-    """Sequences to review (any user; datasets and their paths are admin routes)."""
+    """Sequences to review (any user; the folder `path` only for admins)."""
     q = select(Sequence).order_by(Sequence.id)
     if status is not None:
         q = q.where(Sequence.status == status)
-    return [SequencePublic.model_validate(s) for s in session.scalars(q).all()]
+    return [_sequence_public(s, user) for s in session.scalars(q).all()]
+
+
+def _sequence_public(seq: Sequence, user: AuthUser) -> SequencePublic:
+    pub = SequencePublic.model_validate(seq)
+    return pub if user.is_admin else pub.model_copy(update={"path": None})
 
 
 @router.get("/sequences/{sequence_id}")
-def read_sequence(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) -> SequencePublic:
-    """One sequence: path, format, sensor, ingest status."""
+def read_sequence(sequence_id: IdPath, user: CurrentUser, session: SessionDep) -> SequencePublic:
+    """One sequence: format, sensor, ingest status (and its path, for admins)."""
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
-    return SequencePublic.model_validate(seq)
+    return _sequence_public(seq, user)
 
 
 @router.post("/sequences/{sequence_id}/ingest", status_code=status.HTTP_202_ACCEPTED)

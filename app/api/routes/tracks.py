@@ -20,6 +20,7 @@ from app.core.errors import NotFound
 from app.models import Frame, Segment
 from app.schemas import (
     AcceptAction,
+    ClassName,
     DiscardAction,
     EventPublic,
     LabelAction,
@@ -34,8 +35,6 @@ from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["tracks"])
 
-ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
-assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 SortKey = Literal[tuple(k for key in crud.TRACK_SORTS for k in (key, f"-{key}"))]  # type: ignore[valid-type]
 BIG = 2**31 - 1
 
