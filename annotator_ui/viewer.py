@@ -502,7 +502,9 @@ class ClientTab:
                 self._draw_track(t, fi, payload, mask, aggregated)
                 self._draw_path(t, fi, pose_matrix(frame.get("pose")))
                 self.gui_track.content = self._track_info(fi)
-                self.gui_predicted.content = self._predicted_info(t)
+                predicted = self._predicted_info(t)
+                if self.gui_predicted.content != predicted:  # an unchanged text costs the browser nothing
+                    self.gui_predicted.content = predicted
                 if reset_camera and self.gui_follow.value:
                     self._aim_camera(t, fi, payload.points[mask])
             self.client.flush()
