@@ -430,7 +430,6 @@ class StitchesPanel:
         if not items:
             self.gui_status.content = f"**No pending stitches** {where}."
             return
-        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"
         buttons = ("One object", "Different", *(("Merge",) if self.merge else ()))
         with self.gui_rows:
             for item in items:
@@ -440,6 +439,7 @@ class StitchesPanel:
                 group = self.gui.add_button_group(f"Stitch #{item['id']}", (*buttons, f"Show {a}", f"Show {b}"))
                 group.on_click(lambda e, it=item: self._decide(it, e.target.value))
                 self._items.append(group)
+        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"  # rows first
 
     def _decide(self, item: dict[str, Any], what: str) -> None:
         if what.startswith("Show "):
