@@ -102,6 +102,7 @@ class ApiClient:
             base = base[: -len(API_PREFIX)]
         self.base_url = base
         self.token = token or ""
+        self._paths: dict[str, Any] | None = None  # the OpenAPI paths, read on first use
         self._http = httpx.Client(
             base_url=base + API_PREFIX,
             headers={"Authorization": f"Bearer {token}"} if token else {},
@@ -248,12 +249,14 @@ class ApiClient:
 
     # ------------------------------------------------------------------ optional routes
     def has_route(self, method: str, path: str) -> bool:
-        """Whether the service's OpenAPI schema lists `method path` (e.g. routes later issues add)."""
-        try:
-            schema = self._json("GET", "/openapi.json")
-        except ApiError:
-            return False
-        return method.lower() in schema.get("paths", {}).get(API_PREFIX + path, {})
+        """Whether the service's OpenAPI schema lists `method path` (e.g. routes later issues add).
+        The schema is read once per client: panels ask after every action, and it is ~100 kB."""
+        if self._paths is None:
+            try:
+                self._paths = self._json("GET", "/openapi.json").get("paths", {})
+            except ApiError:
+                return False
+        return method.lower() in self._paths.get(API_PREFIX + path, {})
 
     def get(self, path: str, **params: Any) -> Any:
         """GET any JSON route under /api/v1 (for panels of optional features)."""

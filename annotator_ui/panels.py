@@ -393,6 +393,7 @@ class StitchesPanel:
         self.gui_rows = gui.add_folder("Pending stitches", expand_by_default=True)  # see AnchorsPanel.gui_rows
         self._items: list[Any] = []
         self._lock = threading.Lock()  # refreshes after quick successive actions must not interleave rows
+        self._shown: tuple[Any, ...] | None = None
 
     def refresh(self) -> None:
         with self._lock:
@@ -418,6 +419,10 @@ class StitchesPanel:
         self._render(body.get("items", []), int(body.get("total", 0)), track)
 
     def _render(self, items: list[dict[str, Any]], total: int, track: int | None) -> None:
+        key = (track, total, tuple((i["id"], i["version"]) for i in items))
+        if key == self._shown:
+            return  # the same rows: rebuilding them would only make the browser lay the panel out again
+        self._shown = key
         for h in self._items:
             h.remove()
         self._items = []
@@ -425,7 +430,6 @@ class StitchesPanel:
         if not items:
             self.gui_status.content = f"**No pending stitches** {where}."
             return
-        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"
         buttons = ("One object", "Different", *(("Merge",) if self.merge else ()))
         with self.gui_rows:
             for item in items:
@@ -435,6 +439,7 @@ class StitchesPanel:
                 group = self.gui.add_button_group(f"Stitch #{item['id']}", (*buttons, f"Show {a}", f"Show {b}"))
                 group.on_click(lambda e, it=item: self._decide(it, e.target.value))
                 self._items.append(group)
+        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"  # rows first
 
     def _decide(self, item: dict[str, Any], what: str) -> None:
         if what.startswith("Show "):

@@ -1,5 +1,5 @@
-"""The repair panel: split the shown track by a box, a plane, a screen rectangle or its height
-above ground, and merge another track into it (by a click in the scene; the stitches panel
+"""The repair panel: split the shown track by a box, a plane, a screen rectangle, its height
+above ground or the newest model's predicted class (whole segments), and merge another track into it (by a click in the scene; the stitches panel
 merges the two tracks of a stitch).
 
 The box and plane are placed with viser's transform controls in the scene (the shown frame's
@@ -18,6 +18,7 @@ import numpy as np
 import viser
 
 from annotator_ui.geometry import clip_from_scene, matrix_wxyz, rect_polygon_ndc
+from pipeline.classes import SAMPLE_CLASSES
 from pipeline.regions import quaternion_matrix
 
 SCOPES = ("All kept frames", "This frame")
@@ -26,8 +27,9 @@ BOX_COLOUR = (255, 90, 90)
 
 class RepairPanel:
     """Split tools and merge-by-click; `split(region, this_frame_only)` and `merge(track_id)` are
-    the tab's (they run the action and redraw); `pose()` is the shown frame's T_world_lidar and
-    `centre()` the shown track's (3,) centre in the scene (None without a track)."""
+    the tab's (they run the action and redraw); `pose()` is the shown frame's T_world_lidar,
+    `centre()` the shown track's (3,) centre in the scene (None without a track), `model_id()`
+    the newest model's id (None without one)."""
 
     def __init__(
         self,
@@ -37,8 +39,11 @@ class RepairPanel:
         merge: Callable[[int], None],
         pose: Callable[[], np.ndarray],
         centre: Callable[[], np.ndarray | None],
+        model_id: Callable[[], int | None],
+        notify: Callable[[str, str, str], None],
     ) -> None:
         self.scene, self._split, self._merge, self._pose, self._centre = scene, split, merge, pose, centre
+        self._model_id, self._notify = model_id, notify
         self.gizmo: Any = None
         gui.add_markdown("**Split** the track: its points in the region become a new pending track. **Z** undoes.")
         self.gui_show_box = gui.add_checkbox("Show cut box / plane", False)
@@ -52,6 +57,9 @@ class RepairPanel:
         self.gui_height = gui.add_number("Above ground (m)", 1.0, min=-2.0, max=50.0, step=0.1)
         self.gui_cut_height = gui.add_button("Split by height (H)", icon=viser.Icon.ARROWS_VERTICAL)
         self.gui_cut_height.on_click(lambda _: self.cut_height())
+        self.gui_predicted_class = gui.add_dropdown("Predicted as", SAMPLE_CLASSES, initial_value="person")
+        self.gui_cut_predicted = gui.add_button("Split off what the model calls it (P)", icon=viser.Icon.BRAIN)
+        self.gui_cut_predicted.on_click(lambda _: self.cut_predicted())
         self.gui_screen_scope = gui.add_dropdown("Shift + drag on the canvas cuts", SCOPES, initial_value=SCOPES[0])
         gui.add_markdown("**Merge**: tick, then click a point of the other track (or use a stitch's *Merge*).")
         self.gui_merge_click = gui.add_checkbox("Click merges a track into this one", False)
@@ -104,6 +112,14 @@ class RepairPanel:
 
     def cut_height(self) -> None:
         self._split({"kind": "height", "min_height": float(self.gui_height.value)}, False)
+
+    def cut_predicted(self) -> None:
+        """Split off the segments the newest model classifies as the chosen class (whole segments)."""
+        model_id = self._model_id()
+        if model_id is None:
+            self._notify("No model", "Train a model (Jobs tab) before splitting by predicted class.", "yellow")
+            return
+        self._split({"kind": "predicted", "model_id": model_id, "class_name": str(self.gui_predicted_class.value)}, False)
 
     def _on_rect(self, event: viser.SceneRectSelectEvent) -> None:
         cam = event.client.camera

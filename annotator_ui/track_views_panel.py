@@ -48,10 +48,12 @@ class TrackViewsPanel:
         self.gui_look = gui.add_dropdown("Track colours", TRACK_LOOKS, initial_value="height")
         self.gui_aggregate = gui.add_checkbox("Aggregate kept frames", False, hint="overlay the track's points of all kept frames")
         self.gui_compensate = gui.add_checkbox("Motion-compensate", False, hint="align the frames by the track's centroids")
-        for h in (self.gui_look, self.gui_aggregate, self.gui_compensate):
+        # off by default: two images per frame drawn cost the browser a re-layout on every key
+        self.gui_ortho = gui.add_checkbox("Top and side views", False, hint="orthographic images of the track")
+        for h in (self.gui_look, self.gui_aggregate, self.gui_compensate, self.gui_ortho):
             h.on_update(lambda e: changed() if e.client is not None else None)
-        self.gui_top = gui.add_image(blank_image(), label="Top view (1 m grid)", format="png")
-        self.gui_side = gui.add_image(blank_image(), label="Side view (1 m grid)", format="png")
+        self.gui_top = gui.add_image(blank_image(), label="Top view (1 m grid)", format="png", visible=False)
+        self.gui_side = gui.add_image(blank_image(), label="Side view (1 m grid)", format="png", visible=False)
 
     @property
     def look(self) -> str:
@@ -66,6 +68,11 @@ class TrackViewsPanel:
         return bool(self.gui_compensate.value)
 
     def show(self, points: np.ndarray, colours: np.ndarray) -> None:
-        """The orthographic images of (N, 3) scene points with their (N, 3) uint8 colours."""
-        self.gui_top.image = ortho_image(points, colours, "top", ORTHO_SIZE)
-        self.gui_side.image = ortho_image(points, colours, "side", ORTHO_SIZE)
+        """The orthographic images of (N, 3) scene points with their (N, 3) uint8 colours (when
+        the views are ticked)."""
+        shown = bool(self.gui_ortho.value)
+        if self.gui_top.visible != shown:
+            self.gui_top.visible = self.gui_side.visible = shown
+        if shown:
+            self.gui_top.image = ortho_image(points, colours, "top", ORTHO_SIZE)
+            self.gui_side.image = ortho_image(points, colours, "side", ORTHO_SIZE)

@@ -51,6 +51,7 @@ HOTKEYS: tuple[tuple[str, str, str], ...] = (
     ("Next frame", "arrowright", "step one frame forward"),
     ("Play / pause", "space", "play the track's frames"),
     ("Split by height", "H", "cut the track's points above the set height into a new track"),
+    ("Split by predicted class", "P", "cut the segments the newest model calls the chosen class into a new track"),
     *((f"Class {name}", str(i + 1), f"label the track '{name}' (accepts it) and load the next one")
       for i, name in enumerate(SAMPLE_CLASSES)),
 )
@@ -61,7 +62,8 @@ NODE_SIZE = 0.12  # path markers small enough not to cover a pedestrian
 OUTSIDE_KEPT = (150, 150, 150)
 PATH_KEPT = (255, 140, 0)
 KEY_HELP = ("**A** accept · **D** discard · **1-7** class · **[** / **]** truncate before / after · **Z** undo · "
-            "**S** skip · **←/→** frame · **space** play · **H** split by height · click a point: open its track")
+            "**S** skip · **←/→** frame · **space** play · **H** / **P** split by height / predicted class · "
+            "click a point: open its track")
 # masks what is typed into the sign-in page's only text field (Chromium and WebKit)
 MASK_TOKEN_CSS = "<style>.mantine-TextInput-input{-webkit-text-security:disc}</style>"
 
@@ -153,7 +155,8 @@ class ClientTab:
             with gui.add_folder("Track views"):
                 self.views = TrackViewsPanel(gui, lambda: self.later(self.render_frame))
         with tabs.add_tab("Repair", viser.Icon.CUT):
-            self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre)
+            self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
+                                      self.newest_model, self.notify)
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api)
         with tabs.add_tab("Jobs", viser.Icon.CPU):
@@ -196,6 +199,8 @@ class ClientTab:
                 cmd.on_trigger(lambda _e: self.toggle_play())
             elif key == "H":
                 cmd.on_trigger(lambda _e: self.repair.cut_height())
+            elif key == "P":
+                cmd.on_trigger(lambda _e: self.repair.cut_predicted())
 
     def notify(self, title: str, body: str, colour: str = "blue") -> None:
         self.client.add_notification(title, body, auto_close_seconds=5.0, color=colour)  # type: ignore[arg-type]
@@ -301,6 +306,14 @@ class ClientTab:
             self.open_track(a)
         if self.session.track_id == a:
             self.merge(b)
+
+    def newest_model(self) -> int | None:
+        """The id of the newest registered model (split by predicted class), None without one."""
+        try:
+            models = self.api.get("/models", limit=1)
+        except ApiError:
+            return None
+        return int(models[0]["id"]) if models else None
 
     def frame_pose(self) -> np.ndarray:
         """T_world_lidar of the frame shown (the scene's frame)."""
@@ -502,7 +515,9 @@ class ClientTab:
                 self._draw_track(t, fi, payload, mask, aggregated)
                 self._draw_path(t, fi, pose_matrix(frame.get("pose")))
                 self.gui_track.content = self._track_info(fi)
-                self.gui_predicted.content = self._predicted_info(t)
+                predicted = self._predicted_info(t)
+                if self.gui_predicted.content != predicted:  # an unchanged text costs the browser nothing
+                    self.gui_predicted.content = predicted
                 if reset_camera and self.gui_follow.value:
                     self._aim_camera(t, fi, payload.points[mask])
             self.client.flush()

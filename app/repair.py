@@ -70,6 +70,7 @@ class Selector:
     region: Any = None
     min_height: float | None = None
     record: dict[str, Any] | None = None
+    segments: dict[int, set[int]] | None = None  # frame id -> local ids of whole segments that go
 
 
 @dataclass(frozen=True)
@@ -219,6 +220,8 @@ def _selected_points(ctx: RepairContext, frame: Frame, art: FrameArtifact, track
     out = np.zeros(len(art.points), bool)
     if not mine.any():
         return out
+    if selector.segments is not None:
+        return mine & np.isin(art.segment, sorted(selector.segments.get(frame.id, ())))
     if selector.min_height is not None:
         height = ctx.backend.height(ctx.sensor, ctx.config, art.points, art.intensity)
         return mine & (height >= selector.min_height)
@@ -363,6 +366,38 @@ def split_track(
     _refresh_labels(session, user, track, new)
     session.commit()
     return SplitResult(track, new, moved)
+
+
+def predicted_selector(session: Session, ctx: RepairContext, track_id: int, model_id: int, class_name: str,
+                       record: dict[str, Any]) -> Selector:
+    """The track's kept segments that model `model_id` classifies as `class_name` (whole
+    segments: a split in time, e.g. the frames where a tracked person merged into a wall)."""
+    from app.jobs.models_util import get_model_version
+    from pipeline.errors import DataError
+    from pipeline.model import load_checkpoint, predict
+
+    track = crud.get_track(session, track_id)
+    mv = get_model_version(session, model_id)
+    try:
+        model, meta = load_checkpoint(mv.path, "cpu")
+    except DataError as exc:
+        raise Invalid(f"model {model_id}: {exc}") from None
+    if class_name not in meta.classes:
+        raise Invalid(f"model {model_id} has no class {class_name!r}; its classes: {', '.join(meta.classes)}")
+    rows = session.execute(
+        select(Segment.frame_id, Segment.local_id, Segment.sample_index, Frame.artifact)
+        .join(Frame, Frame.id == Segment.frame_id)
+        .where(Segment.track_id == track_id, Segment.sample_index.is_not(None),
+               Segment.frame_index.between(track.keep_start, track.keep_end))
+    ).all()
+    samples = [ctx.artifacts.read_arrays(r.artifact, ("samples",))["samples"][r.sample_index] for r in rows]
+    picked: dict[int, set[int]] = {}
+    if samples:
+        probs = predict(model, np.stack(samples))
+        for r, p in zip(rows, probs, strict=True):
+            if meta.classes[int(p.argmax())] == class_name:
+                picked.setdefault(int(r.frame_id), set()).add(int(r.local_id))
+    return Selector(record=record, segments=picked)
 
 
 # ----------------------------------------------------------------------------- merge

@@ -307,8 +307,16 @@ class HeightRegion(_Request):
     min_height: float = Field(ge=-10.0, le=100.0)
 
 
+class PredictedRegion(_Request):
+    """The track's kept segments that model `model_id` classifies as `class_name` (whole segments)."""
+
+    kind: Literal["predicted"]
+    model_id: int = Field(ge=1, le=2**31 - 1)
+    class_name: str = Field(min_length=1, max_length=16)
+
+
 SplitRegion = Annotated[
-    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion, Field(discriminator="kind")
+    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion, Field(discriminator="kind")
 ]
 
 

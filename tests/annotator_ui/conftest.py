@@ -52,7 +52,8 @@ class LiveApi:
         return r.json()
 
     def track(self, track_id: int) -> dict:
-        r = httpx.get(f"{self.url}/api/v1/tracks/{track_id}", headers={"Authorization": f"Bearer {self.admin_token}"})
+        r = httpx.get(f"{self.url}/api/v1/tracks/{track_id}", headers={"Authorization": f"Bearer {self.admin_token}"},
+                      timeout=30)  # the 2-core test machine is often loaded: 5 s was not always enough
         r.raise_for_status()
         return r.json()
 

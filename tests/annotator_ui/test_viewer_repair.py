@@ -53,6 +53,7 @@ def test_viewer_stitch_rows_stay_in_their_tab_and_follow_the_track(tab, live_api
     tab.open_track(int(st["track_a_id"]))
     wait_until(lambda: f"of track {st['track_a_id']}" in tab.stitches.gui_status.content)
     rows = tab.stitches._items
+    assert rows, tab.stitches.gui_status.content
     assert rows and all(h._impl.parent_container_id == tab.stitches.gui_rows._impl.uuid for h in rows)
     tab.run_action("skip")  # an action: the panel follows the track shown next
     wait_until(lambda: f"of track {tab.session.track_id}" in tab.stitches.gui_status.content)

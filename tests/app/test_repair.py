@@ -286,3 +286,38 @@ def test_repair_replaying_split_events_reproduces_the_split(client, factory, set
         za, zb = np.load(settings.data_dir / "artifacts" / rel_a), np.load(settings.data_dir / "artifacts" / rel_b)
         assert np.array_equal(za["track"] == new_a, zb["track"] == replay["new_track"]["id"])
         assert np.array_equal(za["segment"], zb["segment"])
+
+
+def test_repair_split_by_predicted_class_moves_whole_segments(client, factory, db, tmp_path):
+    """An untrained model still answers deterministically: the segments it calls `car` go."""
+    import torch
+
+    from app.jobs import models_util
+    from pipeline.classes import SAMPLE_CLASSES
+    from pipeline.config import ModelConfig, SampleConfig
+    from pipeline.model import get_model, load_checkpoint, predict, save_checkpoint
+    from tests.app.fakes import SAMPLE_SHAPE
+
+    torch.manual_seed(0)
+    mc = ModelConfig(width=4, max_width=8, depth=2, dropout=0.0)
+    sc = SampleConfig(size=SAMPLE_SHAPE[1], foreground_channel=True)
+    path = save_checkpoint(tmp_path / "m.pt", get_model(mc, sc), mc, sc)
+    with db.write() as s:
+        model_id = models_util.register_model_version(s, name="m", kind="train", path=path).id
+        s.commit()
+    seq = factory.ingested_sequence(n_frames=5, n_objects=1)
+    op = factory.user()
+    tid = factory.track_ids(seq)[0]
+    # what the model says of each of the track's samples (fake sample value = frame * 7)
+    model, meta = load_checkpoint(path, "cpu")
+    samples = np.stack([np.full(SAMPLE_SHAPE, f * 7, np.uint8) for f in range(5)])
+    classes = [meta.classes[int(p.argmax())] for p in predict(model, samples)]
+    cls = classes[2]
+    region = {"kind": "predicted", "model_id": model_id, "class_name": cls}
+    out = _post(client, op, tid, "split", {"version": 1, "region": region, "frame_index": 2})
+    new = client.get(f"/api/v1/tracks/{out['new_track']['id']}", headers=op.headers).json()
+    assert [s["frame_index"] for s in new["segments"]] == [2] and out["moved_points"] == 20
+    other = next((c for c in SAMPLE_CLASSES if c != cls), None)
+    if other not in classes:  # a class the model gives no segment: nothing is selected
+        _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": other}}, status=422)
+    _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": "spaceship"}}, status=422)

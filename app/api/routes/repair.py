@@ -40,10 +40,12 @@ def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, trac
     return repair.repair_context(session, settings, artifacts, track.sequence_id)
 
 
-def _selector(body: SplitAction) -> repair.Selector:
+def _selector(session: Session, ctx: repair.RepairContext, track_id: int, body: SplitAction) -> repair.Selector:
     from pipeline import regions
 
     r, record = body.region, body.region.model_dump(mode="json")
+    if r.kind == "predicted":
+        return repair.predicted_selector(session, ctx, track_id, r.model_id, r.class_name, record)
     if r.kind == "box":
         return repair.Selector(regions.Box(np.array(r.center), np.array(r.size), np.array(r.wxyz)), record=record)
     if r.kind == "halfspace":
@@ -61,10 +63,13 @@ def split_track(
     artifacts: ArtifactsDep,
 ) -> SplitPublic:
     """Cut the track's points inside `region` (world frame) out into a new pending track, in every
-    kept frame or in `frame_index` only. Cut segments get new samples; both tracks get new versions."""
+    kept frame or in `frame_index` only: a box, a half-space, a top-view prism, a screen lasso, the
+    points above a height, or (`predicted`) the whole segments a model classifies as a class. Cut
+    segments get new samples; both tracks get new versions."""
     _check_lease(session, [track_id], guard)
     ctx = _context(session, settings, artifacts, track_id)
-    res = repair.split_track(session, ctx, track_id, guard.user, body.version, _selector(body), body.frame_index)
+    selector = _selector(session, ctx, track_id, body)
+    res = repair.split_track(session, ctx, track_id, guard.user, body.version, selector, body.frame_index)
     return SplitPublic(track=TrackPublic.model_validate(res.track), new_track=TrackPublic.model_validate(res.new_track),
                        moved_points=res.moved_points)
 
