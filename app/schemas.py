@@ -315,9 +315,9 @@ class PredictedRegion(_Request):
     class_name: str = Field(min_length=1, max_length=16)
 
 
-SplitRegion = Annotated[
-    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion, Field(discriminator="kind")
-]
+# a plain union told apart by each member's `kind` literal: pydantic refuses a discriminator on a
+# field that JsonModel's before-validator reads
+SplitRegion = BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion
 
 
 class SplitAction(ActionBase):
