@@ -23,7 +23,7 @@ from pathlib import Path
 from bench.bench_api import _pg_schema, load_database
 
 EXPORT_TARGET_ROWS_S = 50_000.0
-EXAMPLES = 60
+EXAMPLES = 25
 
 
 def _client(url: str, data_dir: Path):  # -> TestClient
