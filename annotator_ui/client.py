@@ -35,6 +35,15 @@ class StaleEdit(ApiError):
     """409: the track changed since the viewer read it (or there is nothing to undo)."""
 
 
+class NothingToUndo(StaleEdit):
+    """409 whose detail says there is no action left to undo (not a changed track)."""
+
+
+def _conflict(status: int, detail: str, path: str) -> ApiError:
+    cls = NothingToUndo if detail.startswith("nothing to undo") else StaleEdit
+    return cls(status, detail, path)
+
+
 @dataclass(frozen=True)
 class FramePayload:
     """One frame as the viewer draws it (lidar frame, sensor-centred).
@@ -93,6 +102,7 @@ class ApiClient:
             base = base[: -len(API_PREFIX)]
         self.base_url = base
         self.token = token or ""
+        self._paths: dict[str, Any] | None = None  # the OpenAPI paths, read on first use
         self._http = httpx.Client(
             base_url=base + API_PREFIX,
             headers={"Authorization": f"Bearer {token}"} if token else {},
@@ -116,8 +126,9 @@ class ApiClient:
         except httpx.HTTPError as exc:
             raise ApiError(0, f"cannot reach the track service at {self.base_url}: {exc}", path) from exc
         if r.status_code >= 400:
-            cls = StaleEdit if r.status_code == 409 else ApiError
-            raise cls(r.status_code, _detail(r), path)
+            if r.status_code == 409:
+                raise _conflict(r.status_code, _detail(r), path)
+            raise ApiError(r.status_code, _detail(r), path)
         return r
 
     def _json(self, method: str, path: str, **kw: Any) -> Any:
@@ -178,6 +189,20 @@ class ApiClient:
             raise ValueError(f"unknown action {action!r}")
         return self._json("POST", f"/tracks/{track_id}/{action}", json={"version": version, **body})
 
+    def split(self, track_id: int, version: int, region: dict[str, Any], frame_index: int | None = None) -> dict[str, Any]:
+        """Cut the track's points inside `region` (world frame; see the service's SplitAction)
+        out into a new track, in every kept frame or in `frame_index` only. Returns SplitPublic:
+        `track`, `new_track`, `moved_points`. A region selecting nothing or everything -> ApiError 422."""
+        body: dict[str, Any] = {"version": version, "region": region}
+        if frame_index is not None:
+            body["frame_index"] = frame_index
+        return self._json("POST", f"/tracks/{track_id}/split", json=body)
+
+    def merge(self, track_id: int, version: int, other_id: int, other_version: int) -> dict[str, Any]:
+        """Join track `other_id` into `track_id`; returns the joined TrackPublic."""
+        return self._json("POST", f"/tracks/{track_id}/merge",
+                          json={"version": version, "other_track_id": other_id, "other_version": other_version})
+
     def sample_png(self, sample_url: str) -> bytes:
         """The PNG of a segment's sample (`sample_url` as the track detail gives it)."""
         path = sample_url.removeprefix(API_PREFIX)
@@ -224,12 +249,14 @@ class ApiClient:
 
     # ------------------------------------------------------------------ optional routes
     def has_route(self, method: str, path: str) -> bool:
-        """Whether the service's OpenAPI schema lists `method path` (e.g. routes later issues add)."""
-        try:
-            schema = self._json("GET", "/openapi.json")
-        except ApiError:
-            return False
-        return method.lower() in schema.get("paths", {}).get(API_PREFIX + path, {})
+        """Whether the service's OpenAPI schema lists `method path` (e.g. routes later issues add).
+        The schema is read once per client: panels ask after every action, and it is ~100 kB."""
+        if self._paths is None:
+            try:
+                self._paths = self._json("GET", "/openapi.json").get("paths", {})
+            except ApiError:
+                return False
+        return method.lower() in self._paths.get(API_PREFIX + path, {})
 
     def get(self, path: str, **params: Any) -> Any:
         """GET any JSON route under /api/v1 (for panels of optional features)."""

@@ -111,9 +111,10 @@ def legend_entries(mode: ColourMode) -> list[tuple[str, tuple[int, int, int]]]:
     """(label, RGB) rows of the legend of `mode`."""
     classes = [(name, tuple(int(v) for v in CLASS_RGB[name])) for name in SAMPLE_CLASSES]
     common = [("ground", tuple(int(v) for v in GROUND)), ("no track", tuple(int(v) for v in UNTRACKED)),
+              ("the reviewed track: outline (its points in height or intensity colours)", (255, 215, 0)),
               ("track path (kept / cut / this frame)", (255, 140, 0))]
     if mode == "track":
-        return [("one colour per track", (230, 120, 60)), ("the reviewed track (large points)", (255, 220, 0)), *common]
+        return [("one colour per track", (230, 120, 60)), *common]
     if mode == "class":
         return [*classes, ("pending", tuple(int(v) for v in PENDING)),
                 ("discarded", tuple(int(v) for v in DISCARDED)), *common]

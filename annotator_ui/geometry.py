@@ -73,3 +73,35 @@ def polyline_segments(points: np.ndarray) -> np.ndarray:
     if len(p) < 2:
         return np.zeros((0, 2, 3), np.float32)
     return np.stack([p[:-1], p[1:]], axis=1)
+
+
+def clip_from_scene(position: np.ndarray, wxyz: np.ndarray, fov: float, aspect: float) -> np.ndarray:
+    """(4, 4) matrix taking homogeneous scene points to clip coordinates of a viser camera:
+    `position` and `wxyz` are R_scene_camera in OpenCV axes (x right, y down, z forward), `fov`
+    the vertical field of view (rad), `aspect` width / height. NDC x = clip x / w (right),
+    y = clip y / w (up), w = depth along the view; only x, y and w carry meaning."""
+    from pipeline.regions import quaternion_matrix
+
+    R = quaternion_matrix(np.asarray(wxyz, np.float64))
+    view = np.eye(4)
+    view[:3, :3], view[:3, 3] = R.T, -R.T @ np.asarray(position, np.float64)
+    t = np.tan(fov / 2.0)
+    proj = np.array([[1 / (t * aspect), 0, 0, 0], [0, -1 / t, 0, 0], [0, 0, 1, 0], [0, 0, 1, 0]], np.float64)
+    return proj @ view
+
+
+def rect_polygon_ndc(screen_min: tuple[float, float], screen_max: tuple[float, float]) -> np.ndarray:
+    """(4, 2) NDC corners of a screen rectangle given in OpenCV image coordinates (0..1, y down)."""
+    (u0, v0), (u1, v1) = screen_min, screen_max
+    return np.array([[2 * u - 1, 1 - 2 * v] for u, v in ((u0, v0), (u1, v0), (u1, v1), (u0, v1))], np.float64)
+
+
+def matrix_wxyz(R: np.ndarray) -> np.ndarray:
+    """(4,) unit quaternion (w, x, y, z) of a (3, 3) rotation matrix."""
+    m = np.asarray(R, np.float64)
+    w = np.sqrt(max(0.0, 1 + m[0, 0] + m[1, 1] + m[2, 2])) / 2
+    x = np.copysign(np.sqrt(max(0.0, 1 + m[0, 0] - m[1, 1] - m[2, 2])) / 2, m[2, 1] - m[1, 2])
+    y = np.copysign(np.sqrt(max(0.0, 1 - m[0, 0] + m[1, 1] - m[2, 2])) / 2, m[0, 2] - m[2, 0])
+    z = np.copysign(np.sqrt(max(0.0, 1 - m[0, 0] - m[1, 1] + m[2, 2])) / 2, m[1, 0] - m[0, 1])
+    q = np.array([w, x, y, z])
+    return q / np.linalg.norm(q)

@@ -272,6 +272,9 @@ class AnchorsPanel:
         self.gui_propose.on_click(lambda _: self.propose())
         self.gui_refresh = gui.add_button("Refresh anchors", icon=viser.Icon.REFRESH, disabled=True)
         self.gui_refresh.on_click(lambda _: self.refresh())
+        # rows are added from background threads: viser puts a handle in the container of the
+        # thread's `with` block, so without this folder they landed under every tab
+        self.gui_rows = gui.add_folder("Waiting proposals", expand_by_default=True)
         self._items: list[Any] = []
 
     def refresh(self) -> None:
@@ -318,8 +321,9 @@ class AnchorsPanel:
             )
             return
         self.gui_status.content = f"**{total}** anchor proposals waiting; the first {len(items)}:"
-        for item in items:
-            self._items.extend(self._anchor_row(item))
+        with self.gui_rows:
+            for item in items:
+                self._items.extend(self._anchor_row(item))
 
     def _anchor_row(self, item: dict[str, Any]) -> list[Any]:
         from annotator_ui.samples import sample_image
@@ -366,15 +370,17 @@ class StitchesPanel:
     """Stitches (`/stitches`): two tracks joined by fragment links, pieces of one object. The
     panel lists the pending stitches of the shown track (else of the shown sequence), most links
     first; the operator confirms (one object: its fragment pairs become constraints once both
-    tracks are accepted), rejects, or opens either track in the 3D view. Without that API the
-    panel says so and stays disabled."""
+    tracks are accepted), rejects, merges the two tracks into one, or opens either track in the
+    3D view. The tab refreshes it after every action and track change, so its rows are always
+    those of the shown track. Without that API the panel says so and stays disabled."""
 
     PAGE = 8
 
     def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
                  sequence_id: Callable[[], int | None], track_id: Callable[[], int | None],
-                 open_track: Callable[[int], None]) -> None:
+                 open_track: Callable[[int], None], merge: Callable[[int, int], None] | None = None) -> None:
         self.gui = gui
+        self.merge = merge
         self.api = api
         self.notify = notify
         self.sequence_id = sequence_id
@@ -384,9 +390,16 @@ class StitchesPanel:
         self.gui_status = gui.add_markdown("Checking for stitches ...")
         self.gui_refresh = gui.add_button("Refresh stitches", icon=viser.Icon.REFRESH, disabled=True)
         self.gui_refresh.on_click(lambda _: self.refresh())
+        self.gui_rows = gui.add_folder("Pending stitches", expand_by_default=True)  # see AnchorsPanel.gui_rows
         self._items: list[Any] = []
+        self._lock = threading.Lock()  # refreshes after quick successive actions must not interleave rows
+        self._shown: tuple[Any, ...] | None = None
 
     def refresh(self) -> None:
+        with self._lock:
+            self._refresh()
+
+    def _refresh(self) -> None:
         self.available = self.api.has_route("get", STITCHES_PATH)
         self.gui_refresh.disabled = not self.available
         if not self.available:
@@ -406,6 +419,10 @@ class StitchesPanel:
         self._render(body.get("items", []), int(body.get("total", 0)), track)
 
     def _render(self, items: list[dict[str, Any]], total: int, track: int | None) -> None:
+        key = (track, total, tuple((i["id"], i["version"]) for i in items))
+        if key == self._shown:
+            return  # the same rows: rebuilding them would only make the browser lay the panel out again
+        self._shown = key
         for h in self._items:
             h.remove()
         self._items = []
@@ -413,18 +430,23 @@ class StitchesPanel:
         if not items:
             self.gui_status.content = f"**No pending stitches** {where}."
             return
-        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"
-        for item in items:
-            a, b = int(item["track_a_id"]), int(item["track_b_id"])
-            self._items.append(self.gui.add_markdown(
-                f"#{item['id']} · track {a} ↔ track {b} · {item['links']} links · share {item['share']:.2f}"))
-            group = self.gui.add_button_group(f"Stitch #{item['id']}", ("One object", "Different", f"Show {a}", f"Show {b}"))
-            group.on_click(lambda e, it=item: self._decide(it, e.target.value))
-            self._items.append(group)
+        buttons = ("One object", "Different", *(("Merge",) if self.merge else ()))
+        with self.gui_rows:
+            for item in items:
+                a, b = int(item["track_a_id"]), int(item["track_b_id"])
+                self._items.append(self.gui.add_markdown(
+                    f"#{item['id']} · track {a} ↔ track {b} · {item['links']} links · share {item['share']:.2f}"))
+                group = self.gui.add_button_group(f"Stitch #{item['id']}", (*buttons, f"Show {a}", f"Show {b}"))
+                group.on_click(lambda e, it=item: self._decide(it, e.target.value))
+                self._items.append(group)
+        self.gui_status.content = f"**{total}** pending stitches {where}; the first {len(items)}:"  # rows first
 
     def _decide(self, item: dict[str, Any], what: str) -> None:
         if what.startswith("Show "):
             self.open_track(int(what.split()[1]))
+            return
+        if what == "Merge" and self.merge is not None:
+            self.merge(int(item["track_a_id"]), int(item["track_b_id"]))
             return
         action = "confirm" if what == "One object" else "reject"
         try:

@@ -9,8 +9,11 @@ Rules:
   - undo reverts the operator's last action of this tab (on whatever track it was), and shows
     that track again;
   - skip passes a track over for this tab (its lease is given back);
+  - split cuts the shown track by a region (the new track is reviewed later, from the queue or
+    by a click); merge joins another track into the shown one; undo reverts either;
   - a stale version (409) reloads the track and re-raises, so the GUI says so; nothing is retried
-    silently.
+    silently; an action that would change nothing (truncating at the kept range's own end, undo
+    with no action left) raises `NoChange` and sends nothing.
 
 Several tabs of one user (one token) share the queue through a `QueueCoordinator`, which makes
 each tab exclude the tracks the other tabs show, so no two tabs get the same track.
@@ -22,9 +25,13 @@ import threading
 from dataclasses import dataclass, field
 from typing import Any
 
-from annotator_ui.client import ApiClient, StaleEdit
+from annotator_ui.client import ApiClient, NothingToUndo, StaleEdit
 
 FINISHING = ("accept", "discard", "label")
+
+
+class NoChange(Exception):
+    """The action would change nothing; nothing was sent."""
 
 
 @dataclass
@@ -197,13 +204,19 @@ class ReviewSession:
         """Give the track one class (the service accepts it too), then go on to the next."""
         return self._finish("label", label=class_name)
 
+    def _truncate(self, start: int, end: int) -> dict[str, Any]:
+        assert self.track is not None
+        if (start, end) == (int(self.track["keep_start"]), int(self.track["keep_end"])):
+            raise NoChange(f"frames {start}-{end} are already the kept range")
+        return self._act("truncate", start=start, end=end)
+
     def truncate_before(self) -> dict[str, Any]:
         """Drop the frames before the current one: keep current..keep_end."""
         with self.lock:
             assert self.track is not None and self.frame_index is not None
             end = int(self.track["keep_end"])
             start = min(self.frame_index, end)
-            result = self._act("truncate", start=start, end=end)
+            result = self._truncate(start, end)
             self.reload()
             return result
 
@@ -213,7 +226,7 @@ class ReviewSession:
             assert self.track is not None and self.frame_index is not None
             start = int(self.track["keep_start"])
             end = max(self.frame_index, start)
-            result = self._act("truncate", start=start, end=end)
+            result = self._truncate(start, end)
             self.reload()
             return result
 
@@ -221,16 +234,52 @@ class ReviewSession:
         """Revert this tab's last action and show that track. Nothing to undo -> StaleEdit."""
         with self.lock:
             if not self.history:
-                raise StaleEdit(409, "nothing to undo in this tab")
+                raise NoChange("nothing to undo in this tab")
             track_id = self.history[-1]
             current = self.api.track(track_id)
-            result = self.api.act(track_id, "undo", current["version"])
+            try:
+                result = self.api.act(track_id, "undo", current["version"])
+            except NothingToUndo:  # undone elsewhere (another tab of this operator)
+                self.history.pop()
+                raise
             self.history.pop()
             shown = self.track_id == track_id
             self._lease(track_id)  # pending again: keep the queue from handing it to someone else
             # a queue track shown until now stays leased to this user: the next `next` returns it
             self._show(self.api.track(track_id), from_queue=shown and self.from_queue,
                        frame_index=self.frame_index if shown else None)
+            return result
+
+    def split(self, region: dict[str, Any], this_frame_only: bool) -> dict[str, Any]:
+        """Cut the shown track by `region` (world frame) in every kept frame or in the shown frame;
+        the shown track stays (reloaded) and the cut-off track is pending in the queue."""
+        with self.lock:
+            assert self.track is not None
+            frame = self.frame_index if this_frame_only else None
+            try:
+                result = self.api.split(int(self.track["id"]), int(self.track["version"]), region, frame)
+            except StaleEdit:
+                self.reload()
+                raise
+            self.history.append(int(self.track["id"]))
+            self.reload()
+            return result
+
+    def merge(self, other_id: int) -> dict[str, Any]:
+        """Join track `other_id` into the shown track (its version read now, the shown track's as
+        shown), then show the joined track."""
+        with self.lock:
+            assert self.track is not None
+            if other_id == self.track_id:
+                raise NoChange("a track cannot be merged with itself")
+            other = self.api.track(other_id)
+            try:
+                result = self.api.merge(int(self.track["id"]), int(self.track["version"]), other_id, int(other["version"]))
+            except StaleEdit:
+                self.reload()
+                raise
+            self.history.append(int(self.track["id"]))
+            self.reload()
             return result
 
     def skip(self) -> dict[str, Any] | None:

@@ -80,15 +80,18 @@ class ArtifactStore:
         self._cache_limit = payload_cache_bytes
         self._lock = threading.Lock()
 
-    def frame_relpath(self, sequence_id: int, index: int) -> str:
-        return f"seq_{sequence_id:06d}/{index:06d}.npz"
+    def frame_relpath(self, sequence_id: int, index: int, revision: str | None = None) -> str:
+        """`seq_<id>/<index>.npz`; a frame rewritten by a track split or merge gets a new file,
+        `<index>.<revision>.npz`, and the old one stays for undo (app/repair.py)."""
+        suffix = "" if revision is None else f".{revision}"
+        return f"seq_{sequence_id:06d}/{index:06d}{suffix}.npz"
 
     def path(self, relpath: str) -> Path:
         return self.root / relpath
 
-    def write_frame(self, sequence_id: int, index: int, frame: FrameArtifact) -> str:
+    def write_frame(self, sequence_id: int, index: int, frame: FrameArtifact, revision: str | None = None) -> str:
         """Write one frame atomically; returns its relative path."""
-        rel = self.frame_relpath(sequence_id, index)
+        rel = self.frame_relpath(sequence_id, index, revision)
         dest = self.path(rel)
         dest.parent.mkdir(parents=True, exist_ok=True)
         tmp = dest.with_name(f".{dest.name}.{os.getpid()}.tmp")

@@ -402,9 +402,16 @@ def initial_review_state(track: Track) -> dict[str, Any]:
 
 
 def rebuild_review_state(session: Session, track: Track) -> dict[str, Any]:
-    """The review state replayed from the event log alone (it must equal `review_state(track)`)."""
+    """The review state replayed from the event log alone (it must equal `review_state(track)`).
+    A merge widens a track's frame range; its event records the range before (`range_before`),
+    so the replay starts from the range ingest gave the track."""
+    events = track_events(session, track.id)
     state = initial_review_state(track)
-    for ev in track_events(session, track.id):
+    for ev in events:
+        if ev.detail and "range_before" in ev.detail:
+            state["keep_start"], state["keep_end"] = ev.detail["range_before"]
+            break
+    for ev in events:
         if ev.before != state:
             raise Conflict(f"event log of track {track.id} is inconsistent at event {ev.id}")
         state = dict(ev.after)
@@ -440,6 +447,8 @@ def apply_action(
     leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
     if track.version != version:
         raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    if track.status == "merged" and action != "undo":
+        raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
 
     before = review_state(track)
     after = dict(before)
@@ -461,7 +470,7 @@ def apply_action(
             )
         after["keep_start"], after["keep_end"] = start, end
     elif action == "undo":
-        reverts = _last_undoable_event(session, track_id, user.id)
+        reverts = last_undoable_event(session, track_id, user.id)
         if reverts is None:
             raise Conflict(f"nothing to undo: no action of {user.name} on track {track_id} is left to undo")
         for f in REVIEW_FIELDS:
@@ -490,7 +499,7 @@ def apply_action(
             "reverts_event_id": None if reverts is None else reverts.id,
         },
     )
-    _refresh_labels(session, track, user.id, sample_classes)
+    refresh_labels(session, track, user.id, sample_classes)
     session.commit()
     return track
 
@@ -512,7 +521,7 @@ def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_en
     track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
 
 
-def _last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:
+def last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:
     """The caller's latest non-undo event on the track that no undo has reverted yet."""
     reverted = select(AnnotationEvent.reverts_event_id).where(
         AnnotationEvent.track_id == track_id, AnnotationEvent.reverts_event_id.is_not(None)
@@ -553,7 +562,7 @@ _INSERT_LABELS = insert(Label.__table__).from_select(
 )
 
 
-def _refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
+def refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
     """Materialise the labelled samples of a track: its valid segments in the kept range when it is
     accepted with a class; none otherwise. (Core statements on the session's connection: no
     Label object is loaded in an action's session, so the ORM has nothing to synchronise.)"""

@@ -38,10 +38,11 @@ NAMING_CONVENTION = {
 BigId = BigInteger().with_variant(Integer(), "sqlite")
 
 ROLES = ("operator", "reviewer", "admin")  # reviewer: audits accepted tracks (migration 0008)
-TRACK_STATUSES = ("pending", "accepted", "discarded")
+# merged: the track's segments were joined into another track (app/repair.py); undo brings them back
+TRACK_STATUSES = ("pending", "accepted", "discarded", "merged")
 SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
-ACTIONS = ("accept", "discard", "truncate", "label", "undo")
+ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
 ANCHOR_LEVELS = ("sample", "track")
 ANCHOR_ACTIONS = ("confirm", "correct", "reject")
 
@@ -284,6 +285,10 @@ class AnnotationEvent(Base):
     before: Mapped[dict[str, Any]] = mapped_column(JSON)
     after: Mapped[dict[str, Any]] = mapped_column(JSON)
     reverts_event_id: Mapped[int | None] = mapped_column(ForeignKey("annotation_events.id", ondelete="SET NULL"))
+    # migration 0009: what a split or merge changed beyond the review state (frames' artifact
+    # files before and after, segment rows, constraint rows, the other track), so that undo
+    # restores it exactly and the log can be replayed (app/repair.py)
+    detail: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 
 class Job(Base):

@@ -14,7 +14,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInf
 from pipeline.classes import SAMPLE_CLASSES
 
 Role = Literal["operator", "reviewer", "admin"]
-TrackStatus = Literal["pending", "accepted", "discarded"]
+TrackStatus = Literal["pending", "accepted", "discarded", "merged"]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
 ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
@@ -260,6 +260,84 @@ class LabelAction(ActionBase):
     label: ClassName = Field(description="One of the sample classes.")
 
 
+Finite = Annotated[float, Field(allow_inf_nan=False, ge=-1e7, le=1e7)]
+Vec3 = tuple[Finite, Finite, Finite]
+Size = Annotated[float, Field(allow_inf_nan=False, gt=0, le=1e4)]
+
+
+class BoxRegion(_Request):
+    """A box in the world frame: centre, full extents along its own axes, orientation (w, x, y, z)."""
+
+    kind: Literal["box"]
+    center: Vec3
+    size: tuple[Size, Size, Size]
+    wxyz: tuple[Finite, Finite, Finite, Finite] = (1.0, 0.0, 0.0, 0.0)
+
+
+class HalfSpaceRegion(_Request):
+    """World points p with normal . p >= offset."""
+
+    kind: Literal["halfspace"]
+    normal: Vec3
+    offset: Finite
+
+
+class PrismRegion(_Request):
+    """A world x-y polygon (drawn in the top view) extruded from z_min to z_max."""
+
+    kind: Literal["prism"]
+    polygon: list[tuple[Finite, Finite]] = Field(min_length=3, max_length=1000)
+    z_min: Finite = -1e4
+    z_max: Finite = 1e4
+
+
+class LassoRegion(_Request):
+    """A screen polygon in normalised device coordinates (-1..1, y up) with the 4x4 row-major
+    `clip_from_world` matrix of the camera it was drawn with."""
+
+    kind: Literal["lasso"]
+    polygon: list[tuple[Finite, Finite]] = Field(min_length=3, max_length=1000)
+    clip_from_world: list[Finite] = Field(min_length=16, max_length=16)
+
+
+class HeightRegion(_Request):
+    """The track's points at least `min_height` metres above the ground."""
+
+    kind: Literal["height"]
+    min_height: float = Field(ge=-10.0, le=100.0)
+
+
+class PredictedRegion(_Request):
+    """The track's kept segments that model `model_id` classifies as `class_name` (whole segments)."""
+
+    kind: Literal["predicted"]
+    model_id: int = Field(ge=1, le=2**31 - 1)
+    class_name: str = Field(min_length=1, max_length=16)
+
+
+SplitRegion = Annotated[
+    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion, Field(discriminator="kind")
+]
+
+
+class SplitAction(ActionBase):
+    region: SplitRegion
+    frame_index: int | None = Field(
+        default=None, ge=0, le=2**31 - 1, description="Cut in this frame only; omitted: in every kept frame."
+    )
+
+
+class MergeAction(ActionBase):
+    other_track_id: int = Field(ge=1, le=2**62, description="The track joined into this one.")
+    other_version: int = Field(ge=1, le=2**31 - 1, description="The other track's version.")
+
+
+class SplitPublic(BaseModel):
+    track: TrackPublic
+    new_track: TrackPublic
+    moved_points: int
+
+
 class EventPublic(_Public):
     id: int
     track_id: int
@@ -271,6 +349,7 @@ class EventPublic(_Public):
     before: dict[str, Any]
     after: dict[str, Any]
     reverts_event_id: int | None
+    detail: dict[str, Any] | None = None
 
 
 # ----------------------------------------------------------------------------- jobs

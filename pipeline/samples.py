@@ -157,9 +157,24 @@ def render_samples(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Samples of the valid segments: (V, C, S, S) uint8 and their (V,) int32 segment ids."""
     seg_ids = np.flatnonzero(table.valid).astype(np.int32)
+    return render_segments(scan, image, height, seg_point, table.centroid, seg_ids, sensor, config), seg_ids
+
+
+def render_segments(
+    scan: Scan,
+    image: RangeImage,
+    height: np.ndarray,
+    seg_point: np.ndarray,
+    centroid: np.ndarray,
+    seg_ids: np.ndarray,
+    sensor: SensorModel,
+    config: SampleConfig,
+) -> np.ndarray:
+    """(V, C, S, S) uint8 samples of the segments `seg_ids` (V,), centred on `centroid[seg_ids]`
+    ((S_all, 3) lidar-frame centroids); a track split re-renders the two parts of a cut segment."""
     if len(seg_ids) == 0:
-        return np.zeros((0, config.channels, config.size, config.size), np.uint8), seg_ids
-    centers = table.centroid[seg_ids].astype(np.float64)
+        return np.zeros((0, config.channels, config.size, config.size), np.uint8)
+    centers = centroid[seg_ids].astype(np.float64)
     rows, cols = sample_windows(centers, sensor, image.shape[1], config)
     h, w, length = config.cuboid_hwl
     out = _render(
@@ -167,4 +182,4 @@ def render_samples(
         centers, seg_ids, rows, cols, h / 2.0, w / 2.0, length / 2.0,
         float(config.max_height), float(config.max_range), config.foreground_channel,
     )
-    return out, seg_ids
+    return out

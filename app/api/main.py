@@ -20,6 +20,7 @@ from app.api.routes import (
     health,
     jobs,
     models,
+    repair,
     review,
     stitches,
     tracks,
@@ -72,6 +73,6 @@ def declare_errors(router: APIRouter) -> None:
 
 
 api_router = APIRouter()
-for module in (health, users, datasets, frames, tracks, review, exports, jobs, models, anchors, stitches, audits):
+for module in (health, users, datasets, frames, tracks, repair, review, exports, jobs, models, anchors, stitches, audits):
     declare_errors(module.router)  # before including: an included router's routes are not listed
     api_router.include_router(module.router)

@@ -65,7 +65,37 @@ class IngestBackend:
         return cfg.override(overrides) if overrides else cfg
 
 
+    def resample(
+        self, sensor: dict[str, Any] | None, config: Any, points: np.ndarray, intensity: np.ndarray,
+        seg_point: np.ndarray, seg_ids: np.ndarray,
+    ) -> Any:
+        """Statistics and samples of segments `seg_ids` of a stored frame whose segments changed
+        (a track split): a `pipeline.resample.ResampledSegments`."""
+        from pipeline.resample import resample_segments
+
+        return resample_segments(points, intensity, seg_point, seg_ids, _sensor_model(sensor), config)
+
+    def height(self, sensor: dict[str, Any] | None, config: Any, points: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+        """(N,) float32 height above ground of a stored frame's points (split by height)."""
+        from pipeline.resample import height_above_ground
+
+        return height_above_ground(points, intensity, _sensor_model(sensor), config)
+
+
+def _sensor_model(sensor: dict[str, Any] | None) -> Any:
+    from pipeline.sensors import SensorModel
+
+    if sensor is None:
+        raise Conflict("the sequence has no sensor model recorded (ingested before sensors were stored); ingest it again")
+    return SensorModel.from_dict(sensor)
+
+
 _backend: IngestBackend = IngestBackend()
+
+
+def get_backend() -> IngestBackend:
+    """How sequences are opened and samples rendered now (the track repair uses it too)."""
+    return _backend
 
 
 def set_backend(backend: IngestBackend) -> None:
@@ -149,7 +179,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         state.skipped.append(f"frame {index}: {error}")
 
     batch: list[Any] = []
-    for fr in processor.iter_frames(source, progress=False, workers=1, poses=opened.poses, on_skip=on_skip):
+    for fr in processor.iter_frames(source, workers=1, poses=opened.poses, on_skip=on_skip):
         if _input_row_count(fr) == 0:
             # an empty file is a truncated copy, never a scan: skipped and reported like a corrupt
             # frame, not stored as a frame with nothing to label
@@ -292,7 +322,9 @@ def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
     """The frame's artifact file (atomic rename); the row pointing at it commits later."""
     db_track = _db_tracks(state, fr)
     point_seg = np.asarray(fr.segment, dtype=np.int32)
-    point_track = np.where(point_seg >= 0, db_track[np.maximum(point_seg, 0)], 0).astype(np.int64)
+    point_track = np.zeros(len(point_seg), np.int64)  # a frame without segments indexes nothing
+    segmented = point_seg >= 0
+    point_track[segmented] = db_track[point_seg[segmented]]
     return ctx.artifacts.write_frame(
         state.sequence_id,
         fr.index,

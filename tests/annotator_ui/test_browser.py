@@ -91,12 +91,15 @@ def test_browser_review_twenty_tracks_with_hotkeys_only(page, live_api):
         tid = shown_track_id(page)
         version = live_api.track(tid)["version"]
         key = keys[i % len(keys)]
-        if i % 5 == 2:  # now and then cut the track to the current frame first
+        cut = i % 5 == 2
+        if cut:  # now and then cut the track to the current frame first
+            tab = next(iter(page.viewer.tabs.values()))
+            cut = tab.session.frame_index != live_api.track(tid)["keep_end"]  # on the last kept frame "]" changes nothing
             page.keyboard.press("]")  # the next key waits for it (same track), as a fast operator types
         page.keyboard.press(key)
         status = {"a": "accepted", "d": "discarded"}.get(key, "accepted")
         label = None if key in "ad" else ["person", "car", "cyclist", "trunk", "bush", "building", "unknown"][int(key) - 1]
-        expected[tid] = (status, label, version + (2 if i % 5 == 2 else 1))  # "]" is an edit of its own
+        expected[tid] = (status, label, version + (2 if cut else 1))  # "]" is an edit of its own
         wait_for_new_track(page, tid)
     for tid, (status, label, version) in expected.items():
         t = live_api.track(tid)

@@ -64,3 +64,21 @@ def test_polyline_segments_join_consecutive_vertices():
     segs = polyline_segments(np.arange(9, dtype=np.float32).reshape(3, 3))
     assert segs.shape == (2, 2, 3) and (segs[0, 1] == segs[1, 0]).all()
     assert polyline_segments(np.zeros((1, 3))).shape == (0, 2, 3)
+
+
+def test_geometry_clip_from_scene_puts_the_look_at_point_at_the_screen_centre():
+    from annotator_ui.geometry import clip_from_scene, matrix_wxyz, rect_polygon_ndc
+    from pipeline.regions import ScreenLasso, quaternion_matrix
+
+    # camera at (0, -10, 0) looking along +y (scene), image up = scene +z
+    R = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])  # columns: camera x, y, z in the scene
+    wxyz = matrix_wxyz(R)
+    assert np.allclose(quaternion_matrix(wxyz), R)
+    clip = clip_from_scene(np.array([0.0, -10, 0]), wxyz, fov=np.pi / 2, aspect=2.0)
+    pts = np.array([[0.0, 0, 0], [0, 0, 5], [5, 0, 0], [0, -20, 0]])  # centre, up, right, behind
+    h = np.c_[pts, np.ones(4)] @ clip.T
+    ndc = h[:, :2] / h[:, 3:]
+    assert np.allclose(ndc[0], [0, 0]) and np.allclose(ndc[1], [0, 0.5]) and np.allclose(ndc[2], [0.25, 0])
+    upper_right = rect_polygon_ndc((0.5, 0.0), (1.0, 0.5))  # screen top-right quarter
+    inside = ScreenLasso(upper_right, clip).contains(np.array([[1.0, 0, 1], [1.0, 0, -1], [0, -20, 0]]))
+    assert inside.tolist() == [True, False, False]

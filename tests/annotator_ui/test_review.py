@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from annotator_ui.client import ApiClient, StaleEdit
-from annotator_ui.review import QueueCoordinator, ReviewSession
+from annotator_ui.review import NoChange, QueueCoordinator, ReviewSession
 
 
 @pytest.fixture
@@ -98,24 +98,37 @@ def test_review_undo_of_a_truncation_restores_the_range(session, live_api):
     assert (t["keep_start"], t["keep_end"]) == (lo, hi)
 
 
-def test_review_undo_with_nothing_done_is_a_stale_edit(session):
+def test_review_undo_with_nothing_done_says_nothing_to_undo(session):
+    """Z with nothing to undo is not a changed track (it used to say "Not saved: the track changed")."""
     session.next()
-    with pytest.raises(StaleEdit):
+    with pytest.raises(NoChange, match="nothing to undo"):
         session.undo()
+
+
+def test_review_truncate_on_the_kept_range_ends_sends_nothing(session, live_api):
+    """] on the last kept frame (or [ on the first) would store an event that changes nothing."""
+    session.next()
+    _multi_frame(session)
+    version = session.track["version"]
+    session.set_frame(session.track["keep_end"])
+    with pytest.raises(NoChange):
+        session.truncate_after()
+    session.set_frame(session.track["keep_start"])
+    with pytest.raises(NoChange):
+        session.truncate_before()
+    assert live_api.track(session.track_id)["version"] == version
 
 
 def test_review_stale_version_raises_and_reloads(session, live_api):
     track = session.next()
-    other = ApiClient(live_api.url, live_api.new_operator())
     lo, hi = session.frame_range()
-    other.act(track["id"], "truncate", track["version"], start=lo, end=hi)  # someone else edits it
+    live_api.admin_act(track["id"], "truncate", version=track["version"], start=lo, end=hi)  # someone else edits it
     with pytest.raises(StaleEdit):
         session.accept()
     assert live_api.track(track["id"])["status"] == "pending"  # nothing overwritten
     assert session.track["version"] == track["version"] + 1  # reloaded
     session.accept()  # and now it goes through
     assert live_api.track(track["id"])["status"] == "accepted"
-    other.close()
 
 
 def test_review_open_picks_a_track_out_of_queue_order(session, live_api):

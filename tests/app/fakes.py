@@ -105,6 +105,32 @@ class FakeBackend(IngestBackend):
     def config(self, settings_path: Any, overrides: Any) -> Any:
         return None
 
+    def resample(self, sensor: Any, config: Any, points: np.ndarray, intensity: np.ndarray, seg_point: np.ndarray,
+                 seg_ids: np.ndarray) -> Any:
+        """Statistics as the pipeline computes them; validity = more than FAKE_MIN_POINTS points;
+        each sample filled with 100 + its segment id (so a test sees which ones were re-rendered)."""
+        from pipeline.resample import ResampledSegments
+        from pipeline.samples import SegmentTable
+
+        n = np.array([int((seg_point == s).sum()) for s in seg_ids], np.int32)
+        cen = np.array([points[seg_point == s].mean(axis=0) if k else np.zeros(3) for s, k in zip(seg_ids, n, strict=True)],
+                       np.float32).reshape(-1, 3)
+        valid = n > FAKE_MIN_POINTS
+        sample_of = np.full(len(seg_ids), -1, np.int32)
+        sample_of[valid] = np.arange(int(valid.sum()))
+        samples = np.stack([np.full(SAMPLE_SHAPE, 100 + int(s), np.uint8) for s in seg_ids[valid]]) if valid.any() \
+            else np.zeros((0, *SAMPLE_SHAPE), np.uint8)
+        table = SegmentTable(n_points=n, centroid=cen, range=np.linalg.norm(cen, axis=1).astype(np.float32), valid=valid)
+        return ResampledSegments(table=table, samples=samples, sample_of=sample_of)
+
+    def height(self, sensor: Any, config: Any, points: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+        """Height above a flat ground at z = FAKE_GROUND_Z."""
+        return (points[:, 2] - FAKE_GROUND_Z).astype(np.float32)
+
+
+FAKE_MIN_POINTS = 3
+FAKE_GROUND_Z = -20.0
+
 
 def expected_counts(n_frames: int, n_objects: int) -> dict[str, int]:
     """Rows a fake ingest writes: frames, segments, tracks and constraint pairs."""

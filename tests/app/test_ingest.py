@@ -82,3 +82,44 @@ def test_ingest_artifacts_hold_db_track_ids(factory, db, settings):
         tracks = set(s.scalars(select(Track.id).where(Track.sequence_id == seq)).all())
     fa = ArtifactStore(settings.artifacts_path).read_frame(art)
     assert set(fa.track[fa.track > 0].tolist()) == tracks
+
+
+class _NoSegmentsProcessor:
+    """Frames whose points are all ground: no segment, no track."""
+
+    linked = True
+
+    def iter_frames(self, source, **_):
+        import numpy as np
+
+        from tests.app.fakes import SAMPLE_SHAPE, fake_frame
+
+        for i in range(len(source)):
+            fr = fake_frame(i, n_objects=1)
+            fr.samples, fr.sample_segment = np.zeros((0, *SAMPLE_SHAPE), np.uint8), np.zeros(0, np.int32)
+            fr.segment = np.full(len(fr.segment), -1, np.int32)
+            fr.ground = np.ones(len(fr.segment), bool)
+            for name in ("n_points", "range", "valid", "track_id", "link_score"):
+                setattr(fr.segments, name, getattr(fr.segments, name)[:0])
+            fr.segments.centroid = fr.segments.centroid_world = np.zeros((0, 3))
+            yield fr
+
+
+class _NoSegmentsBackend(FakeBackend):
+    def processor(self, config, sensor):
+        return _NoSegmentsProcessor()
+
+
+def test_ingest_frames_without_segments_ingest_as_empty(factory, db):
+    """A scan with no segment used to fail the ingest (IndexError indexing an empty track table)."""
+    seq = factory.registered_sequence()
+    factory.queue_ingest(seq)
+    previous = ingest.get_backend()
+    ingest.set_backend(_NoSegmentsBackend(n_frames=2))
+    try:
+        assert Worker(factory.settings, db=db).run_once()
+    finally:
+        ingest.set_backend(previous)
+    with db.read() as s:
+        assert s.get(Sequence, seq).status == "ready", factory.last_job_error()
+    assert _counts(db, seq) == {"frames": 2, "segments": 0, "tracks": 0, "constraints": 0}

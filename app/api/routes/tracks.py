@@ -30,7 +30,6 @@ from app.schemas import (
     TrackPublic,
     TrackStatus,
     TruncateAction,
-    UndoAction,
 )
 from pipeline.classes import SAMPLE_CLASSES
 
@@ -132,12 +131,6 @@ def truncate_track(track_id: BigIdPath, body: TruncateAction, guard: LeaseGuardD
 def label_track(track_id: BigIdPath, body: LabelAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Give the whole track one class (and accept it); an unknown class -> 422."""
     return _act(session, track_id, guard, "label", body.version, label=body.label)
-
-
-@router.post("/tracks/{track_id}/undo")
-def undo_track(track_id: BigIdPath, body: UndoAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Revert the caller's last not-yet-undone action on this track (409 when there is none)."""
-    return _act(session, track_id, guard, "undo", body.version)
 
 
 @router.get(

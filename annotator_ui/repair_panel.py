@@ -1,0 +1,139 @@
+"""The repair panel: split the shown track by a box, a plane, a screen rectangle, its height
+above ground or the newest model's predicted class (whole segments), and merge another track into it (by a click in the scene; the stitches panel
+merges the two tracks of a stitch).
+
+The box and plane are placed with viser's transform controls in the scene (the shown frame's
+lidar frame); a cut sends them in the world frame (`T_world_lidar` of the shown frame). The
+plane is the gizmo's y-z plane: the points on the side of its red x axis go. A screen rectangle
+is drawn with Shift + drag on the canvas and sent with the camera's clip matrix. Every cut and
+merge runs through the tab's `run` (one action at a time, errors shown, the track redrawn).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import viser
+
+from annotator_ui.geometry import clip_from_scene, matrix_wxyz, rect_polygon_ndc
+from pipeline.classes import SAMPLE_CLASSES
+from pipeline.regions import quaternion_matrix
+
+SCOPES = ("All kept frames", "This frame")
+BOX_COLOUR = (255, 90, 90)
+
+
+class RepairPanel:
+    """Split tools and merge-by-click; `split(region, this_frame_only)` and `merge(track_id)` are
+    the tab's (they run the action and redraw); `pose()` is the shown frame's T_world_lidar,
+    `centre()` the shown track's (3,) centre in the scene (None without a track), `model_id()`
+    the newest model's id (None without one)."""
+
+    def __init__(
+        self,
+        gui: viser.GuiApi,
+        scene: viser.SceneApi,
+        split: Callable[[dict[str, Any], bool], None],
+        merge: Callable[[int], None],
+        pose: Callable[[], np.ndarray],
+        centre: Callable[[], np.ndarray | None],
+        model_id: Callable[[], int | None],
+        notify: Callable[[str, str, str], None],
+    ) -> None:
+        self.scene, self._split, self._merge, self._pose, self._centre = scene, split, merge, pose, centre
+        self._model_id, self._notify = model_id, notify
+        self.gizmo: Any = None
+        gui.add_markdown("**Split** the track: its points in the region become a new pending track. **Z** undoes.")
+        self.gui_show_box = gui.add_checkbox("Show cut box / plane", False)
+        self.gui_show_box.on_update(lambda _: self._toggle_gizmo())
+        self.gui_size = gui.add_vector3("Box size (m)", (2.0, 2.0, 2.0), min=(0.1, 0.1, 0.1), max=(60.0, 60.0, 60.0), step=0.1)
+        self.gui_size.on_update(lambda _: self._draw_box())
+        self.gui_cut_box = gui.add_button_group("Cut box", SCOPES)
+        self.gui_cut_box.on_click(lambda e: self.cut("box", e.target.value == SCOPES[1]))
+        self.gui_cut_plane = gui.add_button_group("Cut plane (red axis side)", SCOPES)
+        self.gui_cut_plane.on_click(lambda e: self.cut("plane", e.target.value == SCOPES[1]))
+        self.gui_height = gui.add_number("Above ground (m)", 1.0, min=-2.0, max=50.0, step=0.1)
+        self.gui_cut_height = gui.add_button("Split by height (H)", icon=viser.Icon.ARROWS_VERTICAL)
+        self.gui_cut_height.on_click(lambda _: self.cut_height())
+        self.gui_predicted_class = gui.add_dropdown("Predicted as", SAMPLE_CLASSES, initial_value="person")
+        self.gui_cut_predicted = gui.add_button("Split off what the model calls it (P)", icon=viser.Icon.BRAIN)
+        self.gui_cut_predicted.on_click(lambda _: self.cut_predicted())
+        self.gui_screen_scope = gui.add_dropdown("Shift + drag on the canvas cuts", SCOPES, initial_value=SCOPES[0])
+        gui.add_markdown("**Merge**: tick, then click a point of the other track (or use a stitch's *Merge*).")
+        self.gui_merge_click = gui.add_checkbox("Click merges a track into this one", False)
+        scene.on_rect_select(modifier="shift")(self._on_rect)
+
+    # ------------------------------------------------------------------ gizmo
+    def _toggle_gizmo(self) -> None:
+        if not self.gui_show_box.value:
+            self.scene.remove_by_name("/cut")
+            self.gizmo = None
+            return
+        centre = self._centre()
+        self.gizmo = self.scene.add_transform_controls(
+            "/cut", scale=1.5, position=tuple(centre) if centre is not None else (0.0, 0.0, 0.0), depth_test=False
+        )
+        self._draw_box()
+
+    def _draw_box(self) -> None:
+        if self.gizmo is not None:
+            self.scene.add_box("/cut/box", color=BOX_COLOUR, dimensions=tuple(self.gui_size.value), wireframe=True)
+
+    def place(self, centre: np.ndarray | None) -> None:
+        """Move the gizmo to a newly shown track."""
+        if self.gizmo is not None and centre is not None:
+            self.gizmo.position = tuple(float(v) for v in centre)
+
+    # ------------------------------------------------------------------ regions
+    def _world_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The gizmo's centre (3,) and rotation (3, 3) in the world frame."""
+        T = self._pose()
+        c = np.asarray(self.gizmo.position, np.float64)
+        R = quaternion_matrix(np.asarray(self.gizmo.wxyz, np.float64))
+        return T[:3, :3] @ c + T[:3, 3], T[:3, :3] @ R
+
+    def region(self, kind: str) -> dict[str, Any]:
+        """The box or plane region (world frame) of the gizmo as the service's JSON."""
+        centre, R = self._world_box()
+        if kind == "box":
+            return {"kind": "box", "center": centre.tolist(), "size": [float(v) for v in self.gui_size.value],
+                    "wxyz": matrix_wxyz(R).tolist()}
+        normal = R[:, 0]
+        return {"kind": "halfspace", "normal": normal.tolist(), "offset": float(normal @ centre)}
+
+    def cut(self, kind: str, this_frame_only: bool) -> None:
+        if self.gizmo is None:
+            self.gui_show_box.value = True  # shows the gizmo at the track; the operator places it, then cuts
+            self._toggle_gizmo()
+            return
+        self._split(self.region(kind), this_frame_only)
+
+    def cut_height(self) -> None:
+        self._split({"kind": "height", "min_height": float(self.gui_height.value)}, False)
+
+    def cut_predicted(self) -> None:
+        """Split off the segments the newest model classifies as the chosen class (whole segments)."""
+        model_id = self._model_id()
+        if model_id is None:
+            self._notify("No model", "Train a model (Jobs tab) before splitting by predicted class.", "yellow")
+            return
+        self._split({"kind": "predicted", "model_id": model_id, "class_name": str(self.gui_predicted_class.value)}, False)
+
+    def _on_rect(self, event: viser.SceneRectSelectEvent) -> None:
+        cam = event.client.camera
+        clip_scene = clip_from_scene(np.asarray(cam.position), np.asarray(cam.wxyz), float(cam.fov), float(cam.aspect))
+        clip_world = clip_scene @ np.linalg.inv(self._pose())
+        region = {"kind": "lasso", "polygon": rect_polygon_ndc(event.screen_min, event.screen_max).tolist(),
+                  "clip_from_world": clip_world.reshape(-1).tolist()}
+        self._split(region, self.gui_screen_scope.value == SCOPES[1])
+
+    # ------------------------------------------------------------------ merge
+    def wants_click(self) -> bool:
+        """A click in the scene merges (instead of opening the clicked track)."""
+        return bool(self.gui_merge_click.value)
+
+    def clicked(self, track_id: int) -> None:
+        self.gui_merge_click.value = False  # one merge per tick: a stray second click opens instead
+        self._merge(track_id)
