@@ -64,3 +64,12 @@ def test_contract_job_body_is_one_schema_per_type(client):
     assert {"finetune", "ingest", "selftest"} <= set(body["discriminator"]["mapping"])
     finetune = doc["components"]["schemas"]["FinetuneJobCreate"]["properties"]["params"]
     assert finetune == {"$ref": "#/components/schemas/FinetuneParams"}
+
+
+def test_contract_unknown_or_repeated_query_parameters_are_422(client, factory):
+    op = factory.user("operator")
+    assert client.get("/api/v1/models", params={"kind": "train"}, headers=op.headers).status_code == 200
+    for query in ("?=0", "?knd=train", "?kind=a&kind=b"):
+        r = client.get(f"/api/v1/models{query}", headers=op.headers)
+        assert r.status_code == 422 and isinstance(r.json()["detail"], list), query
+    assert client.get("/api/v1/tracks?ids=1&ids=2", headers=op.headers).status_code == 200  # a list parameter
