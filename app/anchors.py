@@ -17,7 +17,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app import crud
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud import AuthUser
 from app.models import AnchorEvent, AnchorProposal, Segment, Track, User, utcnow
 
@@ -163,7 +163,7 @@ def answer_anchor(
     if answer == "confirm":
         cls = p.proposed_class
         if cls not in sample_classes:
-            raise Invalid(f"proposal {anchor_id} has no valid proposed class ({cls!r}); correct it instead")
+            raise NotApplicable(f"proposal {anchor_id} has no valid proposed class ({cls!r}); correct it instead")
     elif answer == "correct":
         if label not in sample_classes:
             raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")

@@ -30,7 +30,7 @@ from sqlalchemy import (
 from sqlalchemy.orm import Session
 
 from app import leases
-from app.core.errors import Conflict, Forbidden, Invalid, NotFound
+from app.core.errors import Conflict, Forbidden, Invalid, NotApplicable, NotFound
 from app.core.security import hash_token, new_token, token_display_prefix
 from app.models import (
     ROLES,
@@ -465,7 +465,7 @@ def apply_action(
     elif action == "truncate":
         assert start is not None and end is not None
         if not (track.first_frame <= start <= end <= track.last_frame):
-            raise Invalid(
+            raise NotApplicable(
                 f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
             )
         after["keep_start"], after["keep_end"] = start, end
@@ -516,7 +516,7 @@ def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_en
         ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
     ).one()
     if length == 0:
-        raise Invalid(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
+        raise NotApplicable(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
     track.length, track.n_samples = int(length), int(n_samples)
     track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import tarfile
 from collections import defaultdict
 from collections.abc import Iterator
@@ -43,6 +44,34 @@ def constraint_rows(session: Session, sequence_id: int | None, verified_only: bo
         }
         for r in rows
     ]
+
+
+_CONSTRAINT_LINE = (
+    '{"id": %d, "track_id": %d, "segment_a": %d, "segment_b": %d, "frame_a": %d, "frame_b": %d, '
+    '"score": %s, "verified": %s}\n'
+)
+
+
+def constraint_lines(session: Session, sequence_id: int | None, verified_only: bool) -> list[tuple]:
+    """The constraint rows as plain tuples (id, track, segment a, segment b, frame a, frame b,
+    score, verified), for `constraints_jsonl`: no dict per row."""
+    return [tuple(r) for r in session.connection().execute(crud.constraints_query(sequence_id, verified_only))]
+
+
+def constraints_jsonl(rows: list[tuple], chunk_rows: int = 0) -> Iterator[bytes]:
+    """The JSON lines of `constraint_rows` (same keys, same values), formatted from tuples in
+    chunks: a dict and a `json.dumps` per row cost twice the query (bench/bench_service.py)."""
+    chunk_rows = chunk_rows or JSONL_CHUNK_ROWS
+    line = _CONSTRAINT_LINE
+    for i in range(0, len(rows), chunk_rows):
+        yield "".join([
+            line % (a, t, sa, sb, fa, fb, _json_float(sc), "true" if v else "false")
+            for a, t, sa, sb, fa, fb, sc, v in rows[i : i + chunk_rows]
+        ]).encode()
+
+
+def _json_float(value: float | None) -> str:
+    return repr(float(value)) if value is not None and math.isfinite(value) else "null"
 
 
 def label_rows(session: Session, sequence_id: int | None) -> list[dict[str, Any]]:

@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import ArtifactStore, FrameArtifact
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud import AuthUser
 from app.models import (
     AnchorProposal,
@@ -305,7 +305,7 @@ def _pick_frames(
     lo, hi = track.keep_start, track.keep_end
     if frame_index is not None:
         if not lo <= frame_index <= hi:
-            raise Invalid(f"frame {frame_index} is outside the kept frames {lo}..{hi} of track {track.id}")
+            raise NotApplicable(f"frame {frame_index} is outside the kept frames {lo}..{hi} of track {track.id}")
         lo = hi = frame_index
     frame_ids = session.scalars(
         select(Segment.frame_id).where(Segment.track_id == track.id, Segment.frame_index.between(lo, hi)).distinct()
@@ -331,13 +331,13 @@ def split_track(
     picks = _pick_frames(session, ctx, track, selector, frame_index)
     moved = int(sum(int(sel.sum()) for _, _, sel in picks))
     if moved == 0:
-        raise Invalid(f"the region selects no point of track {track_id}")
+        raise NotApplicable(f"the region selects no point of track {track_id}")
     kept_points = session.scalar(
         select(func.coalesce(func.sum(Segment.n_points), 0)).where(
             Segment.track_id == track.id, Segment.frame_index.between(track.keep_start, track.keep_end))
     )
     if moved >= int(kept_points or 0):
-        raise Invalid(f"the region selects every point of track {track_id} in its kept frames; nothing would stay")
+        raise NotApplicable(f"the region selects every point of track {track_id} in its kept frames; nothing would stay")
     fields_before, links_before = _track_fields(track), _link_rows(session, [track.id])
     key = int(session.scalar(select(func.max(Track.key)).where(Track.sequence_id == track.sequence_id)) or 0) + 1
     f0 = picks[0][0].index
@@ -383,7 +383,7 @@ def predicted_selector(session: Session, ctx: RepairContext, track_id: int, mode
     except DataError as exc:
         raise Invalid(f"model {model_id}: {exc}") from None
     if class_name not in meta.classes:
-        raise Invalid(f"model {model_id} has no class {class_name!r}; its classes: {', '.join(meta.classes)}")
+        raise NotApplicable(f"model {model_id} has no class {class_name!r}; its classes: {', '.join(meta.classes)}")
     rows = session.execute(
         select(Segment.frame_id, Segment.local_id, Segment.sample_index, Frame.artifact)
         .join(Frame, Frame.id == Segment.frame_id)
@@ -424,11 +424,11 @@ def merge_tracks(
     current. The joined track keeps the review state both shared, else it is pending without a
     class; its kept range covers both. The other track becomes `merged`. Commits."""
     if other_id == track_id:
-        raise Invalid("a track cannot be merged with itself")
+        raise NotApplicable("a track cannot be merged with itself")
     locked = {i: _lock_track(session, i, v) for i, v in sorted([(track_id, version), (other_id, other_version)])}
     a, b = locked[track_id], locked[other_id]
     if a.sequence_id != b.sequence_id:
-        raise Invalid(f"tracks {a.id} and {b.id} belong to different sequences")
+        raise NotApplicable(f"tracks {a.id} and {b.id} belong to different sequences")
     for t in (a, b):
         if t.status == "merged":
             raise Conflict(f"track {t.id} was merged into another track already")

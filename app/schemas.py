@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from pipeline.classes import SAMPLE_CLASSES
 
@@ -41,18 +41,23 @@ class JsonModel(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    @field_validator("*", mode="before")
+    @model_validator(mode="before")
     @classmethod
-    def _json_scalars(cls, value: Any, info: ValidationInfo) -> Any:
-        field = cls.model_fields.get(info.field_name or "")
-        if field is None or value is None:
-            return value
-        kinds = _scalar_kinds(field.annotation)
-        if bool in kinds and not isinstance(value, bool) and not kinds & {int, float}:
-            raise ValueError(f"must be true or false, not {type(value).__name__}")
-        if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
-            raise ValueError(f"must be a JSON number, not {type(value).__name__}")
-        return value
+    def _json_scalars(cls, data: Any) -> Any:
+        # a model validator, not a field one: pydantic refuses field validators on the
+        # discriminator fields of tagged unions (SplitRegion's `kind`)
+        if not isinstance(data, dict):
+            return data
+        for name, value in data.items():
+            field = cls.model_fields.get(name)
+            if field is None or value is None:
+                continue
+            kinds = _scalar_kinds(field.annotation)
+            if bool in kinds and not isinstance(value, bool) and not kinds & {int, float}:
+                raise ValueError(f"{name} must be true or false, not {type(value).__name__}")
+            if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
+                raise ValueError(f"{name} must be a JSON number, not {type(value).__name__}")
+        return data
 
 
 def _scalar_kinds(annotation: Any) -> set[type]:

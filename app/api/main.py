@@ -5,12 +5,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 
 from app.api import deps
 from app.api.errors import ErrorBody
+from app.api.query_check import strict_query
 from app.api.routes import (
     anchors,
     audits,
@@ -72,7 +73,7 @@ def declare_errors(router: APIRouter) -> None:
                 entry.setdefault("model", ErrorBody)
 
 
-api_router = APIRouter()
+api_router = APIRouter(dependencies=[Depends(strict_query)])
 for module in (health, users, datasets, frames, tracks, repair, review, exports, jobs, models, anchors, stitches, audits):
     declare_errors(module.router)  # before including: an included router's routes are not listed
     api_router.include_router(module.router)

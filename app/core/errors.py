@@ -28,3 +28,9 @@ class Invalid(ServiceError):
     """A well-formed request that names something impossible (unknown class, bad frame range)."""
 
     status_code = 422
+
+
+class NotApplicable(Conflict):
+    """A well-formed request that the named resource's current state rules out (a frame range
+    outside the track, a region that selects nothing, a track merged with itself): 409. 422 is
+    kept for requests the schema itself refuses."""

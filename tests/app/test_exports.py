@@ -104,3 +104,13 @@ def test_exports_jsonl_streams_many_rows_a_chunk():
     chunks = list(jsonl(rows))
     assert len(chunks) == 3
     assert [json.loads(line) for line in b"".join(chunks).decode().splitlines()] == rows
+
+
+def test_exports_constraint_lines_match_the_row_dicts(client, factory, db):
+    from app.exports import constraint_lines, constraint_rows, constraints_jsonl
+
+    factory.ingested_sequence(n_frames=5, n_objects=3)
+    with db.read() as s:
+        dicts = constraint_rows(s, None, verified_only=False)
+        lines = b"".join(constraints_jsonl(constraint_lines(s, None, verified_only=False), chunk_rows=4))
+    assert dicts and [json.loads(x) for x in lines.decode().splitlines()] == dicts

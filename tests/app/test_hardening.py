@@ -119,3 +119,19 @@ def test_hardening_large_chunked_body_is_413(client, factory):
 
     r = client.post("/api/v1/tracks/1/accept", content=chunks(), headers={**op.headers, "content-type": "application/json"})
     assert r.status_code == 413 and len(r.content) < 200
+
+
+def test_hardening_operators_see_no_server_paths_of_sequences_or_models(client, factory, db):
+    # defect 11: GET /sequences and /models showed operators absolute server paths
+    from app.models import ModelVersion
+
+    seq = factory.ingested_sequence(n_frames=3, n_objects=1)
+    with db.write() as s:
+        s.add(ModelVersion(name="m", kind="train", path="/srv/models/train_000001/best.pt"))
+        s.commit()
+    op, admin = factory.user("operator"), factory.user("admin")
+    for url in ("/api/v1/sequences", f"/api/v1/sequences/{seq}", "/api/v1/models", "/api/v1/models/1"):
+        body = client.get(url, headers=op.headers).text
+        assert "/srv/" not in body and str(factory.settings.data_dir) not in body, url
+    assert client.get("/api/v1/models/1", headers=admin.headers).json()["path"] == "/srv/models/train_000001/best.pt"
+    assert client.get(f"/api/v1/sequences/{seq}", headers=admin.headers).json()["path"] is not None

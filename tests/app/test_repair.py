@@ -111,13 +111,13 @@ def test_repair_split_unknown_track_404(client, factory):
 
 
 @pytest.mark.parametrize("offset, words", [(1e6, "no point"), (-1e6, "every point")])
-def test_repair_split_region_selecting_nothing_or_everything_422(client, factory, offset, words):
+def test_repair_split_region_selecting_nothing_or_everything_409(client, factory, offset, words):
     seq = factory.ingested_sequence(n_frames=3, n_objects=1)
     op = factory.user()
     tid = factory.track_ids(seq)[0]
     r = client.post(f"/api/v1/tracks/{tid}/split", json={"version": 1, "region": {**HALF, "offset": offset}},
                     headers=op.headers)
-    assert r.status_code == 422 and words in r.json()["detail"][0]["msg"]
+    assert r.status_code == 409 and words in r.json()["detail"]  # well-formed, ruled out by the track's points
     assert factory.track(tid).version == 1
 
 
@@ -249,7 +249,7 @@ def test_repair_merge_stale_other_version_409(client, factory):
     a, b = factory.track_ids(seq)
     _post(client, op, b, "accept", {"version": 1})
     _post(client, op, a, "merge", {"version": 1, "other_track_id": b, "other_version": 1}, status=409)
-    _post(client, op, a, "merge", {"version": 1, "other_track_id": a, "other_version": 1}, status=422)
+    _post(client, op, a, "merge", {"version": 1, "other_track_id": a, "other_version": 1}, status=409)
     _post(client, op, a, "merge", {"version": 1, "other_track_id": 999_999, "other_version": 1}, status=404)
 
 
@@ -319,5 +319,5 @@ def test_repair_split_by_predicted_class_moves_whole_segments(client, factory, d
     assert [s["frame_index"] for s in new["segments"]] == [2] and out["moved_points"] == 20
     other = next((c for c in SAMPLE_CLASSES if c != cls), None)
     if other not in classes:  # a class the model gives no segment: nothing is selected
-        _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": other}}, status=422)
-    _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": "spaceship"}}, status=422)
+        _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": other}}, status=409)
+    _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": "spaceship"}}, status=409)

@@ -137,10 +137,11 @@ def test_tracks_label_accepts_and_materialises_labels(client, factory, db):
     assert labels == ["person"] * 6
 
 
-def test_tracks_truncate_outside_range_is_422(client, factory):
+def test_tracks_truncate_outside_range_is_409(client, factory):
+    # well-formed (the schema takes it), ruled out by the track's frames: 409, as the contract says
     seq, op, ids = _setup(factory, n_frames=6)
-    assert _act(client, op, ids[0], "truncate", 1, start=2, end=9).status_code == 422
-    assert _act(client, op, ids[0], "truncate", 1, start=4, end=3).status_code == 422
+    assert _act(client, op, ids[0], "truncate", 1, start=2, end=9).status_code == 409
+    assert _act(client, op, ids[0], "truncate", 1, start=4, end=3).status_code == 409
 
 
 def test_tracks_truncate_keeps_range_and_recounts(client, factory, db):

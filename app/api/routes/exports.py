@@ -33,10 +33,11 @@ def export_constraints(
     """Must-link pairs of samples with their association scores, inside the kept range of tracks
     that are not discarded: only accepted tracks' (verified) by default, or with the automatic ones.
     `jsonl`: one pair per line; `npz`: samples, sample_segment, pairs (P,2), score, verified, track_id."""
-    rows = exports.constraint_rows(session, sequence_id, verified_only)
     if format == "npz":
+        rows = exports.constraint_rows(session, sequence_id, verified_only)
         return Response(exports.constraints_npz(session, artifacts, rows), media_type="application/x-npz")
-    return StreamingResponse(exports.jsonl(rows), media_type="application/x-ndjson")
+    lines = exports.constraint_lines(session, sequence_id, verified_only)
+    return StreamingResponse(exports.constraints_jsonl(lines), media_type="application/x-ndjson")
 
 
 @router.get(

@@ -1,7 +1,7 @@
 """Track repair (issue 22): split a track by a region, merge two tracks, undo either (or any
 other action). Each takes the versions the operator saw: 404 unknown track, 409 stale version,
-sequence not ready, merged track, or a refused lease; 422 bad body or a region that selects no
-point or every point. Changes are events in the track's log (`GET /tracks/{id}/events`)."""
+sequence not ready, merged track, a refused lease, a region that selects no point or every point,
+or a track merged with itself; 422 a body the schema refuses. Changes are events in the track's log (`GET /tracks/{id}/events`)."""
 
 from __future__ import annotations
 
@@ -19,8 +19,9 @@ from app.schemas import MergeAction, SplitAction, SplitPublic, TrackPublic, Undo
 router = APIRouter(tags=["tracks"])
 RESPONSES: dict[int | str, dict[str, str]] = {
     404: {"description": "No such track."},
-    409: {"description": "Stale version, sequence not ready, track merged away, or the caller may not change the track now (lease)."},
-    422: {"description": "Invalid body, or a region that selects no point or every point of the track."},
+    409: {"description": "Stale version, sequence not ready, track merged away, the caller may not change the "
+                         "track now (lease), or a region that selects no point or every point of the track."},
+    422: {"description": "A body the schema refuses."},
 }
 
 

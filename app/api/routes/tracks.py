@@ -123,7 +123,7 @@ def discard_track(track_id: BigIdPath, body: DiscardAction, guard: LeaseGuardDep
 
 @router.post("/tracks/{track_id}/truncate")
 def truncate_track(track_id: BigIdPath, body: TruncateAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 422."""
+    """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 409."""
     return _act(session, track_id, guard, "truncate", body.version, start=body.start, end=body.end)
 
 
