@@ -13,6 +13,7 @@ COPY pyproject.toml README.md ./
 COPY pipeline ./pipeline
 COPY app ./app
 COPY annotator_ui ./annotator_ui
+COPY research ./research
 COPY migrations ./migrations
 COPY alembic.ini ./
 RUN pip install ".[postgres]" && useradd --create-home tracklabel && mkdir -p /data /datasets \

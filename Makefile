@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 DEMO_DIR ?= data/demo
 
-.PHONY: install test lint demo bench clean
+.PHONY: install test lint demo bench default-model clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check pipeline app annotator_ui tests bench
+	$(VENV)/bin/ruff check pipeline research app annotator_ui tests bench
 	$(VENV)/bin/lint-imports
 
 test: $(STAMP)
@@ -27,6 +27,11 @@ test: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/tracklabel demo --out $(DEMO_DIR)
+
+# Retrain the model shipped in pipeline/models/default.pt (simulated campus, the product's
+# training defaults; about an hour on 2 busy CPU cores) and its .json summary.
+default-model: $(STAMP)
+	$(VENV)/bin/tracklabel experiment default-model --out pipeline/models/default.pt
 
 bench: $(STAMP)
 	$(PY) -m bench.run_all --out bench/results

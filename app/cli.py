@@ -13,6 +13,8 @@ from typing import Annotated, TypeVar
 
 import typer
 
+from pipeline.progress import TqdmProgress
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
 F = TypeVar("F", bound=Callable[..., object])
 
@@ -73,9 +75,9 @@ def simulate(
                                        "class (pickups, groups, scooters, tree guards, kiosks, ...).")] = "a",
 ) -> None:
     """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
-    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=True, crowd=crowd,
+    summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=TqdmProgress(), crowd=crowd,
                                  cyclists=cyclists, style=style)
     typer.echo(summary.describe())
 
@@ -129,7 +131,7 @@ def process(
     if size is not None:
         cfg = cfg.override({"samples": {"size": size}})
     summary = run_process(
-        seq, out, cfg, sensor=sensor, poses=poses, workers=workers, samples=samples, progress=True,
+        seq, out, cfg, sensor=sensor, poses=poses, workers=workers, samples=samples, progress=TqdmProgress(),
         log=lambda m: typer.echo(f"warning: {m}", err=True),
     )
     typer.echo(
@@ -152,7 +154,7 @@ def evaluate(
     from pipeline.evaluation import format_table
     from pipeline.pipeline import evaluate_folder
 
-    result = evaluate_folder(seq, out, progress=True)
+    result = evaluate_folder(seq, out, progress=TqdmProgress())
     target = json_out or (out / "evaluation.json")
     target.write_text(json.dumps(result, indent=2))
     typer.echo(format_table(result))
@@ -163,8 +165,9 @@ def evaluate(
 @friendly_errors
 def predict(
     seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    model: Annotated[Path, typer.Option("--model", help="A checkpoint (.pt) written by training.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training; default: "
+                                               "the model shipped with tracklabel (trained on the simulated campus).")] = None,
     sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
     poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
     size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
@@ -178,7 +181,7 @@ def predict(
 
     summary = run_predict(
         seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
-        smooth_tracks=smooth_tracks, progress=True, log=lambda m: typer.echo(f"warning: {m}", err=True),
+        smooth_tracks=smooth_tracks, progress=TqdmProgress(), log=lambda m: typer.echo(f"warning: {m}", err=True),
     )
     seg = summary["segments_classified"]
     typer.echo(
@@ -194,51 +197,29 @@ experiment_app = typer.Typer(no_args_is_help=True, help="Experiments on simulate
 app.add_typer(experiment_app, name="experiment")
 
 
+ConfigNames = Annotated[list[str] | None, typer.Option(
+    "--config", help="A named config of research/configs (e.g. paper-full, paper-ablations, paper-smoke) or a "
+    "YAML file of overrides; repeatable, applied in order.")]
+ConfigSets = Annotated[list[str] | None, typer.Option(
+    "--set", help="KEY=VALUE override after the configs, e.g. frames=400 or training.threads=1; repeatable.")]
+
+
 @experiment_app.command("paper")
 @friendly_errors
 def experiment_paper(
     out: Annotated[Path, typer.Option("--out", help="Folder for paper.md/json/png.")] = Path("data/experiments/paper"),
-    seed: Annotated[int, typer.Option(help="Seed of the training route (test scene D: seed + 1000).")] = 0,
-    frames: Annotated[int | None, typer.Option(min=20, help="Frames of the training route (default 1200; --full 1400).")] = None,
-    test_frames: Annotated[int | None, typer.Option(min=10, help="Frames of test scene D (default 465).")] = None,
-    size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
-    steps: Annotated[int | None, typer.Option(min=1, help="Training steps per setting (default 1600; --full 6000).")] = None,
-    labels_per_class: Annotated[int | None, typer.Option(min=1, help="baseline_min labels per class (default 30; --full 350).")] = None,
-    evals: Annotated[int | None, typer.Option(min=1, help="Model-selection checkpoints per setting (default 8).")] = None,
-    eval_max: Annotated[int | None, typer.Option(min=0, help="Samples per evaluation set, random subsample (default 6000; 0 = all).")] = None,
-    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default; 1 is faster on a busy 2-core box).")] = 0,
-    crowd: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars (default 3).")] = None,
-    cyclists: Annotated[float | None, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists (default 3).")] = None,
-    unknown_constraints: Annotated[bool, typer.Option("--unknown-constraints/--no-unknown-constraints", help="Also the verified constraints of unknown tracks (default; the paper has none).")] = True,
-    train_style: Annotated[str | None, typer.Option(help="Campus style of the training route: a, b, a+ or b+ (default a+).")] = None,
-    test_style: Annotated[str | None, typer.Option(help="Campus style of test scene D: a, b, a+ or b+ (default b+).")] = None,
-    train_seed: Annotated[int | None, typer.Option(help="Training seed (init, batch draws); default --seed. Scenes and split follow --seed.")] = None,
-    label_seed: Annotated[int | None, typer.Option(help="Seed of baseline_min's label draw (the few labels every setting but baseline_max uses); default: drawn after the split from --seed. Scenes, split and evaluation sets follow --seed.")] = None,
-    labels_only_batch: Annotated[str, typer.Option(help="Labels per step of baseline_min/max: m (16), equal (176: a constraint step's canvases) or select (train both, keep the better validation F).")] = "select",
-    constraint_pairs_per_label: Annotated[int, typer.Option(min=0, help="Pairs per label of the constraint settings at the paper's canvases per step: 1 = 58 labels + 58 pairs (default), 5 = the paper's 16 + 80, 0 = labels via constraints only.")] = 1,
-    closure_draw: Annotated[str, typer.Option(help="How labels via constraints are drawn: annotation (an annotation, then a member of its component; default) or sample (every sample of the closure alike).")] = "annotation",
-    ablations: Annotated[bool, typer.Option("--ablations", help="Also the extensions' ablations and the oracle diagnostics (ten more settings).")] = False,
-    full: Annotated[bool, typer.Option("--full", help="Scale toward the paper's size (hours on a CPU).")] = False,
+    config: ConfigNames = None,
+    set_: ConfigSets = None,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
     """Reproduce the paper's Tables 7 and 8 on simulated data: its five settings, automatic
-    constraints and the constraints-only adaptation to D (Fig. 12); with --ablations also the
-    extensions' ablations and oracle diagnostics."""
-    from pipeline.experiments.paper import ABLATIONS, SETTINGS, PaperConfig, run_paper
+    constraints and the constraints-only adaptation to D (Fig. 12); with --config paper-ablations
+    also the extensions' ablations and oracle diagnostics."""
+    from research.configs import load_experiment_config
+    from research.experiments.paper import PaperConfig, run_paper
 
-    kw: dict[str, object] = {"seed": seed, "size": size, "threads": threads, "unknown_constraints": unknown_constraints,
-                             "train_seed": train_seed, "label_seed": label_seed,
-                             "settings": SETTINGS + ABLATIONS if ablations else SETTINGS,
-                             "labels_only_batch": labels_only_batch,
-                             "constraint_pairs_per_label": constraint_pairs_per_label, "closure_draw": closure_draw}
-    for key, value in (("frames", frames), ("test_frames", test_frames), ("steps", steps),
-                       ("labels_per_class", labels_per_class), ("evals", evals), ("eval_max", eval_max),
-                       ("crowd", crowd), ("cyclists", cyclists), ("train_style", train_style),
-                       ("test_style", test_style)):
-        if value is not None:
-            kw[key] = value
-    cfg = PaperConfig.full(**kw) if full else PaperConfig(**kw)  # type: ignore[arg-type]
-    doc = run_paper(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    cfg = load_experiment_config(PaperConfig, config or (), set_ or ())
+    doc = run_paper(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
     typer.echo((out / "paper.md").read_text())
     typer.echo(f"written: {out / 'paper.md'}, {out / 'paper.json'}, {out / 'paper_train.png'}, {out / 'paper_test.png'}"
                f" ({doc['seconds']['total']:.0f} s)")
@@ -248,52 +229,41 @@ def experiment_paper(
 @friendly_errors
 def experiment_finetune(
     out: Annotated[Path, typer.Option("--out", help="Folder for finetune.md/json/png.")] = Path("data/experiments/finetune"),
-    seed: Annotated[int, typer.Option(help="Seed of the training route (new scene: seed + 1000).")] = 0,
-    frames: Annotated[int, typer.Option(min=20, help="Frames of the training route.")] = 1200,
-    test_frames: Annotated[int, typer.Option(min=10, help="Frames of the new scene.")] = 465,
-    crowd: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: factor on people, cyclists and moving cars.")] = 3.0,
-    cyclists: Annotated[float, typer.Option(min=0.1, max=10.0, help="Simulator: further factor on cyclists.")] = 3.0,
-    test_style: Annotated[str, typer.Option(help="Campus style of the new scene (a, b, a+ or b+).")] = "b",
-    size: Annotated[int, typer.Option(help="Sample canvas size S (the paper: 256).")] = 64,
-    strategies: Annotated[str, typer.Option(help="Comma-separated anchor strategies (default: all).")] = "",
-    budgets: Annotated[str, typer.Option(help="Comma-separated confirmations per class (unknown: x5).")] = "2,5,10,20",
-    constraints: Annotated[str, typer.Option(help="New scene's constraints: verified, automatic or none.")] = "verified",
-    finetune_seeds: Annotated[str, typer.Option(help="Comma-separated seeds; each point is their mean.")] = "0",
-    threads: Annotated[int, typer.Option(min=0, help="torch CPU threads (0 = torch's default).")] = 0,
+    config: ConfigNames = None,
+    set_: ConfigSets = None,
     cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
 ) -> None:
     """The paper's Table 10 on a simulated new scene: baseline_min, constraint100, constraint100 +
-    fine-tuning and baseline_max, and each anchor strategy's F against the confirmations."""
-    from pipeline.anchors import STRATEGIES
-    from pipeline.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
+    fine-tuning and baseline_max, and each anchor strategy's F against the confirmations
+    (fields: research/experiments/finetune.py FinetuneExperimentConfig, e.g. --set budgets=[2,5])."""
+    from research.configs import load_experiment_config
+    from research.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
 
-    chosen = tuple(s.strip() for s in strategies.split(",") if s.strip()) or STRATEGIES
-    bad = [s for s in chosen if s not in STRATEGIES]
-    if bad:
-        fail(f"--strategies: unknown {', '.join(bad)}; valid: {', '.join(STRATEGIES)}")
-    try:
-        budget_list = tuple(int(b) for b in budgets.split(",") if b.strip())
-    except ValueError:
-        fail(f"--budgets: expected comma-separated integers, got {budgets!r}")
-    if not budget_list or min(budget_list) < 1:
-        fail("--budgets: give at least one budget >= 1")
-    try:
-        seeds = tuple(int(v) for v in finetune_seeds.split(",") if v.strip())
-    except ValueError:
-        fail(f"--finetune-seeds: expected comma-separated integers, got {finetune_seeds!r}")
-    if not seeds:
-        fail("--finetune-seeds: give at least one seed")
-    if constraints not in ("verified", "automatic", "none"):
-        fail(f"--constraints: expected verified, automatic or none, got {constraints!r}")
-    cfg = FinetuneExperimentConfig(
-        train_seed=seed, test_seed=seed + 1000, train_frames=frames, test_frames=test_frames, size=size,
-        crowd=crowd, cyclists=cyclists, test_style=test_style,
-        strategies=chosen, budgets=budget_list, constraints=constraints, threads=threads, finetune_seeds=seeds,
-    )
-    doc = run_finetune_experiment(out, cfg, cache=cache, progress=True, log=lambda m: typer.echo(m, err=True))
+    cfg = load_experiment_config(FinetuneExperimentConfig, config or (), set_ or ())
+    doc = run_finetune_experiment(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
     typer.echo((out / "finetune.md").read_text())
     typer.echo(f"written: {out / 'finetune.md'}, {out / 'finetune.json'}, {out / 'finetune_f.png'}, "
                f"{out / 'finetune_curve.png'}, {out / 'finetune_curve.json'} ({doc['seconds']['total']:.0f} s)")
+
+
+@experiment_app.command("default-model")
+@friendly_errors
+def experiment_default_model(
+    out: Annotated[Path, typer.Option("--out", help="Checkpoint to write (the shipped one: pipeline/models/default.pt).")] = Path("data/default_model/default.pt"),
+    config: ConfigNames = None,
+    set_: ConfigSets = None,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default data/default_model_cache).")] = None,
+) -> None:
+    """Train the default model on the simulated campus with the product's training (the model
+    `predict` and anchor proposals use when none is given); writes OUT and OUT's .json summary."""
+    import json
+
+    from research.configs import load_experiment_config
+    from research.experiments.default_model import DefaultModelConfig, build_default_model
+
+    cfg = load_experiment_config(DefaultModelConfig, config or (), set_ or ())
+    summary = build_default_model(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
+    typer.echo(json.dumps(summary, indent=1))
 
 
 # ----------------------------------------------------------------------------- service (app/)
@@ -345,26 +315,97 @@ def db_downgrade(revision: Annotated[str, typer.Argument(help="Target revision, 
     typer.echo(f"database at {revision}")
 
 
-@user_app.command("add")
-@friendly_errors
-def user_add(
-    name: Annotated[str, typer.Argument(help="User name.")],
-    role: Annotated[str, typer.Option(help="operator or admin.")] = "operator",
-) -> None:
-    """Create a user and print their bearer token (shown once; only its hash is stored)."""
-    from app import crud
+def _user_db():  # -> (Settings, Database), the database upgraded first
     from app.core.config import get_settings
     from app.core.db import Database
     from app.core.migrate import upgrade
 
     settings = get_settings()
     upgrade(settings.db_url)
-    db = Database.from_settings(settings)
+    return settings, Database.from_settings(settings)
+
+
+ExpiresDays = Annotated[
+    float | None, typer.Option(help="Days the token is valid (default: TRACKLABEL_TOKEN_EXPIRY_DAYS, 90).")
+]
+
+
+@user_app.command("add")
+@friendly_errors
+def user_add(
+    name: Annotated[str, typer.Argument(help="User name.")],
+    role: Annotated[str, typer.Option(help="operator, reviewer or admin.")] = "operator",
+    expires_days: ExpiresDays = None,
+) -> None:
+    """Create a user and print their bearer token (shown once; only its hash is stored)."""
+    from app import crud
+
+    settings, db = _user_db()
+    days = expires_days or settings.token_expiry_days
     with db.write() as s:
-        result = _service_call(lambda: crud.create_user(s, name, role))
+        result = _service_call(lambda: crud.create_user(s, name, role, expires_days=days))
     db.dispose()
     assert isinstance(result, tuple)
     typer.echo(result[1])
+
+
+@user_app.command("token")
+@friendly_errors
+def user_token(name: Annotated[str, typer.Argument(help="User name.")], expires_days: ExpiresDays = None) -> None:
+    """Issue another token for a user and print it (shown once)."""
+    from app import crud
+
+    settings, db = _user_db()
+    days = expires_days or settings.token_expiry_days
+    with db.write() as s:
+        token = _service_call(lambda: crud.create_token(s, crud.get_user_by_name(s, name).id, None, days))
+    db.dispose()
+    typer.echo(token)
+
+
+@user_app.command("revoke")
+@friendly_errors
+def user_revoke(
+    name: Annotated[str | None, typer.Argument(help="Revoke every live token of this user.")] = None,
+    token_prefix: Annotated[str | None, typer.Option(help="Revoke the live tokens starting with this (>= 6 chars).")] = None,
+) -> None:
+    """Revoke tokens: all of a user's, or those starting with --token-prefix. Refused from the next request on."""
+    from app import crud
+
+    if (name is None) == (token_prefix is None):
+        fail("give a user NAME or --token-prefix, not both")
+    _, db = _user_db()
+    with db.write() as s:
+        if name is not None:
+            n = _service_call(lambda: crud.revoke_tokens(s, user_id=crud.get_user_by_name(s, name).id))
+        else:
+            n = _service_call(lambda: crud.revoke_tokens(s, prefix=token_prefix))
+    db.dispose()
+    typer.echo(f"revoked {n} token(s)")
+
+
+def _set_active(name: str, active: bool) -> None:
+    from app import crud
+
+    _, db = _user_db()
+    with db.write() as s:
+        _service_call(lambda: crud.set_user_active(s, crud.get_user_by_name(s, name).id, active))
+    db.dispose()
+    typer.echo(f"{name} {'enabled' if active else 'disabled'}")
+
+
+@user_app.command("disable")
+@friendly_errors
+def user_disable(name: Annotated[str, typer.Argument(help="User name.")]) -> None:
+    """Deactivate a user: all their tokens are refused from the next request on."""
+    _set_active(name, False)
+
+
+@user_app.command("enable")
+@friendly_errors
+def user_enable(name: Annotated[str, typer.Argument(help="User name.")]) -> None:
+    """Reactivate a disabled user."""
+    _set_active(name, True)
 
 
 @app.command()

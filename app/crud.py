@@ -6,6 +6,7 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path, PurePath
@@ -28,9 +29,11 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session
 
+from app import leases
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
 from app.core.security import hash_token, new_token, token_display_prefix
 from app.models import (
+    ROLES,
     AnchorProposal,
     AnnotationEvent,
     ApiToken,
@@ -63,44 +66,99 @@ class AuthUser:
         return self.role == "admin"
 
 
-def create_user(session: Session, name: str, role: str, created_by_id: int | None = None) -> tuple[User, str]:
-    """Create a user and a first token; returns the user and the token (shown once). Commits."""
-    if role not in ("operator", "admin"):
-        raise Invalid(f"unknown role {role!r}; valid: operator, admin")
+def create_user(
+    session: Session, name: str, role: str, created_by_id: int | None = None, expires_days: float = 90.0
+) -> tuple[User, str]:
+    """Create a user and a first token valid for `expires_days`; returns the user and the token
+    (shown once). Commits."""
+    if role not in ROLES:
+        raise Invalid(f"unknown role {role!r}; valid: {', '.join(ROLES)}")
     if session.scalar(select(User.id).where(User.name == name)) is not None:
         raise Conflict(f"user {name!r} exists")
     user = User(name=name, role=role, created_by_id=created_by_id, active=True)
     session.add(user)
     session.flush()
-    token = _add_token(session, user.id, created_by_id)
+    token = _add_token(session, user.id, created_by_id, expires_days)
     session.commit()
     return user, token
 
 
-def create_token(session: Session, user_id: int, created_by_id: int | None = None) -> str:
-    """A new token for an existing user, issued by `created_by_id` (None = the CLI). Commits."""
+def create_token(session: Session, user_id: int, created_by_id: int | None = None, expires_days: float = 90.0) -> str:
+    """A new token for an existing user, valid for `expires_days`, issued by `created_by_id`
+    (None = the CLI). Commits."""
     if session.get(User, user_id) is None:
         raise NotFound(f"user {user_id} not found")
-    token = _add_token(session, user_id, created_by_id)
+    token = _add_token(session, user_id, created_by_id, expires_days)
     session.commit()
     return token
 
 
-def _add_token(session: Session, user_id: int, created_by_id: int | None) -> str:
+def _add_token(session: Session, user_id: int, created_by_id: int | None, expires_days: float) -> str:
+    if not 0 < expires_days <= 36500:
+        raise Invalid(f"expires_days must be in (0, 36500], got {expires_days:g}")
     token = new_token()
+    now = utcnow()
     session.add(ApiToken(user_id=user_id, token_hash=hash_token(token), prefix=token_display_prefix(token),
-                         created_by_id=created_by_id))
+                         created_by_id=created_by_id, created_at=now, expires_at=now + timedelta(days=expires_days)))
     return token
 
 
 def user_for_token(session: Session, token: str) -> AuthUser | None:
-    """The active user owning an unrevoked `token`, or None."""
+    """The active user owning an unrevoked, unexpired `token`, or None."""
+    now = utcnow()
     row = session.execute(
         select(User.id, User.name, User.role)
         .join(ApiToken, ApiToken.user_id == User.id)
-        .where(ApiToken.token_hash == hash_token(token), ApiToken.revoked_at.is_(None), User.active.is_(True))
+        .where(
+            ApiToken.token_hash == hash_token(token),
+            ApiToken.revoked_at.is_(None),
+            or_(ApiToken.expires_at.is_(None), ApiToken.expires_at > now),
+            User.active.is_(True),
+        )
     ).first()
     return None if row is None else AuthUser(id=row.id, name=row.name, role=row.role)
+
+
+def get_user_by_name(session: Session, name: str) -> User:
+    user = session.scalar(select(User).where(User.name == name))
+    if user is None:
+        raise NotFound(f"user {name!r} not found")
+    return user
+
+
+def revoke_tokens(session: Session, *, user_id: int | None = None, prefix: str | None = None) -> int:
+    """Revoke every live token of a user, or those whose display prefix starts with `prefix`
+    (at least 6 characters, so that one typo cannot revoke everyone's). Returns how many; Commits."""
+    where: list[Any] = [ApiToken.revoked_at.is_(None)]
+    if user_id is not None:
+        where.append(ApiToken.user_id == user_id)
+    if prefix is not None:
+        if len(prefix) < 6:
+            raise Invalid(f"token prefix {prefix!r} is too short: give at least 6 characters (e.g. tl_AbC)")
+        where.append(ApiToken.prefix.startswith(prefix[: len(token_display_prefix(prefix))], autoescape=True))
+    if user_id is None and prefix is None:
+        raise Invalid("name a user or a token prefix")
+    n = session.execute(update(ApiToken).where(*where).values(revoked_at=utcnow())).rowcount
+    if prefix is not None and n == 0:
+        raise NotFound(f"no live token starts with {prefix!r}")
+    session.commit()
+    return int(n)
+
+
+def set_user_active(session: Session, user_id: int, active: bool) -> User:
+    """Disable (refused from the next request on; tokens kept) or re-enable a user. Commits."""
+    user = session.get(User, user_id)
+    if user is None:
+        raise NotFound(f"user {user_id} not found")
+    user.active = active
+    session.commit()
+    return user
+
+
+def list_tokens(session: Session, user_id: int) -> list[ApiToken]:
+    if session.get(User, user_id) is None:
+        raise NotFound(f"user {user_id} not found")
+    return list(session.scalars(select(ApiToken).where(ApiToken.user_id == user_id).order_by(ApiToken.id)).all())
 
 
 # ----------------------------------------------------------------------------- datasets
@@ -132,6 +190,34 @@ def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
     if not inside:
         raise Forbidden("path is outside the configured data roots")
     raise NotFound(f"no such file or folder under the data roots: {raw}")
+
+
+def check_tree_inside_roots(path: Path, roots: list[Path]) -> None:
+    """Forbidden (403) naming the first file or folder under `path` (or `path` itself) whose real
+    path (symlinks resolved) lies outside every root: a link inside a root must not smuggle in a
+    file from elsewhere. Checked at registration and again when ingest opens the sequence."""
+    real_roots = [r.resolve() for r in roots]
+
+    def inside(p: Path) -> bool:
+        real = p.resolve()
+        return any(real == r or real.is_relative_to(r) for r in real_roots)
+
+    if not inside(path):
+        raise Forbidden(f"{path.name} resolves outside the configured data roots")
+    if not path.is_dir():
+        return
+    for folder, dirs, files in os.walk(path, followlinks=False):
+        for name in (*dirs, *files):
+            entry = Path(folder) / name
+            if entry.is_symlink() and not inside(entry):
+                raise Forbidden(
+                    f"{entry.relative_to(path)} is a link to outside the configured data roots; refused"
+                )
+
+
+def registered_sequence_id(session: Session, path: Path) -> int | None:
+    """The id of a sequence already registered at `path` (resolved), if any."""
+    return session.scalar(select(Sequence.id).where(Sequence.path == str(path)).order_by(Sequence.id).limit(1))
 
 
 def create_dataset(
@@ -176,9 +262,12 @@ def sequence_stats(session: Session, seq: Sequence) -> dict[str, Any]:
 # ----------------------------------------------------------------------------- jobs
 
 
-def create_job(session: Session, job_type: str, params: dict[str, Any], user_id: int | None) -> Job:
-    """Queue a job (params already validated by its job type). Flushes, does not commit."""
-    job = Job(type=job_type, params=params, status="queued", created_by_id=user_id, message="queued")
+def create_job(
+    session: Session, job_type: str, params: dict[str, Any], user_id: int | None, priority: int = 0
+) -> Job:
+    """Queue a job (params already validated by its job type, the caller authorised by
+    app.jobs.policy). Flushes, does not commit."""
+    job = Job(type=job_type, params=params, status="queued", created_by_id=user_id, message="queued", priority=priority)
     session.add(job)
     session.flush()
     return job
@@ -340,10 +429,14 @@ def apply_action(
     start: int | None = None,
     end: int | None = None,
     sample_classes: tuple[str, ...] = (),
+    override_lease: bool = False,
+    lease_seconds: float | None = None,
 ) -> Track:
     """Apply one review action if `version` is current; write its event; commit.
 
-    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid.
+    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
+    user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
+    `lease_seconds`.
     """
     track = session.get(Track, track_id, with_for_update=True)
     if track is None:
@@ -351,6 +444,7 @@ def apply_action(
     seq_status = session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": track.sequence_id})
     if seq_status != "ready":
         raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
+    leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
     if track.version != version:
         raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
     if track.status == "merged" and action != "undo":
@@ -386,15 +480,7 @@ def apply_action(
         raise Invalid(f"unknown action {action!r}")
 
     if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
-        length, n_samples = session.execute(
-            select(func.count(), func.coalesce(func.sum(Segment.valid.cast(Integer)), 0)).where(
-                Segment.track_id == track_id,
-                Segment.frame_index.between(after["keep_start"], after["keep_end"]),
-            )
-        ).one()
-        if length == 0:
-            raise Invalid(f"frame range {after['keep_start']}..{after['keep_end']} keeps no segment of the track")
-        track.length, track.n_samples = int(length), int(n_samples)
+        _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
     now = utcnow()
     track.status, track.label = after["status"], after["label"]
@@ -416,6 +502,23 @@ def apply_action(
     refresh_labels(session, track, user.id, sample_classes)
     session.commit()
     return track
+
+
+def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
+    """Set the track's length, samples, points and mean range from its segments in
+    `keep_start..keep_end` (what ingest computes over the whole track). Invalid when none is kept."""
+    length, n_samples, n_points, range_sum = session.execute(
+        select(
+            func.count(),
+            func.coalesce(func.sum(Segment.valid.cast(Integer)), 0),
+            func.coalesce(func.sum(Segment.n_points), 0),
+            func.coalesce(func.sum(Segment.range), 0.0),
+        ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
+    ).one()
+    if length == 0:
+        raise Invalid(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
+    track.length, track.n_samples = int(length), int(n_samples)
+    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
 
 
 def last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:

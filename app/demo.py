@@ -20,6 +20,7 @@ from app.core.config import Settings
 from app.core.db import Database
 from app.core.migrate import upgrade
 from app.models import Job, Sequence, User
+from pipeline.progress import TqdmProgress
 
 
 @dataclass(frozen=True)
@@ -51,13 +52,13 @@ def prepare_demo(
 ) -> DemoInfo:
     from app.jobs import load_job_types
     from app.worker import Worker
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     settings = demo_settings(out, port)
     seq_dir = settings.data_dir / "sequence"
     if not (seq_dir / "velodyne").is_dir():
         log(f"1. simulating {frames} frames (seed {seed}) into {seq_dir}")
-        log(simulate_sequence(seq_dir, frames=frames, seed=seed, progress=True).describe())
+        log(simulate_sequence(seq_dir, frames=frames, seed=seed, progress=TqdmProgress()).describe())
     else:
         log(f"1. using the simulated sequence in {seq_dir}")
     log("2. upgrading the database")

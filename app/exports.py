@@ -58,9 +58,14 @@ def label_rows(session: Session, sequence_id: int | None) -> list[dict[str, Any]
     ]
 
 
-def jsonl(rows: list[dict[str, Any]]) -> Iterator[bytes]:
-    for r in rows:
-        yield (json.dumps(r) + "\n").encode()
+JSONL_CHUNK_ROWS = 2000  # one streamed chunk: ~200 kB; a chunk per row cost ~0.2 ms of ASGI each
+
+
+def jsonl(rows: list[dict[str, Any]], chunk_rows: int = JSONL_CHUNK_ROWS) -> Iterator[bytes]:
+    """JSON lines, `chunk_rows` rows a chunk."""
+    dumps = json.JSONEncoder(separators=(", ", ": ")).encode
+    for i in range(0, len(rows), chunk_rows):
+        yield "".join([dumps(r) + "\n" for r in rows[i : i + chunk_rows]]).encode()
 
 
 def load_samples(session: Session, artifacts: ArtifactStore, segment_ids: list[int]) -> np.ndarray:

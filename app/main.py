@@ -15,17 +15,15 @@ from contextlib import asynccontextmanager
 from typing import Any
 
 import anyio.to_thread
-from fastapi import FastAPI, Request
-from fastapi.responses import JSONResponse
-from pydantic import ValidationError
+from fastapi import FastAPI
 
-from app.api.deps import TokenCache
+from app.api import errors
+from app.api.body_limit import BodyLimit
 from app.api.main import api_router
 from app.api.routes import health
-from app.artifacts import ArtifactMissing, ArtifactStore
+from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
-from app.core.errors import ServiceError
 from app.jobs.registry import load_job_types
 
 API_PREFIX = "/api/v1"
@@ -51,6 +49,22 @@ class ServerTiming:
             await send(message)
 
         await self.app(scope, receive, timed_send)
+
+
+def _serve_job_schema(app: FastAPI) -> None:
+    """The OpenAPI document with `POST /jobs`'s body as one schema per registered job type."""
+    from fastapi.openapi.utils import get_openapi
+
+    from app.api.job_schema import patch_openapi
+    from app.jobs.registry import job_types
+
+    def openapi() -> dict:
+        if app.openapi_schema is None:
+            doc = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
+            app.openapi_schema = patch_openapi(doc, f"{API_PREFIX}/jobs", job_types())
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def create_app(settings: Settings | None = None, db: Database | None = None) -> FastAPI:
@@ -91,23 +105,13 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     app.state.settings = settings
     app.state.db = db or Database.from_settings(settings)
     app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
-    app.state.token_cache = TokenCache(settings.auth_cache_seconds)
 
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(ServerTiming)
 
-    @app.exception_handler(ServiceError)
-    async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
-        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
-
-    @app.exception_handler(ArtifactMissing)
-    async def _artifact_missing(_request: Request, exc: ArtifactMissing) -> JSONResponse:
-        return JSONResponse({"detail": str(exc)}, status_code=404)
-
-    @app.exception_handler(ValidationError)
-    async def _validation_error(_request: Request, exc: ValidationError) -> JSONResponse:
-        # a model validated inside a route (job params, config) is the caller's error, not ours
-        return JSONResponse({"detail": exc.errors(include_url=False, include_context=False)}, status_code=422)
+    errors.install(app)
 
     app.include_router(api_router, prefix=API_PREFIX)
+    _serve_job_schema(app)
     app.include_router(health.router, include_in_schema=False)  # plain /health for load balancers
     return app

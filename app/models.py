@@ -37,7 +37,7 @@ NAMING_CONVENTION = {
 # 64-bit ids on PostgreSQL; SQLite needs INTEGER PRIMARY KEY to alias the rowid.
 BigId = BigInteger().with_variant(Integer(), "sqlite")
 
-ROLES = ("operator", "admin")
+ROLES = ("operator", "reviewer", "admin")  # reviewer: audits accepted tracks (migration 0008)
 # merged: the track's segments were joined into another track (app/repair.py); undo brings them back
 TRACK_STATUSES = ("pending", "accepted", "discarded", "merged")
 SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
@@ -85,6 +85,8 @@ class ApiToken(Base):
     # who issued it: an admin through the API, None for the CLI (`tracklabel user add`) and seeding
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     revoked_at: Mapped[datetime | None] = mapped_column(DateTime)
+    # migration 0008: refused from then on (None = never, for tokens issued before expiry existed)
+    expires_at: Mapped[datetime | None] = mapped_column(DateTime)
 
 
 class Dataset(Base):
@@ -294,6 +296,7 @@ class Job(Base):
     __table_args__ = (
         CheckConstraint(_in("status", JOB_STATUSES), name="status"),
         Index("ix_jobs_status_id", "status", "id"),
+        Index("ix_jobs_status_priority_id", "status", "priority", "id"),
     )
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -313,6 +316,8 @@ class Job(Base):
     worker_id: Mapped[str | None] = mapped_column(String(128))
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    # migration 0008: higher runs first (admins' jobs, app.jobs.policy)
+    priority: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class ModelVersion(Base):
@@ -379,3 +384,30 @@ class AnchorEvent(Base):
     action: Mapped[str] = mapped_column(String(16))
     class_name: Mapped[str | None] = mapped_column(String(16))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+
+
+AUDIT_STATUSES = ("queued", "agreed", "corrected")
+
+
+class Audit(Base):
+    """An accepted track sampled for a second look (the quality stage): the operator who accepted
+    it and the class they gave, then the auditor's verdict: agreed, or corrected to `answer_label`
+    (the correction is applied to the track as a `label` action). Migration 0008."""
+
+    __tablename__ = "audits"
+    __table_args__ = (
+        CheckConstraint(_in("status", AUDIT_STATUSES), name="status"),
+        Index("ix_audits_sequence_id_status", "sequence_id", "status"),
+    )
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
+    operator_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"), index=True)
+    label: Mapped[str | None] = mapped_column(String(16))  # the operator's class when sampled
+    status: Mapped[str] = mapped_column(String(16), default="queued")
+    sampled_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    auditor_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    answer_label: Mapped[str | None] = mapped_column(String(16))
+    decided_at: Mapped[datetime | None] = mapped_column(DateTime)

@@ -463,7 +463,9 @@ def merge_tracks(
 # ----------------------------------------------------------------------------- undo
 
 
-def undo(session: Session, ctx: RepairContext, track_id: int, user: AuthUser, version: int) -> Track:
+def undo(
+    session: Session, ctx: RepairContext, track_id: int, user: AuthUser, version: int, override_lease: bool = False,
+) -> Track:
     """Revert the caller's last not-yet-undone action on the track: a split or merge here, any
     other action through `crud.apply_action`. Nothing to undo -> Conflict. Commits."""
     from pipeline.classes import SAMPLE_CLASSES
@@ -472,7 +474,8 @@ def undo(session: Session, ctx: RepairContext, track_id: int, user: AuthUser, ve
         raise NotFound(f"track {track_id} not found")
     ev = crud.last_undoable_event(session, track_id, user.id)
     if ev is None or ev.action not in GEOMETRY_ACTIONS:
-        return crud.apply_action(session, track_id, user, "undo", version, sample_classes=SAMPLE_CLASSES)
+        return crud.apply_action(session, track_id, user, "undo", version, sample_classes=SAMPLE_CLASSES,
+                                 override_lease=override_lease)
     track = _lock_track(session, track_id, version)
     if ev.action == "split":
         return _undo_split(session, track, ev, user, version)

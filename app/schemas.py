@@ -5,33 +5,96 @@ Routes return these, never table models.
 
 from __future__ import annotations
 
-from datetime import datetime
-from typing import Annotated, Any, Literal
+from datetime import UTC, datetime
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
-Role = Literal["operator", "admin"]
+from pipeline.classes import SAMPLE_CLASSES
+
+Role = Literal["operator", "reviewer", "admin"]
 TrackStatus = Literal["pending", "accepted", "discarded", "merged"]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
+ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
+assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
+
+
+def _as_utc(value: datetime) -> datetime:
+    """The tables hold naive UTC (app.models.utcnow); the API says so: RFC 3339 with `Z`."""
+    return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+UtcDateTime = Annotated[datetime, AfterValidator(_as_utc)]
 
 
 class _Public(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
 
-class _Request(BaseModel):
+class JsonModel(BaseModel):
+    """A request body (or job params) read as JSON Schema reads it: a number field takes a JSON
+    number only, an integer field one without fraction (`1` or `1.0`), a boolean field `true` or
+    `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`; the schema promises it is
+    refused (`{"version": "1"}` gets 422)."""
+
     model_config = ConfigDict(extra="forbid")
 
+    @field_validator("*", mode="before")
+    @classmethod
+    def _json_scalars(cls, value: Any, info: ValidationInfo) -> Any:
+        field = cls.model_fields.get(info.field_name or "")
+        if field is None or value is None:
+            return value
+        kinds = _scalar_kinds(field.annotation)
+        if bool in kinds and not isinstance(value, bool) and not kinds & {int, float}:
+            raise ValueError(f"must be true or false, not {type(value).__name__}")
+        if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
+            raise ValueError(f"must be a JSON number, not {type(value).__name__}")
+        return value
 
-# ----------------------------------------------------------------------------- users
+
+def _scalar_kinds(annotation: Any) -> set[type]:
+    """The scalar types an annotation admits (`int | None` -> {int}); empty for anything else."""
+    args = get_args(annotation) if get_origin(annotation) in (Union, UnionType) else (annotation,)
+    return {a for a in args if a in (int, float, bool)}
+
+
+_Request = JsonModel
+
+
 class UserBase(_Request):
     name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.@-]+$")
     role: Role = "operator"
 
 
+EXPIRES_HELP = "Days the token is valid; the service's token_expiry_days (90) when omitted."
+
+
 class UserCreate(UserBase):
-    pass
+    expires_days: float | None = Field(default=None, gt=0, le=36500, description=EXPIRES_HELP)
+
+
+class TokenCreate(_Request):
+    expires_days: float | None = Field(default=None, gt=0, le=36500, description=EXPIRES_HELP)
+
+
+class TokenPublic(_Public):
+    id: int
+    prefix: str = Field(description="The token's first characters (to tell tokens apart, and to revoke one).")
+    created_at: UtcDateTime
+    created_by_id: int | None
+    expires_at: UtcDateTime | None
+    revoked_at: UtcDateTime | None
+
+
+class TokenRevoke(_Request):
+    prefix: str = Field(min_length=6, max_length=64, description="Revoke the live tokens starting with this.")
+
+
+class RevokeResult(BaseModel):
+    revoked: int
 
 
 class UserPublic(_Public):
@@ -39,7 +102,7 @@ class UserPublic(_Public):
     name: str
     role: Role
     active: bool
-    created_at: datetime
+    created_at: UtcDateTime
 
 
 class UserWithToken(BaseModel):
@@ -61,26 +124,29 @@ class DatasetCreate(DatasetBase):
     ingest: bool = Field(default=True, description="Queue the ingest job right away.")
     config: dict[str, Any] | None = Field(default=None, description="Pipeline config overrides for ingest.")
     poses: IngestPoses = Field(default="file", description=POSES_HELP)
+    reregister: bool = Field(
+        default=False, description="Register the folder again although a sequence of it exists (else 409)."
+    )
 
 
 class SequencePublic(_Public):
     id: int
     dataset_id: int
     name: str
-    path: str
+    path: str | None = Field(description="The folder on the server (admins only).")
     format: str
     sensor: dict[str, Any] | None
     status: SequenceStatus
     n_frames: int
     ingest_job_id: int | None
-    created_at: datetime
+    created_at: UtcDateTime
 
 
 class DatasetPublic(_Public):
     id: int
     name: str
     path: str
-    created_at: datetime
+    created_at: UtcDateTime
     sequences: list[SequencePublic] = []
 
 
@@ -139,8 +205,8 @@ class TrackPublic(_Public):
     predicted_class: str | None
     predicted_confidence: float | None
     version: int
-    updated_at: datetime
-    lease_expires_at: datetime | None = None
+    updated_at: UtcDateTime
+    lease_expires_at: UtcDateTime | None = None
 
 
 class TrackList(BaseModel):
@@ -191,7 +257,7 @@ class TruncateAction(ActionBase):
 
 
 class LabelAction(ActionBase):
-    label: str = Field(min_length=1, max_length=16, description="One of the sample classes.")
+    label: ClassName = Field(description="One of the sample classes.")
 
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-1e7, le=1e7)]
@@ -249,9 +315,9 @@ class PredictedRegion(_Request):
     class_name: str = Field(min_length=1, max_length=16)
 
 
-SplitRegion = Annotated[
-    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion, Field(discriminator="kind")
-]
+# a plain union told apart by each member's `kind` literal: pydantic refuses a discriminator on a
+# field that JsonModel's before-validator reads
+SplitRegion = BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion
 
 
 class SplitAction(ActionBase):
@@ -277,7 +343,7 @@ class EventPublic(_Public):
     track_id: int
     user_id: int | None
     action: str
-    created_at: datetime
+    created_at: UtcDateTime
     version_before: int
     version_after: int
     before: dict[str, Any]
@@ -306,9 +372,9 @@ class JobPublic(_Public):
     result: dict[str, Any] | None
     error: str | None
     created_by_id: int | None
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
+    created_at: UtcDateTime
+    started_at: UtcDateTime | None
+    finished_at: UtcDateTime | None
     attempts: int
     cancel_requested: bool
 
@@ -318,9 +384,25 @@ class JobTypePublic(BaseModel):
     admin_only: bool
     description: str
     params_schema: dict[str, Any]
+    operators_may_queue: bool
+    operator_max_values: dict[str, float] = Field(description="Upper bounds of params for operators.")
+    admin_only_params: list[str] = Field(description="Switches only an admin may turn on.")
+    max_run_seconds: float = Field(description="A job running longer is stopped and marked failed.")
 
 
 # ----------------------------------------------------------------------------- exports
+class AgreementRow(BaseModel):
+    audited: int
+    agreed: int
+    agreement: float = Field(description="agreed / audited")
+
+
+class AuditStats(BaseModel):
+    queued: int
+    per_operator: dict[str, AgreementRow] = Field(description="By the name of the operator who accepted the track.")
+    per_class: dict[str, AgreementRow] = Field(description="By the class the operator gave.")
+
+
 class ProgressStats(BaseModel):
     tracks: int
     tracks_by_status: dict[str, int]
@@ -330,6 +412,7 @@ class ProgressStats(BaseModel):
     samples_labelled_per_class: dict[str, int]
     constraints_automatic: int
     constraints_verified: int
+    audit: AuditStats
 
 
 class Health(BaseModel):
@@ -362,10 +445,10 @@ class AnchorPublic(BaseModel):
     corrected: bool = Field(description="Confirmed with a class other than the proposed one.")
     decided_by_id: int | None
     decided_by: str | None
-    decided_at: datetime | None
+    decided_at: UtcDateTime | None
     model_id: int | None = Field(description="The model version that proposed it.")
     job_id: int | None = Field(description="The propose_anchors job that made it.")
-    created_at: datetime
+    created_at: UtcDateTime
     sample_url: str | None = Field(description="PNG of the (representative) sample.")
 
 
@@ -377,7 +460,7 @@ class AnchorList(BaseModel):
 
 
 class AnchorCorrect(_Request):
-    label: str = Field(min_length=1, max_length=16, description="The right class (one of the sample classes).")
+    label: ClassName = Field(description="The right class (one of the sample classes).")
 
 
 class AnchorClassCounts(BaseModel):
@@ -402,7 +485,7 @@ class AnchorEventPublic(_Public):
     user_id: int | None
     action: Literal["confirm", "correct", "reject"]
     class_name: str | None
-    created_at: datetime
+    created_at: UtcDateTime
 
 
 # ----------------------------------------------------------------------------- stitches (issue 5)
@@ -423,7 +506,7 @@ class StitchPublic(_Public):
     status: StitchStatus
     version: int
     decided_by_id: int | None
-    decided_at: datetime | None
+    decided_at: UtcDateTime | None
 
 
 class StitchList(BaseModel):
@@ -435,3 +518,31 @@ class StitchList(BaseModel):
 
 class StitchDecision(_Request):
     version: int = Field(ge=1, le=2**31 - 1, description="The stitch version the decision was made on.")
+
+
+# ----------------------------------------------------------------------------- audits (issue 23)
+AuditStatus = Literal["queued", "agreed", "corrected"]
+
+
+class AuditSample(_Request):
+    n: int = Field(ge=1, le=10_000, description="Accepted, never-audited tracks to queue (fewer when fewer exist).")
+    sequence_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description="One sequence; all when omitted.")
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+
+
+class AuditCorrect(_Request):
+    label: ClassName = Field(description="The right class of the track.")
+
+
+class AuditPublic(_Public):
+    id: int
+    sequence_id: int
+    track_id: int
+    operator_id: int | None = Field(description="Who accepted the track.")
+    label: str | None = Field(description="The class the operator gave.")
+    status: AuditStatus
+    sampled_by_id: int | None
+    created_at: UtcDateTime
+    auditor_id: int | None
+    answer_label: str | None = Field(description="The auditor's class (the operator's when agreed).")
+    decided_at: UtcDateTime | None

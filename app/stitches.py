@@ -15,9 +15,10 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from app import leases
 from app.core.errors import Conflict, NotFound
 from app.crud import AuthUser
-from app.models import Sequence, Stitch, utcnow
+from app.models import Sequence, Stitch, Track, utcnow
 
 DECISIONS = {"confirm": "confirmed", "reject": "rejected"}
 
@@ -52,9 +53,13 @@ def get_stitch(session: Session, stitch_id: int) -> Stitch:
     return st
 
 
-def decide_stitch(session: Session, stitch_id: int, user: AuthUser, decision: str, version: int) -> Stitch:
+def decide_stitch(
+    session: Session, stitch_id: int, user: AuthUser, decision: str, version: int,
+    override_lease: bool = False, lease_seconds: float | None = None,
+) -> Stitch:
     """Confirm or reject a stitch decided on `version` and commit. Unknown -> NotFound; stale
-    version or a sequence that is not ready -> Conflict."""
+    version or a sequence that is not ready -> Conflict; either track leased to someone else ->
+    LeaseHeld (app.leases)."""
     st = session.scalars(select(Stitch).where(Stitch.id == stitch_id).with_for_update()).first()
     if st is None:
         raise NotFound(f"stitch {stitch_id} not found")
@@ -63,6 +68,11 @@ def decide_stitch(session: Session, stitch_id: int, user: AuthUser, decision: st
         raise Conflict(f"sequence {st.sequence_id} is {seq_status}; stitches can be decided once it is ready")
     if version != st.version:
         raise Conflict(f"stale version {version}: stitch {stitch_id} is at version {st.version}")
+    now = utcnow()
+    for track in session.scalars(
+        select(Track).where(Track.id.in_((st.track_a_id, st.track_b_id))).order_by(Track.id).with_for_update()
+    ):
+        leases.check(session, track, user, now, override=override_lease, renew_seconds=lease_seconds)
     st.status = DECISIONS[decision]
     st.version += 1
     st.decided_by_id = user.id

@@ -15,6 +15,7 @@ import os
 import signal
 import socket
 import threading
+import time
 import traceback
 import uuid
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from sqlalchemy import or_, select, update
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
+from app.jobs import policy
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.registry import get_job_type, load_job_types
 from app.models import Job, utcnow
@@ -65,9 +67,12 @@ class Worker:
                     select(Job)
                     .where(
                         Job.type.in_(self.types),
-                        or_(Job.status == "queued", (Job.status == "running") & (Job.lease_expires_at < now)),
+                        or_(
+                            (Job.status == "queued") & policy.claimable_owner(s, self.settings.job_max_running_per_user),
+                            (Job.status == "running") & (Job.lease_expires_at < now),
+                        ),
                     )
-                    .order_by(Job.id)
+                    .order_by(Job.priority.desc(), Job.id)
                     .limit(1)
                     .with_for_update(skip_locked=True)
                 ).first()
@@ -111,15 +116,24 @@ class Worker:
             user_id=claimed.created_by_id,
         )
         job_type = get_job_type(claimed.type)
+        limit = policy.max_run_seconds(job_type, self.settings)
         stop_beat = threading.Event()
-        beat = threading.Thread(target=self._heartbeat, args=(ctx, stop_beat), daemon=True, name="heartbeat")
+        deadline = time.monotonic() + limit
+        beat = threading.Thread(
+            target=self._heartbeat, args=(ctx, stop_beat, deadline), daemon=True, name="heartbeat"
+        )
         beat.start()
         params: Any = None
         try:
             params = job_type.params.model_validate(claimed.params)
             result = job_type.handler(ctx, params)
         except JobStopped as exc:
-            if exc.reason == "cancelled":
+            if exc.reason == "timed out":
+                log.warning("job %s: stopped after its maximum run time of %g s", claimed.id, limit)
+                self._stop_hook(job_type, ctx, params, "failed")
+                self._finish(ctx, "failed", error=f"exceeded its maximum run time of {limit:g} s",
+                             message="stopped: maximum run time exceeded")
+            elif exc.reason == "cancelled":
                 self._stop_hook(job_type, ctx, params, "cancelled")
                 self._finish(ctx, "cancelled", message="cancelled at a checkpoint")
             else:
@@ -170,9 +184,12 @@ class Worker:
             )
             s.commit()
 
-    def _heartbeat(self, ctx: JobContext, stop: threading.Event) -> None:
+    def _heartbeat(self, ctx: JobContext, stop: threading.Event, deadline: float) -> None:
         lease = timedelta(seconds=self.settings.job_lease_seconds)
         while not stop.wait(self.settings.job_heartbeat_seconds):
+            if time.monotonic() > deadline:
+                ctx.timed_out.set()
+                ctx.cancelled.set()  # long handlers poll `cancelled` between their own checkpoints
             try:
                 self.touch_alive()
                 with self.db.write() as s:

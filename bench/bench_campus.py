@@ -9,7 +9,7 @@ campus's surfaces compare with real scans.
    recall >= 0.90.
 2. `impure_structures`: which kinds of objects the impure segments (purity < 0.95) join, by the
    points they cost (hedge + building, car + car, ...).
-3. With ../shared/data/real present: texture statistics (`pipeline.simulation.texture`) of the
+3. With ../shared/data/real present: texture statistics (`research.simulation.texture`) of the
    labelled SemanticKITTI frames 0-2 of sequence 00 (HDL-64E) next to the campus cast with an
    HDL-64E (seeds 0 and 1, 10 frames each; 4 with --quick), and the campus's own HDL-32E;
    `texture.png` in the output folder (docs/simulator.md shows it).
@@ -99,9 +99,9 @@ def texture(out_dir: Path, quick: bool) -> dict | None:
     from pipeline.scan import Scan
     from pipeline.sensors import PRESETS
     from pipeline.sequence import open_sequence
-    from pipeline.simulation import simulate_frame
-    from pipeline.simulation.scene import build_scene
-    from pipeline.simulation.texture import texture_statistics
+    from research.simulation import simulate_frame
+    from research.simulation.scene import build_scene
+    from research.simulation.texture import texture_statistics
 
     with tempfile.TemporaryDirectory() as tmp:
         real = kitti_seq00(Path(tmp) / "k00", frames=range(3))
@@ -129,7 +129,7 @@ def texture(out_dir: Path, quick: bool) -> dict | None:
 
 
 def run(out_dir: Path, quick: bool = False) -> dict:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     frames = 40 if quick else 200
     config_path = os.environ.get(CONFIG_ENV)

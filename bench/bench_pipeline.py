@@ -64,7 +64,7 @@ def _pgs_isolated(seq: Path) -> dict:
 
 
 def run(out_dir: Path, quick: bool = False) -> dict:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     frames = 40 if quick else 200
     result: dict = {"frames": frames, "load_average_1min_start": os.getloadavg()[0]}

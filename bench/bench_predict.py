@@ -17,7 +17,7 @@ import torch
 from pipeline.config import ModelConfig, SampleConfig
 from pipeline.model import get_model, save_checkpoint
 from pipeline.predict import run_predict
-from pipeline.simulation import simulate_sequence
+from research.simulation import simulate_sequence
 
 TARGET_FPS = 10.0
 

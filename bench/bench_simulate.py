@@ -16,7 +16,7 @@ TARGET_FPS = 5.0
 
 
 def run(out_dir: Path, quick: bool = False) -> dict:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     frames = 30 if quick else 200
     seed = 0

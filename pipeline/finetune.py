@@ -9,9 +9,9 @@ keeps training, with the paper's loss, on
   weight 1, the paper), or `automatic` ones (every association link, weighted by its score),
   or `none`.
 
-The training loop is `pipeline.training.train` started from the pretrained weights; only the
-defaults differ (800 steps, batches of 16 anchors + 32 pairs, lr 1e-3 on a cosine schedule,
-transitive pairs within a track, augmentation on). `balance` repeats the anchors of rare classes so batches draw classes evenly: a confirmed
+The training loop is `pipeline.training.train` started from the pretrained weights, with the
+training defaults changed for few anchors by `TrainingConfig.finetuning` (800 steps, batches of
+16 anchors + 32 pairs, no label closure). `balance` repeats the anchors of rare classes so batches draw classes evenly: a confirmed
 track labels all its samples, and without it a few long bush tracks outweigh every person. On the
 simulated new scene this took fine-tuning from below the pretrained model to near baseline_max
 (README "Fine-tuning on a new scene"). Without a validation set the paper's selection rule takes
@@ -28,23 +28,16 @@ from typing import Any, Literal
 import numpy as np
 
 from pipeline.classes import SAMPLE_CLASSES
-from pipeline.config import FINETUNE_DEFAULTS, TrainingConfig
+from pipeline.config import TrainingConfig
 from pipeline.errors import ConfigError, DataError
 from pipeline.metrics import ClassificationReport
 from pipeline.model import CheckpointMeta, SampleCNN, load_checkpoint, save_checkpoint
+from pipeline.progress import QUIET, Progress
 from pipeline.training import LabelledSamples, TrainingData, TrainProgress, evaluate, train
 
 ConstraintMode = Literal["verified", "automatic", "none"]
 CONSTRAINT_MODES: tuple[str, ...] = ("verified", "automatic", "none")
 
-
-
-def finetune_config(base: TrainingConfig | None = None, **overrides: Any) -> TrainingConfig:
-    """TrainingConfig for fine-tuning: `base` (default: TrainingConfig()) with FINETUNE_DEFAULTS
-    applied where `base` was left at its default, then `overrides`."""
-    base = base or TrainingConfig()
-    updates = {k: v for k, v in FINETUNE_DEFAULTS.items() if k not in base.model_fields_set}
-    return base.model_copy(update=updates | overrides)
 
 
 def finetune_data(
@@ -137,13 +130,14 @@ def finetune(
     config: TrainingConfig | None = None,
     val: LabelledSamples | None = None,
     checkpoint_dir: str | Path | None = None,
-    progress: Callable[[TrainProgress], None] | bool = False,
+    progress: Progress = QUIET,
+    report: Callable[[TrainProgress], None] | None = None,
     stop: Callable[[], bool] | None = None,
     parent: str | None = None,
 ) -> FinetuneResult:
     """Fine-tune `pretrained` (a checkpoint path, or a loaded model and its meta) on `data`.
 
-    config: the full TrainingConfig to use; None = `finetune_config()`.
+    config: the full TrainingConfig to use; None = `TrainingConfig().finetuning()`.
     val: optional labelled samples of the new scene for the paper's model selection and metrics.
     checkpoint_dir: where to write `best.pt` (self-describing; its metrics name the parent).
     parent: recorded in the metrics as the parent model (default: the checkpoint path).
@@ -158,7 +152,7 @@ def finetune(
     if len(data.labelled) == 0:
         # The paper's "unsupervised" attempt: constraints alone collapse onto one class.
         raise DataError(None, "fine-tuning needs at least one confirmed anchor (constraints alone collapse)")
-    cfg = config or finetune_config()
+    cfg = config or TrainingConfig().finetuning()
     result = train(
         data,
         cfg,
@@ -168,6 +162,7 @@ def finetune(
         checkpoint_dir=None,
         init_model=model,
         progress=progress,
+        report=report,
         stop=stop,
     )
     k = meta.model_config.num_classes

@@ -28,7 +28,7 @@ from torch import nn
 
 from pipeline.classes import SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
-from pipeline.errors import DataError
+from pipeline.errors import ConfigError, DataError
 
 CHECKPOINT_FORMAT = "tracklabel-cnn/1"
 
@@ -222,7 +222,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
             metrics=dict(payload.get("metrics") or {}),
             training_config=None
             if payload.get("training_config") is None
-            else TrainingConfig.model_validate(payload["training_config"]),
+            else _training_config(payload["training_config"]),
         )
         model = build_model(net)
         model.load_state_dict(payload["state_dict"])
@@ -231,3 +231,22 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     model.to(resolve_device(str(device)) if isinstance(device, str) else device)
     model.eval()
     return model, meta
+
+
+def _training_config(stored: dict[str, Any]) -> TrainingConfig:
+    """A checkpoint's training config; options removed since it was written (gamma_rampup,
+    component_power) are dropped so that older checkpoints still load."""
+    return TrainingConfig.model_validate({k: v for k, v in stored.items() if k in TrainingConfig.model_fields})
+
+
+# The model shipped with the package: trained on the simulated campus by
+# `tracklabel experiment default-model --out pipeline/models/default.pt` (pipeline/models/default.json
+# says on what and what it scored). Used when no model is given or registered.
+DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "default.pt"
+
+
+def default_model_path() -> Path:
+    """The shipped default checkpoint; a ConfigError when this installation lacks it."""
+    if not DEFAULT_MODEL.is_file():
+        raise ConfigError(f"no default model at {DEFAULT_MODEL}: train one (tracklabel experiment default-model)")
+    return DEFAULT_MODEL

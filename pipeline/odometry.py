@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pipeline.errors import DataError
+from pipeline.progress import QUIET, Progress
 from pipeline.scan import SequenceSource
 
 
@@ -139,7 +140,7 @@ def _kiss(settings: OdometrySettings, deskew: bool):  # -> kiss_icp.kiss_icp.Kis
 
 
 def estimate_poses(
-    source: SequenceSource, progress: bool = False, settings: OdometrySettings | None = None
+    source: SequenceSource, progress: Progress = QUIET, settings: OdometrySettings | None = None
 ) -> np.ndarray:
     """`T_world_lidar` (F, 4, 4) float64 for every frame of `source`, the first frame being the world."""
     settings = settings or OdometrySettings()
@@ -152,12 +153,7 @@ def estimate_poses(
     kiss_poses = np.tile(np.eye(4), (n, 1, 1))
     poses = kiss_poses.copy()
     previous: PlaneCloud | None = None
-    frames = range(n)
-    if progress:
-        from tqdm import tqdm
-
-        frames = tqdm(frames, desc="poses (icp)", unit="frame")
-    for i in frames:
+    for i in progress.iterate(range(n), "poses (icp)"):
         scan = first if i == 0 else source.frame(i)
         points = scan.points.astype(np.float64)
         stamps = scan.time.astype(np.float64) if deskew and scan.time is not None else np.array([])

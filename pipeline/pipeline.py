@@ -21,6 +21,7 @@ from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
 from pipeline.io import open_reader
 from pipeline.processing import SequenceProcessor
+from pipeline.progress import QUIET, Progress
 from pipeline.sequence import open_sequence
 from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
 
@@ -40,7 +41,7 @@ def run_process(
     poses: str = "file",
     workers: int = 1,
     samples: bool = False,
-    progress: bool = False,
+    progress: Progress = QUIET,
     log: Callable[[str], None] | None = None,
     fmt: str = "auto",
 ) -> dict:
@@ -126,7 +127,7 @@ def run_process(
     return summary
 
 
-def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) -> dict:
+def evaluate_folder(seq: str | Path, out: str | Path, progress: Progress = QUIET) -> dict:
     """Evaluate `tracklabel process` output `out` against the labels of sequence `seq`; frames
     without labels are left out (links are scored between consecutive labelled frames)."""
     out = Path(out)
@@ -139,13 +140,8 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: bool = False) ->
     pos_of_name = {n: i for i, n in enumerate(names)}
     frames: list[FrameTruth] = []
     kept_names = doc["frames"]
-    iterator = kept_names
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(kept_names, unit="frame", desc="evaluate")
     index_of: dict[int, int] = {}
-    for name in iterator:
+    for name in progress.iterate(kept_names, "evaluate"):
         if name not in pos_of_name:
             raise DataError(out, f"frame {name} of tracks.json is not in {seq}")
         scan = source.frame(pos_of_name[name])

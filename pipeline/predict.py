@@ -36,9 +36,16 @@ from pipeline.classes import GROUND, UNLABELLED, to_ours, to_semantickitti
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.metrics import point_iou
-from pipeline.model import load_checkpoint, predict
+from pipeline.model import default_model_path, load_checkpoint, predict
 from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.progress import QUIET, Progress
 from pipeline.sequence import open_sequence
+
+OUTPUTS = {  # summary.json says what the files are
+    "labels": "labels/NNNNNN.label uint32 SemanticKITTI (semantic id, instance 0)",
+    "confidence": "confidence/NNNNNN.conf float16 per point, 0 = not classified",
+    "segments": "segments/NNNNNN.npz segment, track, probs (float16)",
+}
 
 __all__ = ["FramePrediction", "SegmentClassifier", "predict_frame_classes", "run_predict"]
 
@@ -139,9 +146,69 @@ class _TrackSmoother:
         return out
 
 
+class _PredictionWriter:
+    """Classifies a few frames' samples in one forward (faster than per frame), writes their
+    outputs and keeps the counts and labelled frames for the summary."""
+
+    def __init__(self, clf: SegmentClassifier, out: Path, smooth_tracks: bool, evaluate: bool) -> None:
+        self.clf, self.out = clf, out
+        self.smoother = _TrackSmoother() if smooth_tracks else None
+        self.point_counts = np.zeros(256, np.int64)
+        self.segment_counts = np.zeros(clf.model.config.num_classes, np.int64)
+        self.preds: list[np.ndarray] = []
+        self.truths: list[np.ndarray] = []
+        self.evaluate = evaluate  # until a frame without labels turns it off
+        self.frames, self.classify_s, self.write_s = 0, 0.0, 0.0
+
+    def flush(self, batch: list[FrameResult]) -> None:
+        if not batch:
+            return
+        tc = time.perf_counter()
+        all_probs = self.clf.probs(np.concatenate([fr.samples for fr in batch]))
+        tw = time.perf_counter()
+        self.classify_s += tw - tc
+        start = 0
+        for fr in batch:
+            probs = all_probs[start : start + len(fr.samples)]
+            start += len(fr.samples)
+            if self.smoother is not None and len(probs):
+                probs = self.smoother(np.asarray(fr.segments.track_id)[fr.sample_segment], probs)
+            self._write(fr, probs)
+        self.write_s += time.perf_counter() - tw
+        batch.clear()
+
+    def _write(self, fr: FrameResult, probs: np.ndarray) -> None:
+        pred = predict_frame_classes(fr, probs)
+        out, name = self.out, fr.name
+        fr.scan.to_input(to_semantickitti(pred.point_class).astype(np.uint32)).tofile(out / "labels" / f"{name}.label")
+        fr.scan.to_input(pred.confidence.astype(np.float16)).tofile(out / "confidence" / f"{name}.conf")
+        np.savez(out / "segments" / f"{name}.npz", segment=pred.segment, track=pred.track, probs=probs.astype(np.float16))
+        self.point_counts += np.bincount(pred.point_class, minlength=256)
+        if len(probs):
+            self.segment_counts += np.bincount(probs.argmax(axis=1), minlength=len(self.segment_counts))
+        if self.evaluate:
+            if fr.scan.semantic is None:
+                self.evaluate = False
+                self.preds.clear()
+                self.truths.clear()
+            else:
+                self.preds.append(pred.point_class)
+                self.truths.append(to_ours(fr.scan.semantic))
+        self.frames += 1
+
+    def counts(self) -> dict[str, Any]:
+        names = self.clf.meta.classes
+        point_names = dict(enumerate((*names, "ground")))
+        return {
+            "segments_classified": {names[i]: int(self.segment_counts[i]) for i in range(len(self.segment_counts))},
+            "points": {point_names[i]: int(self.point_counts[i]) for i in point_names}
+            | {"unlabelled": int(self.point_counts[UNLABELLED])},
+        }
+
+
 def run_predict(
     seq: str | Path,
-    checkpoint: str | Path,
+    checkpoint: str | Path | None,
     out: str | Path,
     config: PipelineConfig | None = None,
     size: int | None = None,
@@ -150,7 +217,7 @@ def run_predict(
     device: str = "auto",
     smooth_tracks: bool = False,
     evaluate: bool = True,
-    progress: bool = False,
+    progress: Progress = QUIET,
     log: Callable[[str], None] | None = None,
     fmt: str = "auto",
     batch_frames: int = 8,
@@ -158,13 +225,14 @@ def run_predict(
 ) -> dict[str, Any]:
     """Classify every valid segment of a sequence and write per-frame labels; returns the summary.
 
+    checkpoint: None = the shipped default model (`pipeline.model.default_model_path`).
     size: the sample size asked for on the command line (None = the model's); a mismatch with the
     checkpoint is a DataError. evaluate: compute point IoU when the sequence carries labels.
     The samples of up to `batch_frames` frames (or `batch_samples` samples) go through the CNN in
     one forward pass.
     """
     log = log or (lambda _m: None)
-    clf = SegmentClassifier(checkpoint, device)
+    clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, device)
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, size)
     out = Path(out)
     opened = open_sequence(seq, fmt, sensor if sensor != "auto" else config.sensor.name, poses, progress)
@@ -181,88 +249,37 @@ def run_predict(
         skipped.append({"frame": source.frame_name(i), "error": str(err)})
         log(f"skipped frame {source.frame_name(i)}: {err}")
 
-    smoother = _TrackSmoother() if smooth_tracks else None
+    writer = _PredictionWriter(clf, out, smooth_tracks, evaluate)
     proc = SequenceProcessor(config, sens)
-    k = clf.model.config.num_classes
-    point_counts = np.zeros(256, np.int64)
-    segment_counts = np.zeros(k, np.int64)
-    preds: list[np.ndarray] = []
-    truths: list[np.ndarray] = []
-    state = {"frames": 0, "classify": 0.0, "write": 0.0, "eval": evaluate}
-
-    def flush(batch: list[FrameResult]) -> None:
-        """Classify the samples of a few frames in one forward (faster than per frame), then write."""
-        if not batch:
-            return
-        tc = time.perf_counter()
-        all_probs = clf.probs(np.concatenate([fr.samples for fr in batch]))
-        tw = time.perf_counter()
-        state["classify"] += tw - tc
-        start = 0
-        for fr in batch:
-            probs = all_probs[start : start + len(fr.samples)]
-            start += len(fr.samples)
-            if smoother is not None and len(probs):
-                probs = smoother(np.asarray(fr.segments.track_id)[fr.sample_segment], probs)
-            pred = predict_frame_classes(fr, probs)
-            name = fr.name
-            labels = to_semantickitti(pred.point_class).astype(np.uint32)
-            fr.scan.to_input(labels).tofile(out / "labels" / f"{name}.label")
-            fr.scan.to_input(pred.confidence.astype(np.float16)).tofile(out / "confidence" / f"{name}.conf")
-            np.savez(
-                out / "segments" / f"{name}.npz", segment=pred.segment, track=pred.track, probs=probs.astype(np.float16)
-            )
-            point_counts[:] += np.bincount(pred.point_class, minlength=256)
-            if len(probs):
-                segment_counts[:] += np.bincount(probs.argmax(axis=1), minlength=k)
-            if state["eval"]:
-                if fr.scan.semantic is None:
-                    state["eval"] = False
-                    preds.clear()
-                    truths.clear()
-                else:
-                    preds.append(pred.point_class)
-                    truths.append(to_ours(fr.scan.semantic))
-            state["frames"] += 1
-        state["write"] += time.perf_counter() - tw
-        batch.clear()
-
     pending: list[FrameResult] = []
     t0 = time.perf_counter()
     for fr in proc.iter_frames(source, progress=progress, samples=True, poses=pose_arr, on_skip=on_skip):
         clf.check_samples(fr.samples, out)
         pending.append(fr)
         if len(pending) >= batch_frames or sum(len(f.samples) for f in pending) >= batch_samples:
-            flush(pending)
-    flush(pending)
+            writer.flush(pending)
+    writer.flush(pending)
     elapsed = time.perf_counter() - t0
-    names = clf.meta.classes
-    point_names = {i: n for i, n in enumerate((*names, "ground"))}
     summary: dict[str, Any] = {
         "sequence": str(seq),
         "model": str(clf.path),
-        "model_classes": list(names),
+        "model_classes": list(clf.meta.classes),
         "sample_size": config.samples.size,
         "sample_channels": config.samples.channels,
         "sensor": sens.name,
         "sensor_from": opened.sensor_from,
         "poses": opened.pose_source,
         "smooth_tracks": smooth_tracks,
-        "frames": state["frames"],
+        "frames": writer.frames,
         "skipped": skipped,
-        "segments_classified": {names[i]: int(segment_counts[i]) for i in range(k)},
-        "points": {point_names[i]: int(point_counts[i]) for i in point_names} | {"unlabelled": int(point_counts[UNLABELLED])},
+        **writer.counts(),
         "seconds": round(elapsed, 3),
-        "seconds_classify": round(state["classify"], 3),
-        "seconds_write": round(state["write"], 3),
-        "frames_per_second": round(state["frames"] / elapsed, 2) if elapsed > 0 else None,
-        "outputs": {
-            "labels": "labels/NNNNNN.label uint32 SemanticKITTI (semantic id, instance 0)",
-            "confidence": "confidence/NNNNNN.conf float16 per point, 0 = not classified",
-            "segments": "segments/NNNNNN.npz segment, track, probs (float16)",
-        },
+        "seconds_classify": round(writer.classify_s, 3),
+        "seconds_write": round(writer.write_s, 3),
+        "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
+        "outputs": OUTPUTS,
     }
-    if state["eval"] and preds:
-        summary["point_iou"] = point_iou(preds, truths).to_dict()
+    if writer.evaluate and writer.preds:
+        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -24,12 +24,14 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from pipeline.association import AssociationFrame, associate
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.ground import estimate_ground
+from pipeline.progress import QUIET, Progress
 from pipeline.range_image import project
 from pipeline.samples import SegmentTable, render_samples, segment_table
 from pipeline.scan import Scan, SequenceSource
@@ -234,7 +236,7 @@ class SequenceProcessor:
     def iter_frames(
         self,
         source: SequenceSource,
-        progress: bool = False,
+        progress: Progress = QUIET,
         workers: int = 1,
         start: int = 0,
         stop: int | None = None,
@@ -253,11 +255,7 @@ class SequenceProcessor:
         prev: AssociationFrame | None = None
         prev_tracks = np.zeros(0, np.int64)
         prev_vel = np.zeros((0, 3))
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(jobs), unit="frame", desc="process")
+        bar = progress.bar(len(jobs), "process")
         if workers > 1:
             # forkserver, not fork: the stages' numba kernels run on a thread pool (OpenMP where
             # numba finds it), and a child forked from a process that has started GNU OpenMP
@@ -270,11 +268,15 @@ class SequenceProcessor:
         else:
             pool = None
             results = map(_load_and_process, jobs)
+        threads_before = numba.get_num_threads()
+        if pool is None:
+            # one numba thread per frame: on the 2-core machine under load, two threads took the
+            # stages 4-9x longer than one (docs/perception.md); --workers parallelises instead
+            numba.set_num_threads(1)
         try:
             for job, core in zip(jobs, results, strict=True):
                 i = job[1]
-                if bar is not None:
-                    bar.update(1)
+                bar.update()
                 if isinstance(core, DataError):
                     if on_skip is not None:
                         on_skip(i, core)
@@ -288,8 +290,8 @@ class SequenceProcessor:
                 fr.timings_ms["associate"] = 1e3 * (time.perf_counter() - t0)
                 yield fr
         finally:
-            if bar is not None:
-                bar.close()
+            numba.set_num_threads(threads_before)
+            bar.close()
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
             if spill is not None:

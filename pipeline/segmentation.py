@@ -2,9 +2,10 @@
 
 1. **Texture.** A pixel's roughness is the RMS residual of a line fitted to the ranges of the
    pixels of its row within `TEXTURE_HALF` columns that lie within the horizontal threshold of it.
-   It is rough when most pixels of the `TEXTURE_WINDOW` window around it have a residual over
-   `texture_base` + `texture_slope` x range (the window's median thresholded: a majority vote,
-   counted with box sums).
+   It is rough when most pixels of its window have a residual over `texture_base` +
+   `texture_slope` x range (a majority vote, counted with box sums). The window spans
+   `TEXTURE_WINDOW[1]` columns and the rows within `TEXTURE_HEIGHT` m of the pixel (at most
+   `TEXTURE_WINDOW[0]`), so a hedge two beams tall at the foot of a near wall keeps its own vote.
    Foliage scatters its returns, walls and car bodies do not: on SemanticKITTI frames the residual's
    median is 5.4 cm on vegetation against 1.1 cm on buildings and 1.2 cm on cars.
 2. **Joins.** Two neighbours join when their range difference is under a threshold that grows with
@@ -14,8 +15,10 @@
    nearer occluder (a pole in front of a car), up to `occluder_pixels` pixels. Columns wrap at W-1 -> 0.
 3. **Components** of the joins: union-find over row runs.
 4. **Merge.** A component under `merge_pixels` pixels joins the component it shares the most
-   geometric joins with (pairs that failed the texture test alone): a patch of glass goes back to
-   its car, a smooth leaf cluster to its hedge, while a hedge grown against a wall stays apart.
+   refused pairs with, preferring pairs of rough pixels that only the angle criterion refused
+   (pieces of one foliage mass, whose scattered returns fail the angle test) over pairs that
+   only the texture test refused (a patch of glass goes back to its car, a smooth leaf cluster to
+   its hedge). Large components never merge: a hedge grown against a wall stays apart.
 
 Everything runs in numba, one call per frame.
 """
@@ -32,9 +35,13 @@ from pipeline.range_image import RangeImage
 from pipeline.sensors import SensorModel
 
 TEXTURE_HALF = 3  # columns each side of the pixel in its line fit (7 in all)
-TEXTURE_WINDOW = (5, 9)  # rows, columns of the majority vote
-TEXTURE_CUT = np.uint8(0x80)  # flag on a join that only the texture test refused
-STEP_MASK = np.uint8(0x7F)
+TEXTURE_WINDOW = (5, 9)  # rows (at most), columns of the majority vote
+TEXTURE_HEIGHT = 0.3  # metres above and below the pixel that its vote spans
+# Flags on a pair that does not join, kept for the merge (step 4): only the texture test refused
+# it, or only the angle criterion refused a pair of one texture. Steps stay under 0x40.
+TEXTURE_CUT = np.uint8(0x80)
+ANGLE_CUT = np.uint8(0x40)
+STEP_MASK = np.uint8(0x3F)
 
 
 @dataclass(frozen=True)
@@ -99,14 +106,15 @@ def _rough_pixels(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
 
 
 @njit(cache=True, parallel=True)
-def _texture(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
+def _texture(rng, ok, hb, hs, tb, ts, v_alpha):  # pragma: no cover - numba
     """(H, W) uint8: 2 = rough, 1 = smooth, 0 = not ok (see the module docstring, step 1).
 
-    Pixels without a residual vote smooth, so holes do not make a surface rough."""
+    The window spans TEXTURE_WINDOW[1] columns and the rows within TEXTURE_HEIGHT m of the pixel
+    (at most TEXTURE_WINDOW[0]): a hedge two beams tall at the foot of a wall is not outvoted by
+    the wall. Pixels without a residual vote smooth, so holes do not make a surface rough."""
     h, w = rng.shape
     rough = _rough_pixels(rng, ok, hb, hs, tb, ts)
     wr, wc = TEXTURE_WINDOW
-    hr = wr // 2
     cols = np.zeros((h, w), dtype=np.int32)  # rough pixels in each row's wc-column window
     for r in prange(h):
         run = 0
@@ -118,16 +126,16 @@ def _texture(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
                 run += rough[r, c + wc] - rough[r, c]
     out = np.zeros((h, w), dtype=np.uint8)
     for r in prange(h):
-        lo = max(0, r - hr)
-        hi = min(h - 1, r + hr)
-        half_votes = (hi - lo + 1) * wc
         for c in range(w):
             if not ok[r, c]:
                 continue
+            hr = min(wr // 2, int(TEXTURE_HEIGHT / (rng[r, c] * v_alpha[r]) + 0.5))
+            lo = max(0, r - hr)
+            hi = min(h - 1, r + hr)
             votes = 0
             for k in range(lo, hi + 1):
                 votes += cols[k, c]
-            out[r, c] = 2 if 2 * votes > half_votes else 1
+            out[r, c] = 2 if 2 * votes > (hi - lo + 1) * wc else 1
     return out
 
 
@@ -149,7 +157,7 @@ def _skippable(ok, empty, rng, r, c, d1, margin_base, margin_slope):  # pragma: 
 
 
 @njit(cache=True, parallel=True)
-def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v,
+def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, h_alpha, bridge_h, bridge_v,
                 occ):  # pragma: no cover - numba
     """Which neighbours join, decided once per pixel pair: right[r, c] and down[r, c] are 0 (no
     join) or the distance (1 + pixels stepped over) to the right-hand (column wraps at W-1 -> 0)
@@ -159,7 +167,6 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha,
     h, w = rng.shape
     right = np.zeros((h, w), dtype=np.uint8)
     down = np.zeros((h, w), dtype=np.uint8)
-    over = os_ > 0.0
     use_angle = tan_beta > 0.0
     # the angle between the beams of a pair, by step (columns) and by upper row (rows, one step)
     h_steps = np.arange(max(bridge_h, occ) + 2) * h_alpha
@@ -187,11 +194,12 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha,
                 d2 = rng[r, c1]
                 dmin = min(d1, d2)
                 dmax = max(d1, d2)
-                join = dmax - dmin <= hb + hs * dmin
-                if join and use_angle and _angle_cuts(dmin, dmax, h_cos[step], h_sin[step], tan_beta):
-                    join = False
-                if join:
-                    right[r, c] = step if tex[r, c] == tex[r, c1] else step | TEXTURE_CUT
+                if dmax - dmin <= hb + hs * dmin:
+                    same = tex[r, c] == tex[r, c1]
+                    if use_angle and _angle_cuts(dmin, dmax, h_cos[step], h_sin[step], tan_beta):
+                        right[r, c] = step | ANGLE_CUT if same and tex[r, c] == 2 else 0
+                    else:
+                        right[r, c] = step if same else step | TEXTURE_CUT
             # lower neighbour: (r, c) is the upper pixel
             r1 = r + 1
             if r1 >= h:
@@ -210,19 +218,21 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha,
                 d2 = rng[r1, c]
                 dmin = min(d1, d2)
                 dmax = max(d1, d2)
-                join = dmax - dmin <= vb + vs * dmin
-                if join and over and d2 - d1 > ob + os_ * dmax:
-                    join = False  # the upper pixel nearer by more than the overhang allows
-                if join and use_angle:
-                    if step == 1:
-                        join = not _angle_cuts(dmin, dmax, v_cos[r], v_sin[r], tan_beta)
+                if dmax - dmin <= vb + vs * dmin:
+                    same = tex[r, c] == tex[r1, c]
+                    cut = False
+                    if use_angle:
+                        if step == 1:
+                            cut = _angle_cuts(dmin, dmax, v_cos[r], v_sin[r], tan_beta)
+                        else:
+                            a = 0.0
+                            for k in range(r, r1):
+                                a += v_alpha[k]
+                            cut = _angle_cuts(dmin, dmax, np.cos(a), np.sin(a), tan_beta)
+                    if cut:
+                        down[r, c] = step | ANGLE_CUT if same and tex[r, c] == 2 else 0
                     else:
-                        a = 0.0
-                        for k in range(r, r1):
-                            a += v_alpha[k]
-                        join = not _angle_cuts(dmin, dmax, np.cos(a), np.sin(a), tan_beta)
-                if join:
-                    down[r, c] = step if tex[r, c] == tex[r1, c] else step | TEXTURE_CUT
+                        down[r, c] = step if same else step | TEXTURE_CUT
     return right, down
 
 
@@ -295,11 +305,11 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
         last_b = -1
         for c in range(w):
             d = right[r, c]
-            if 0 < d < TEXTURE_CUT and (d > 1 or c + 1 == w):
+            if 0 < d < ANGLE_CUT and (d > 1 or c + 1 == w):
                 c1 = c + d if c + d < w else c + d - w
                 _union(parent, run_of[r, c], run_of[r, c1])
             d = down[r, c]
-            if 0 < d < TEXTURE_CUT:
+            if 0 < d < ANGLE_CUT:
                 a = run_of[r, c]
                 b = run_of[r + d, c]
                 if a != last_a or b != last_b:  # neighbouring columns mostly join the same two runs
@@ -328,41 +338,49 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
 def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no cover - numba
     """Step 4 of the module docstring: (H, W) relabelled ids (raster order kept), sizes, count."""
     h, w = labels.shape
-    # geometric joins between a small component and any other, as keys small * count + other
-    keys = np.empty(4 * h * w, dtype=np.int64)
-    m = 0
+    # pairs of a small component and another: pairs the angle criterion alone refused, within one
+    # texture (pieces of one foliage mass), and pairs the texture test alone refused; as keys
+    # small * count + other, kind 0 and 1
+    keys = np.empty((2, 4 * h * w), dtype=np.int64)
+    m = np.zeros(2, dtype=np.int64)
     for r in range(h):
         for c in range(w):
             a = labels[r, c]
             if a < 0:
                 continue
             for side in range(2):
-                d = (right[r, c] if side == 0 else down[r, c]) & STEP_MASK
-                if d == 0:
+                flag = right[r, c] if side == 0 else down[r, c]
+                if flag < ANGLE_CUT:
                     continue
+                d = flag & STEP_MASK
+                kind = 0 if flag & ANGLE_CUT else 1
                 b = labels[r, (c + d) % w] if side == 0 else labels[r + d, c]
                 if b == a or b < 0:
                     continue
                 if sizes[a] < merge_pixels:
-                    keys[m] = a * count + b
-                    m += 1
+                    keys[kind, m[kind]] = a * count + b
+                    m[kind] += 1
                 if sizes[b] < merge_pixels:
-                    keys[m] = b * count + a
-                    m += 1
-    keys = np.sort(keys[:m])
-    # each small component's partner: the one it shares the most joins with
+                    keys[kind, m[kind]] = b * count + a
+                    m[kind] += 1
+    # each small component's partner: the one of its own texture it shares the most pairs with,
+    # else the one of the other texture it shares the most pairs with
     best = np.full(count, -1, dtype=np.int64)
-    best_n = np.zeros(count, dtype=np.int64)
-    i = 0
-    while i < m:
-        j = i
-        while j < m and keys[j] == keys[i]:
-            j += 1
-        a = keys[i] // count
-        if j - i > best_n[a]:
-            best_n[a] = j - i
-            best[a] = keys[i] - a * count
-        i = j
+    for kind in range(2):
+        k_sorted = np.sort(keys[kind, : m[kind]])
+        best_n = np.zeros(count, dtype=np.int64)
+        i = 0
+        n_keys = m[kind]
+        while i < n_keys:
+            j = i
+            while j < n_keys and k_sorted[j] == k_sorted[i]:
+                j += 1
+            a = k_sorted[i] // count
+            # kind 1 only for components without a partner of their own texture
+            if (kind == 0 or best[a] < 0 or best_n[a] > 0) and j - i > best_n[a]:
+                best_n[a] = j - i
+                best[a] = k_sorted[i] - a * count
+            i = j
     parent = np.arange(count, dtype=np.int64)
     for a in np.argsort(sizes, kind="mergesort"):  # smallest first
         if sizes[a] >= merge_pixels:
@@ -449,7 +467,7 @@ def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, 
 
 @njit(cache=True)
 def _segment_kernel(
-    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs, ob, os_,
+    index, rng, ground, row, col, point_range, kept, vb, vs, hb, hs,
     tan_beta, v_alpha, points, col_angle, bridge_h, bridge_v, occ, tex_base, tex_slope, merge_pixels, foot, min_points,
 ):  # pragma: no cover - numba
     """Masks, texture, joins, components, merge and point labels in one call (no Python between)."""
@@ -463,12 +481,12 @@ def _segment_kernel(
                 empty[r, c] = True
             elif not ground[i]:
                 ok[r, c] = True
-    if tex_base > 0.0:
-        tex = _texture(rng, ok, hb, hs, tex_base, tex_slope)
+    if tex_base > 0.0 or tex_slope > 0.0:
+        tex = _texture(rng, ok, hb, hs, tex_base, tex_slope, v_alpha)
     else:
         tex = ok.astype(np.uint8)
     right, down = _join_edges(
-        rng, ok, empty, tex, vb, vs, hb, hs, ob, os_, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
+        rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
     )
     labels, sizes, count = _label_components(ok, right, down)
     if merge_pixels > 0:
@@ -494,7 +512,7 @@ def segment(
     pixel, point, count = _segment_kernel(
         image.index, image.range, ground, image.row, image.col, image.point_range, image.kept,
         float(config.vertical_base), float(config.vertical_slope), float(config.horizontal_base),
-        float(config.horizontal_slope), float(config.overhang_base), float(config.overhang_slope),
+        float(config.horizontal_slope),
         float(np.tan(np.deg2rad(config.angle_threshold_deg))),
         _beam_steps(sensor, h), points, 2.0 * np.pi / w, int(config.bridge_horizontal),
         int(config.bridge_vertical), int(config.occluder_pixels), float(config.texture_base), float(config.texture_slope),

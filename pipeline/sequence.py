@@ -23,6 +23,7 @@ import numpy as np
 from pipeline.errors import DataError
 from pipeline.io import open_reader
 from pipeline.io.beams import MIN_RHO
+from pipeline.progress import QUIET, Progress
 from pipeline.scan import Scan, SequenceSource
 from pipeline.sensors import SensorModel
 
@@ -87,7 +88,7 @@ def _fitted(source: SequenceSource, sensor: SensorModel) -> SensorModel:
     return sensor
 
 
-def _poses(source: SequenceSource, poses: str, progress: bool) -> np.ndarray | None:
+def _poses(source: SequenceSource, poses: str, progress: Progress) -> np.ndarray | None:
     if poses == "file":
         return source.poses
     from pipeline.odometry import estimate_poses
@@ -96,7 +97,7 @@ def _poses(source: SequenceSource, poses: str, progress: bool) -> np.ndarray | N
 
 
 def open_sequence(
-    path: str | Path, fmt: str = "auto", sensor: str = "auto", poses: str = "file", progress: bool = False
+    path: str | Path, fmt: str = "auto", sensor: str = "auto", poses: str = "file", progress: Progress = QUIET
 ) -> Sequence:
     """Open `path` (see the module docstring). sensor: auto, a preset name or an Ouster json;
     poses: file or icp. DataError names the path or the bad value."""

@@ -6,18 +6,14 @@ The loss is the paper's, Eq. (8):
     L_l = -1/M sum_i ln P_{y_i}(x_i)                        (mean cross-entropy, M labelled samples)
     L_c = gamma/N sum_n w_n (1 - sum_k P_k(x_i) P_k(x_j))   (N constraint pairs, gamma in [0, 1])
 
-with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
+with w_n = 1 for verified pairs (the paper). Extensions (`TrainingConfig`'s defaults say which are on):
 - `weighted_pairs` with pair weights < 1: automatic constraints weighted by their association score;
 - `balance_weight` b > 0 adds b (ln K - H(mean_b P(x_b))) over the pair samples: maximising the
   entropy of the batch-mean prediction keeps constraints-only training from collapsing onto one
   class (the paper reports everything becoming "trunk").
-
 - `transitive_pairs`: must-link is an equivalence, so the right side of each drawn pair is any
   other sample of the left side's track (its component in the pair graph), not only the next
   frame's: pairs then join near and far, whole and occluded views of one object;
-- `component_power` p (with transitive pairs): each pair's component is drawn with probability
-  proportional to size**p and its left sample uniformly in it, instead of drawing links uniformly
-  (where a component's share grows with its links: one long bush track outweighs many short ones);
 - `closure_labels`: must-link is an equivalence, so a label holds for its whole component of
   the pair graph; every member of a component with a labelled sample is trained on that label
   (the labelled cross-entropy then draws from the closure; a component whose labelled samples
@@ -25,14 +21,13 @@ with w_n = 1 for verified pairs (the paper). Extensions, each off by default:
   track review does the same: one click labels every sample of a track;
 - `closure_draw="annotation"` (with closure labels): each labelled draw picks one of the given
   annotations, then a member of its component, so every annotation weighs as it does without
-  constraints; "sample" (the default) draws the closure's samples alike, which weighs an
-  annotation by the size of its component;
-- `gamma_rampup` r > 0: gamma rises as exp(-5 (1 - t)^2) over the first r of the steps;
+  constraints; "sample" draws the closure's samples alike, which weighs an annotation by the
+  size of its component;
 - `lr_schedule="cosine"`: the learning rate falls from lr to 0 over the run, so the last epochs,
   among which the selection rule picks, move less than a constant rate lets them.
 
 With `balanced_labels` each batch draws its labelled samples class-uniformly (the labels of a rare
-class are seen as often as those of a common one); the default draws them uniformly, as the paper.
+class are seen as often as those of a common one); without, uniformly, as the paper.
 
 Each step holds m labelled samples and n = pairs_per_label * m pairs, run as one siamese forward
 over [labelled; pair left sides; pair right sides]. M = 0 (constraints only) and N = 0 (labels
@@ -68,6 +63,7 @@ from pipeline.model import (
     save_checkpoint,
     to_input,
 )
+from pipeline.progress import QUIET, Progress
 
 __all__ = [
     "LabelledSamples",
@@ -80,7 +76,7 @@ __all__ = [
     "predict",
     "seed_everything",
     "semi_supervised_loss",
-    "stratified_split",
+    "split_by_track",
     "train",
 ]
 
@@ -282,18 +278,28 @@ def evaluate(model: SampleCNN, data: LabelledSamples, batch: int = 256) -> Class
     return classification_report(data.labels, pred, k, tuple(SAMPLE_CLASSES[:k]))
 
 
-def stratified_split(labels: np.ndarray, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(train_idx, val_idx) int64 indices into `labels`, each class split `val_fraction` to validation."""
+def split_by_track(
+    labels: np.ndarray, tracks: np.ndarray, val_fraction: float, seed: int | np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(train, val) int64 indices into `labels` (L,) whose samples belong to `tracks` (L,);
+    `seed` may be a generator to draw from (its state advances).
+
+    Whole tracks go to one side: the samples of one track are near-duplicates, so a split of
+    samples would validate on copies of training samples. Per class present, round(val_fraction x
+    its tracks) tracks go to validation, never all of them; a track holding samples of several
+    classes goes to validation when any of its classes sends it there.
+    """
     rng = np.random.default_rng(seed)
-    labels = np.asarray(labels)
-    train_parts, val_parts = [], []
+    labels, tracks = np.asarray(labels), np.asarray(tracks)
+    val_tracks = []
     for k in np.unique(labels):
-        idx = rng.permutation(np.flatnonzero(labels == k))
-        n_val = int(round(len(idx) * val_fraction))
-        val_parts.append(idx[:n_val])
-        train_parts.append(idx[n_val:])
-    cat = lambda parts: np.sort(np.concatenate(parts)).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
-    return cat(train_parts), cat(val_parts)
+        cand = np.unique(tracks[labels == k])
+        cand = cand[rng.permutation(len(cand))]
+        n_val = int(round(len(cand) * val_fraction))
+        val_tracks.append(cand[: min(n_val, max(len(cand) - 1, 0))])
+    vt = np.concatenate(val_tracks) if val_tracks else np.zeros(0, tracks.dtype)
+    in_val = np.isin(tracks, vt)
+    return np.flatnonzero(~in_val).astype(np.int64), np.flatnonzero(in_val).astype(np.int64)
 
 
 class _Cycler:
@@ -425,22 +431,6 @@ class _TrackPartners:
         self.pos = np.empty(num_samples, np.int64)
         self.pos[self.order] = np.arange(num_samples)  # (M,) position of each sample in `order`
 
-    def components(self, power: float) -> tuple[np.ndarray, np.ndarray]:
-        """(starts, probabilities) of the components with >= 2 members, each drawn with probability
-        proportional to size**power."""
-        first = np.flatnonzero(self.start[self.order] == np.arange(len(self.order)))  # positions where a component starts
-        size = self.size[self.order[first]]
-        keep = size >= 2
-        w = size[keep].astype(np.float64) ** power
-        return first[keep], w / w.sum()
-
-    def draw_left(self, n: int, starts: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """(n,) left samples: a component drawn by `p`, then one of its members uniformly."""
-        c = self.rng.choice(len(starts), size=n, p=p)
-        s = starts[c]
-        size = self.size[self.order[s]]
-        return self.order[s + self.rng.integers(0, size)]
-
     def draw(self, left: np.ndarray) -> np.ndarray:
         """(n,) a member of each left sample's component other than itself (components have >= 2)."""
         size = self.size[left]
@@ -455,12 +445,6 @@ def learning_rate(config: TrainingConfig, step: int, total_steps: int) -> float:
     if config.lr_schedule == "cosine":
         return config.lr * 0.5 * (1.0 + math.cos(math.pi * min(step, total_steps) / max(total_steps, 1)))
     return config.lr
-
-
-def _rampup(t: float) -> float:
-    """exp(-5 (1 - t)^2) on t in [0, 1], 1 after (the usual sigmoid-shaped consistency ramp-up)."""
-    t = min(max(t, 0.0), 1.0)
-    return float(math.exp(-5.0 * (1.0 - t) ** 2))
 
 
 PLOT_FILES = ("learning_curve.png", "confusion.png")
@@ -514,7 +498,8 @@ def train(
     val: LabelledSamples | None = None,
     checkpoint_dir: str | Path | None = None,
     init_model: SampleCNN | None = None,
-    progress: Callable[[TrainProgress], None] | bool = False,
+    progress: Progress = QUIET,
+    report: Callable[[TrainProgress], None] | None = None,
     stop: Callable[[], bool] | None = None,
 ) -> TrainResult:
     """Train the CNN on labels + constraints; return the model chosen by the paper's rule.
@@ -522,7 +507,8 @@ def train(
     init_model: start from these weights (fine-tuning); else a fresh network from the configs.
     checkpoint_dir: when given, the selected model is written there as `best.pt` and the last
         epoch as `last.pt` (each a self-describing checkpoint, see `pipeline.model`).
-    progress: a callback receiving `TrainProgress`, True for a tqdm bar on stderr, False for none.
+    progress: a step bar (`pipeline.progress`); report: a callback receiving `TrainProgress`
+        every few steps and after each epoch (the jobs write it into their row).
     stop: polled every step; returning True ends training early (`cancelled=True`), keeping the
         best epoch so far.
     config.threads > 0 sets torch's CPU threads for the run (restored afterwards).
@@ -551,10 +537,121 @@ def train(
     if config.threads:
         torch.set_num_threads(config.threads)
     try:
-        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, stop,
+        return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, report, stop,
                       annotations)
     finally:
         torch.set_num_threads(threads_before)
+
+
+class _BatchDraw:
+    """What each step trains on: m labelled samples and n = pairs_per_label * m pairs."""
+
+    def __init__(self, data: TrainingData, config: TrainingConfig,
+                 annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None, rng: np.random.Generator) -> None:
+        num_l, num_p = len(data.labelled), len(data.pairs)
+        self.data = data
+        self.m = min(config.batch_labelled, num_l)
+        self.n = min(config.pairs_per_label * config.batch_labelled, num_p)
+        if self.m == 0 and self.n == 0:  # constraints only with pairs_per_label = 0: m pairs per step instead
+            self.n = min(config.batch_labelled, num_p)
+        m, n = self.m, self.n
+        steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
+        self.steps = max(steps, 1)
+        self.labels: _Cycler | _BalancedCycler | _AnnotationDraw | None = None
+        if m and annotations is not None:
+            self.labels = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
+        elif m:
+            self.labels = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
+        self.pairs = _Cycler(num_p, rng) if n else None
+        self.partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
+
+    def draw(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(li (m,) into labelled, pi (n,) into pairs, idx (m + 2n,) into samples: labelled, left, right)."""
+        li = self.labels.take(self.m) if self.labels else np.zeros(0, np.int64)
+        pi = self.pairs.take(self.n) if self.pairs else np.zeros(0, np.int64)
+        left = self.data.pairs[pi, 0]
+        right = self.partners.draw(left) if self.partners is not None else self.data.pairs[pi, 1]
+        return li, pi, np.concatenate([self.data.labelled[li], left, right])
+
+
+class _Stepper:
+    """One optimisation step on a drawn batch; the training pool is kept on the device."""
+
+    def __init__(self, model: SampleCNN, data: TrainingData, config: TrainingConfig, sample_config: SampleConfig,
+                 device: torch.device, total_steps: int) -> None:
+        self.model, self.config, self.device, self.total_steps = model, config, device, total_steps
+        self.opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+        self.gen = torch.Generator().manual_seed(config.seed)
+        self.samples = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8
+        self.labels = torch.from_numpy(data.labels).to(device)  # (L,)
+        self.weights = torch.from_numpy(data.pair_weights).to(device)  # (P,)
+        self.use_weights = config.weighted_pairs and bool(np.any(data.pair_weights != 1.0))
+        self.max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
+
+    def __call__(self, li: np.ndarray, pi: np.ndarray, idx: np.ndarray, global_step: int) -> LossParts:
+        m, cfg = len(li), self.config
+        x = to_input(self.samples[torch.from_numpy(idx).to(self.device)])  # (m + 2n, C, S, S)
+        if cfg.augment:
+            x = augment_batch(x, self.max_shift, self.gen)
+        logits = self.model(x)  # (m + 2n, K)
+        pw = self.weights[torch.from_numpy(pi).to(self.device)] if self.use_weights else None  # (n,)
+        parts = semi_supervised_loss(logits[:m], self.labels[torch.from_numpy(li).to(self.device)],
+                                     logits[m : m + len(pi)], logits[m + len(pi) :], gamma=cfg.gamma,
+                                     pair_weights=pw, balance_weight=cfg.balance_weight)
+        if not torch.isfinite(parts.total):
+            raise ConfigError(f"training diverged (loss {float(parts.total)}) at step {global_step}; lower training.lr")
+        if cfg.lr_schedule != "constant":
+            for g in self.opt.param_groups:
+                g["lr"] = learning_rate(cfg, global_step, self.total_steps)
+        self.opt.zero_grad(set_to_none=True)
+        parts.total.backward()
+        self.opt.step()
+        return parts
+
+
+@dataclass
+class _EpochRun:
+    sums: np.ndarray  # (4,) summed total, labelled, constraint and balance losses
+    seen: int  # canvases through the network
+    done: int  # steps run
+    cancelled: bool
+
+
+def _run_epoch(epoch: int, draw: _BatchDraw, step_fn: _Stepper, config: TrainingConfig, bar: Any,
+               report: Callable[[TrainProgress], None] | None, stop: Callable[[], bool] | None) -> _EpochRun:
+    run = _EpochRun(np.zeros(4), 0, 0, False)
+    every = max(1, draw.steps // 10)
+    step_fn.model.train()
+    for step in range(draw.steps):
+        if stop is not None and stop():
+            run.cancelled = True
+            break
+        li, pi, idx = draw.draw()
+        parts = step_fn(li, pi, idx, epoch * draw.steps + step)
+        run.sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
+        run.seen += len(idx)
+        run.done = step + 1
+        bar.update()
+        if report is not None and run.done % every == 0 and run.done < draw.steps:
+            report(TrainProgress(epoch, config.epochs, run.done, draw.steps, run.sums[0] / run.done))
+    return run
+
+
+@dataclass
+class _Selection:
+    """The epochs so far and the weights of the one the paper's rule currently selects."""
+
+    history: list[EpochRecord] = field(default_factory=list)
+    state: dict[str, torch.Tensor] | None = None
+    report: ClassificationReport | None = None
+
+    def add(self, rec: EpochRecord, model: SampleCNN, val_report: ClassificationReport | None, threshold: float) -> None:
+        self.history.append(rec)
+        # The final choice is always an epoch that was the choice when it finished, so one copy
+        # of the weights suffices.
+        if _select(self.history, threshold)[0] == rec.epoch:
+            self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            self.report = val_report
 
 
 def _train(
@@ -565,141 +662,59 @@ def _train(
     val: LabelledSamples | None,
     checkpoint_dir: str | Path | None,
     init_model: SampleCNN | None,
-    progress: Callable[[TrainProgress], None] | bool,
+    progress: Progress,
+    report: Callable[[TrainProgress], None] | None,
     stop: Callable[[], bool] | None,
     annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> TrainResult:
-    num_l, num_p = len(data.labelled), len(data.pairs)
     seed_everything(config.seed)
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
-    gen = torch.Generator().manual_seed(config.seed)
-
     net = NetConfig.from_configs(model_config, sample_config)
     model = copy.deepcopy(init_model) if init_model is not None else build_model(net)
     if model.config != net:
         raise ConfigError(f"init model {model.config} does not match configs {net}")
     model.to(device).train()
-    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    draw = _BatchDraw(data, config, annotations, rng)
+    step_fn = _Stepper(model, data, config, sample_config, device, max(config.epochs * draw.steps, 1))
 
-    # batch composition: m labelled samples and n = pairs_per_label * m pairs per step
-    m = min(config.batch_labelled, num_l)
-    n = min(config.pairs_per_label * config.batch_labelled, num_p)
-    if m == 0 and n == 0:  # constraints only with pairs_per_label = 0: m pairs per step instead
-        n = min(config.batch_labelled, num_p)
-    steps = config.steps_per_epoch or max(math.ceil(num_l / m) if m else 0, math.ceil(num_p / n) if n else 0)
-    steps = max(steps, 1)
-    lab_cycle: _Cycler | _BalancedCycler | _AnnotationDraw | None = None
-    if m and annotations is not None:
-        lab_cycle = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
-    elif m:
-        lab_cycle = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
-    pair_cycle = _Cycler(num_p, rng) if n else None
-    partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
-    by_component = partners.components(config.component_power) if partners is not None and config.component_power is not None else None
-    total_steps = max(config.epochs * steps, 1)
-
-    samples_t = torch.from_numpy(data.samples).to(device)  # (M, C, S, S) uint8, kept on the device
-    labels_t = torch.from_numpy(data.labels).to(device)  # (L,)
-    pairs_np = data.pairs
-    use_w = config.weighted_pairs and bool(np.any(data.pair_weights != 1.0))
-    weights_t = torch.from_numpy(data.pair_weights).to(device)  # (P,)
-    max_shift = int(round(config.augment_shift * sample_config.size)) if config.augment else 0
-
-    bar = None
-    if progress is True:
-        from tqdm import tqdm
-
-        bar = tqdm(total=config.epochs * steps, desc="train", unit="step", leave=False)
-    report = progress if callable(progress) else None
-    every = max(1, steps // 10)
-
-    history: list[EpochRecord] = []
-    selected_state: dict[str, torch.Tensor] | None = None
-    selected_report: ClassificationReport | None = None
+    chosen = _Selection()
     cancelled = False
-    try:
+    with progress.bar(config.epochs * draw.steps, "train", unit="step", leave=False) as bar:
         for epoch in range(config.epochs):
             t0 = time.perf_counter()
-            model.train()
-            sums = np.zeros(4)
-            seen = 0
-            done = 0
-            for step in range(steps):
-                if stop is not None and stop():
-                    cancelled = True
-                    break
-                li = lab_cycle.take(m) if lab_cycle else np.zeros(0, np.int64)  # (m,) into labelled
-                pi = pair_cycle.take(n) if pair_cycle else np.zeros(0, np.int64)  # (n,) into pairs
-                left = pairs_np[pi, 0] if by_component is None else partners.draw_left(n, *by_component)  # type: ignore[union-attr]
-                right = partners.draw(left) if partners is not None else pairs_np[pi, 1]
-                idx = np.concatenate([data.labelled[li], left, right])  # (m + 2n,)
-                x = to_input(samples_t[torch.from_numpy(idx).to(device)])  # (m + 2n, C, S, S)
-                if config.augment:
-                    x = augment_batch(x, max_shift, gen)
-                logits = model(x)  # (m + 2n, K)
-                # pair weights belong to links; component draws are unweighted
-                pw = weights_t[torch.from_numpy(pi).to(device)] if use_w and by_component is None else None  # (n,)
-                gamma = config.gamma
-                if config.gamma_rampup > 0:
-                    gamma *= _rampup((epoch * steps + step) / (config.gamma_rampup * total_steps))
-                parts = semi_supervised_loss(
-                    logits[:m],
-                    labels_t[torch.from_numpy(li).to(device)],
-                    logits[m : m + len(pi)],
-                    logits[m + len(pi) :],
-                    gamma=gamma,
-                    pair_weights=pw,
-                    balance_weight=config.balance_weight,
-                )
-                if not torch.isfinite(parts.total):
-                    raise ConfigError(f"training diverged (loss {float(parts.total)}) at epoch {epoch}; lower training.lr")
-                if config.lr_schedule != "constant":
-                    for g in opt.param_groups:
-                        g["lr"] = learning_rate(config, epoch * steps + step, total_steps)
-                opt.zero_grad(set_to_none=True)
-                parts.total.backward()
-                opt.step()
-                sums += [parts.total.item(), parts.labelled.item(), parts.constraint.item(), parts.balance.item()]
-                seen += len(idx)
-                done = step + 1
-                if bar is not None:
-                    bar.update(1)
-                if report is not None and done % every == 0 and done < steps:
-                    report(TrainProgress(epoch, config.epochs, done, steps, sums[0] / done))
-            if done == 0:
+            run = _run_epoch(epoch, draw, step_fn, config, bar, report, stop)
+            cancelled = run.cancelled
+            if run.done == 0:
                 break
-            means = sums / done
             val_report = evaluate(model, val, config.eval_batch) if val is not None and len(val) else None
             val_f = val_report.mean_f if val_report is not None else float("nan")
             seconds = time.perf_counter() - t0
-            rec = EpochRecord(epoch, *map(float, means), val_f, seconds, seen / max(seconds, 1e-9))
-            history.append(rec)
-            # The final choice is always an epoch that was the choice when it finished, so one
-            # copy of the weights suffices.
-            if _select(history, config.loss_threshold)[0] == epoch:
-                selected_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
-                selected_report = val_report
+            rec = EpochRecord(epoch, *map(float, run.sums / run.done), val_f, seconds, run.seen / max(seconds, 1e-9))
+            chosen.add(rec, model, val_report, config.loss_threshold)
             if report is not None:
-                report(TrainProgress(epoch, config.epochs, done, steps, rec.loss, val_f, epoch_done=True))
-            if bar is not None:
-                bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
+                report(TrainProgress(epoch, config.epochs, run.done, draw.steps, rec.loss, val_f, epoch_done=True))
+            bar.set_postfix(loss=f"{rec.loss:.3f}", val_f=f"{val_f:.1f}")
             if cancelled:
                 break
-    finally:
-        if bar is not None:
-            bar.close()
+    metrics = {"num_labelled": len(data.labelled), "num_pairs": len(data.pairs), "device": str(device)}
+    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir)
 
+
+def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: bool, metrics: dict[str, Any],
+            config: TrainingConfig, model_config: ModelConfig, sample_config: SampleConfig,
+            checkpoint_dir: str | Path | None) -> TrainResult:
+    """Load the selected epoch's weights, gather the metrics, write best.pt / last.pt and plots."""
+    history = chosen.history
     selected, how = _select(history, config.loss_threshold)
     last_state = None
     if selected >= 0:
-        assert selected_state is not None
+        assert chosen.state is not None
         if selected != len(history) - 1:
-            last_state = {kk: v.detach().clone() for kk, v in model.state_dict().items()}
-        model.load_state_dict(selected_state)
+            last_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        model.load_state_dict(chosen.state)
     model.eval()
-
-    metrics: dict[str, Any] = {
+    metrics = {
         "selected_epoch": selected,
         "selection": how,
         "epochs_run": len(history),
@@ -707,13 +722,9 @@ def _train(
         "train_loss": [r.loss for r in history],
         "val_f": [None if math.isnan(r.val_f) else r.val_f for r in history],
         "samples_per_s": float(np.mean([r.samples_per_s for r in history])) if history else None,
-        "num_labelled": num_l,
-        "num_pairs": num_p,
-        "device": str(device),
-    }
-    if selected_report is not None:
-        metrics["val"] = selected_report.to_dict()
-
+    } | metrics
+    if chosen.report is not None:
+        metrics["val"] = chosen.report.to_dict()
     ckpt = None
     if checkpoint_dir is not None and selected >= 0:
         out = Path(checkpoint_dir)
@@ -723,5 +734,5 @@ def _train(
             last = build_model(net)
             last.load_state_dict(last_state)
         save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config)
-        write_training_plots(out, history, selected, selected_report, config.loss_threshold)
-    return TrainResult(model, history, selected, how, selected_report, ckpt, cancelled, metrics)
+        write_training_plots(out, history, selected, chosen.report, config.loss_threshold)
+    return TrainResult(model, history, selected, how, chosen.report, ckpt, cancelled, metrics)

@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
-import threading
-import time
 from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Path, Request, status
+from fastapi import Depends, HTTPException, Path, Query, Request, status
 from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from app import crud
+from app import crud, leases
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
 from app.crud import AuthUser
+from app.models import Track, utcnow
 
 MAX_ID = 2**31 - 1  # INTEGER primary keys (users, datasets, sequences, frames, jobs)
 MAX_BIG_ID = 2**62  # BIGINT primary keys (tracks, segments)
@@ -64,46 +64,21 @@ SessionDep = Annotated[Session, Depends(get_read_session)]
 WriteSessionDep = Annotated[Session, Depends(get_write_session)]
 
 
-class TokenCache:
-    """Token -> caller for `ttl` seconds, so most requests skip the token lookup. A revoked token
-    or deactivated user is refused at most `ttl` seconds later; ttl 0 disables the cache."""
-
-    def __init__(self, ttl: float) -> None:
-        self.ttl = ttl
-        self._entries: dict[str, tuple[AuthUser, float]] = {}
-        self._lock = threading.Lock()
-
-    def get(self, token: str) -> AuthUser | None:
-        with self._lock:
-            hit = self._entries.get(token)
-        return hit[0] if hit is not None and hit[1] > time.monotonic() else None
-
-    def put(self, token: str, user: AuthUser) -> None:
-        if self.ttl <= 0:
-            return
-        with self._lock:
-            if len(self._entries) > 10_000:
-                self._entries.clear()
-            self._entries[token] = (user, time.monotonic() + self.ttl)
-
-
 async def get_current_user(
-    request: Request,
     db: DatabaseDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> AuthUser:
-    """The caller named by a valid bearer token; 401 otherwise. Uses its own short read session."""
+    """The caller named by a valid bearer token; 401 otherwise. Uses its own short read session.
+
+    Looked up on every request, never cached: a revoked or expired token, or a disabled user, is
+    refused from the next request on, whichever process (CLI, another API worker) changed it."""
     if credentials is None or credentials.scheme.lower() != "bearer" or not credentials.credentials:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", {"WWW-Authenticate": "Bearer"})
-    cache: TokenCache = request.app.state.token_cache
-    user = cache.get(credentials.credentials)
-    if user is not None:
-        return user
     user = await run_in_threadpool(_lookup_token, db, credentials.credentials)
-    if user is not None:
-        cache.put(credentials.credentials, user)
     if user is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid token", {"WWW-Authenticate": "Bearer"})
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED, "invalid, expired or revoked token", {"WWW-Authenticate": "Bearer"}
+        )
     return user
 
 
@@ -121,7 +96,43 @@ async def require_admin(user: CurrentUser) -> AuthUser:
     return user
 
 
+async def require_auditor(user: CurrentUser) -> AuthUser:
+    if user.role not in ("admin", "reviewer"):
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "admin or reviewer role required")
+    return user
+
+
 AdminUser = Annotated[AuthUser, Depends(require_admin)]
+AuditorUser = Annotated[AuthUser, Depends(require_auditor)]
+
+
+@dataclass(frozen=True)
+class LeaseGuard:
+    """The caller, their explicit lease override and the lease length: what `app.leases.check`
+    needs besides the session and the locked track. A route that changes a track takes
+    `guard: LeaseGuardDep` and calls `guard.check(session, track)`."""
+
+    user: AuthUser
+    override: bool
+    lease_seconds: float
+
+    def check(self, session: Session, track: Track) -> None:
+        leases.check(session, track, self.user, utcnow(), override=self.override, renew_seconds=self.lease_seconds)
+
+
+async def get_lease_guard(
+    user: CurrentUser,
+    settings: SettingsDep,
+    override_lease: Annotated[
+        bool, Query(description="Admins only: act on a track another user holds the lease of.")
+    ] = False,
+) -> LeaseGuard:
+    if override_lease and not user.is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "override_lease needs the admin role")
+    return LeaseGuard(user, override_lease, settings.review_lease_seconds)
+
+
+LeaseGuardDep = Annotated[LeaseGuard, Depends(get_lease_guard)]
 
 IdPath = Annotated[int, Path(ge=1, le=MAX_ID)]
 BigIdPath = Annotated[int, Path(ge=1, le=MAX_BIG_ID)]

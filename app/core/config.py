@@ -35,6 +35,11 @@ class Settings(BaseSettings):
     job_heartbeat_seconds: float = Field(default=5.0, gt=0)
     job_max_attempts: int = Field(default=3, ge=1)
     worker_poll_seconds: float = Field(default=1.0, gt=0)
+    # Job policy (app/jobs/policy.py): per-user limits and per-type run-time overrides (seconds,
+    # JSON in the env: '{"finetune": 600}').
+    job_max_queued_per_user: int = Field(default=5, ge=1)
+    job_max_running_per_user: int = Field(default=2, ge=1)
+    job_max_run_seconds: dict[str, float] = Field(default_factory=dict)
     # Extra modules imported at start-up that register job types (plugins, tests).
     job_modules: Annotated[list[str], NoDecode] = Field(default_factory=list)
     ingest_batch_frames: int = Field(default=10, ge=1)
@@ -44,9 +49,12 @@ class Settings(BaseSettings):
     # Review queue: how long `next` reserves a track for its operator.
     review_lease_seconds: float = Field(default=300.0, gt=0)
 
-    # Viewer frame payloads kept in memory (LRU), and how long a token lookup is trusted.
+    # Viewer frame payloads kept in memory (LRU).
     frame_cache_mb: int = Field(default=256, ge=0)
-    auth_cache_seconds: float = Field(default=10.0, ge=0)
+    # Tokens: days a new token is valid unless its issuer says otherwise (`--expires-days`).
+    token_expiry_days: float = Field(default=90.0, gt=0, le=36500)
+    # Largest request body accepted (bytes); a longer one gets 413 without being read.
+    max_body_bytes: int = Field(default=1 << 20, ge=1024)
 
     # HTTP server (`tracklabel serve`).
     host: str = "127.0.0.1"

@@ -6,9 +6,10 @@ from __future__ import annotations
 class ServiceError(Exception):
     status_code = 400
 
-    def __init__(self, detail: str) -> None:
+    def __init__(self, detail: str, **extra: object) -> None:
         super().__init__(detail)
         self.detail = detail
+        self.extra = extra  # more fields of the error body (e.g. the existing sequence's id)
 
 
 class NotFound(ServiceError):

@@ -16,21 +16,25 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import delete, insert, select
 
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Invalid
 from app.jobs.context import JobContext
+from app.jobs.models_util import choose_model, ready_sequence, score_stored_samples
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
-from app.models import AnchorProposal, Frame, ModelVersion, Segment, Sequence, Track, utcnow
+from app.models import AnchorProposal, Frame, Segment, Track, utcnow
+from app.schemas import JsonModel
 
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
 
 
-class ProposeAnchorsParams(BaseModel):
+class ProposeAnchorsParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
-    model_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description="None = the newest model.")
+    model_id: int | None = Field(default=None, ge=1, le=2**31 - 1,
+                                 description="None = the newest model, or the shipped default model while none is registered.")
     strategy: Strategy = Field(default="track_diverse", description="See pipeline/anchors.py.")
     per_class: int = Field(default=20, ge=0, le=10_000, description="Proposals per class (tracks for track strategies).")
     unknown: int = Field(default=100, ge=0, le=10_000, description="Proposals for the unknown class.")
@@ -39,120 +43,33 @@ class ProposeAnchorsParams(BaseModel):
     batch: int = Field(default=256, ge=1, le=65_536)
 
 
-def _model_version(s: Any, model_id: int | None) -> ModelVersion:
-    if model_id is None:
-        mv = s.scalars(select(ModelVersion).order_by(ModelVersion.id.desc()).limit(1)).first()
-        if mv is None:
-            raise NotFound("no model is registered yet: train one first")
-        return mv
-    mv = s.get(ModelVersion, model_id)
-    if mv is None:
-        raise NotFound(f"model {model_id} not found")
-    return mv
-
-
 def prepare_propose(s: Any, params: ProposeAnchorsParams) -> None:
-    seq = s.get(Sequence, params.sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {params.sequence_id} not found")
-    if seq.status != "ready":
-        raise Conflict(f"sequence {params.sequence_id} is {seq.status}; propose anchors once it is ready")
-    _model_version(s, params.model_id)
+    ready_sequence(s, params.sequence_id)
+    choose_model(s, params.model_id)
 
 
-def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]:
-    from pipeline.anchors import TRACK_STRATEGIES, class_counts, propose
-    from pipeline.model import embed, load_checkpoint, predict
-
-    with ctx.db.read() as s:
-        prepare_propose(s, params)
-        mv = _model_version(s, params.model_id)
-        mv_id, mv_path = mv.id, mv.path
-        rows = s.execute(
-            select(Segment.id, Segment.track_id, Segment.sample_index, Frame.artifact, Track.status, Track.label)
-            .join(Frame, Frame.id == Segment.frame_id)
-            .join(Track, Track.id == Segment.track_id)
-            .where(Segment.sequence_id == params.sequence_id, Segment.sample_index.is_not(None))
-            .order_by(Segment.frame_index, Segment.local_id)
-        ).all()
-        answered = s.execute(
-            select(AnchorProposal.segment_id, AnchorProposal.track_id, AnchorProposal.level).where(
-                AnchorProposal.sequence_id == params.sequence_id,
-                AnchorProposal.status != "proposed" if params.replace else AnchorProposal.id.is_not(None),
-            )
-        ).all()
-    if not rows:
-        raise Invalid(f"sequence {params.sequence_id} has no samples on tracks to propose")
-    ctx.progress(0.0, f"scoring {len(rows)} samples with model {mv_id}")
-    model, meta = load_checkpoint(mv_path)
-    classes = tuple(meta.classes[: meta.model_config.num_classes])
-    if meta.sample_config.channels != model.config.in_channels:  # pragma: no cover - load_checkpoint checks
-        raise Invalid(f"model {mv_id}: inconsistent checkpoint")
-
+def _excluded(rows: list[Any], answered: list[Any], track_level: bool) -> np.ndarray:
+    """(N,) bool: samples not to propose: of discarded or labelled tracks, answered already (and
+    with a track strategy, of tracks answered already)."""
     seg_ids = np.array([r[0] for r in rows], np.int64)
-    track_ids = np.array([r[1] for r in rows], np.int64)
-    by_file: dict[str, list[tuple[int, int]]] = {}
-    for pos, r in enumerate(rows):
-        by_file.setdefault(r[3], []).append((pos, int(r[2])))
-    need_features = params.strategy in ("diverse", "track_diverse")
-    probs = np.zeros((len(rows), len(classes)), np.float32)
-    feats = np.zeros((len(rows), model.feature_dim), np.float32) if need_features else None
-    pending: list[tuple[np.ndarray, np.ndarray]] = []
-    pending_n = 0
-
-    def flush() -> None:
-        nonlocal pending, pending_n
-        if not pending:
-            return
-        dst = np.concatenate([d for d, _ in pending])
-        x = np.concatenate([x for _, x in pending])
-        if x.shape[1:] != (model.config.in_channels, model.config.size, model.config.size):
-            raise Conflict(
-                f"sequence {params.sequence_id} has samples {x.shape[1:]}, model {mv_id} expects "
-                f"({model.config.in_channels}, {model.config.size}, {model.config.size})"
-            )
-        probs[dst] = predict(model, x, params.batch)
-        if feats is not None:
-            feats[dst] = embed(model, x, params.batch)
-        pending, pending_n = [], 0
-
-    for done, (artifact, items) in enumerate(by_file.items(), 1):
-        samples = ctx.artifacts.read_arrays(artifact, ("samples",))["samples"]
-        dst = np.array([p for p, _ in items], np.int64)
-        src = np.array([i for _, i in items], np.int64)
-        if src.max() >= len(samples):
-            raise Conflict(f"artifact {artifact} holds {len(samples)} samples, a segment points at {src.max()}")
-        pending.append((dst, samples[src]))
-        pending_n += len(dst)
-        if pending_n >= params.batch:
-            flush()
-        if done % 20 == 0:
-            ctx.progress(0.9 * done / len(by_file), f"scored frame {done}/{len(by_file)}")
-    flush()
-
     exclude = np.array([(r[4] == "discarded") or (r[5] is not None) for r in rows], bool)
     done_segments = {int(a) for a, _t, lvl in answered if a is not None and lvl == "sample"}
-    done_tracks = {int(t) for _a, t, lvl in answered if lvl == "track"}
     exclude |= np.isin(seg_ids, list(done_segments))
-    if params.strategy in TRACK_STRATEGIES:
-        exclude |= np.isin(track_ids, list(done_tracks))
-    counts = class_counts(params.per_class, params.unknown, classes)
-    out = propose(
-        probs,
-        params.strategy,
-        counts,
-        features=feats,
-        tracks=track_ids,
-        exclude=exclude,
-        min_track_samples=params.min_track_samples,
-    )
-    level = "track" if params.strategy in TRACK_STRATEGIES else "sample"
+    if track_level:
+        done_tracks = {int(t) for _a, t, lvl in answered if lvl == "track"}
+        exclude |= np.isin(np.array([r[1] for r in rows], np.int64), list(done_tracks))
+    return exclude
+
+
+def _proposal_rows(ctx: JobContext, params: ProposeAnchorsParams, out: Any, classes: tuple[str, ...],
+                   seg_ids: np.ndarray, track_ids: np.ndarray, mv_id: int | None, level: str) -> list[dict[str, Any]]:
+    """The anchor_proposals rows of `out` (pipeline.anchors.Proposals), ranked within each class."""
     rank = np.zeros(len(out), np.int64)
     for k in range(len(classes)):
         m = out.proposed == k
         rank[m] = np.arange(int(m.sum()))
     now = utcnow()
-    values = [
+    return [
         {
             "sequence_id": params.sequence_id,
             "track_id": int(track_ids[i]),
@@ -169,6 +86,54 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
         }
         for i, k, sc, r in zip(out.index, out.proposed, out.score, rank, strict=True)
     ]
+
+
+def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]:
+    from pipeline.anchors import TRACK_STRATEGIES, class_counts, propose
+    from pipeline.model import load_checkpoint
+
+    with ctx.db.read() as s:
+        prepare_propose(s, params)
+        chosen = choose_model(s, params.model_id)
+        mv_id, mv_path = chosen.id, chosen.path
+        rows = s.execute(
+            select(Segment.id, Segment.track_id, Segment.sample_index, Frame.artifact, Track.status, Track.label)
+            .join(Frame, Frame.id == Segment.frame_id)
+            .join(Track, Track.id == Segment.track_id)
+            .where(Segment.sequence_id == params.sequence_id, Segment.sample_index.is_not(None))
+            .order_by(Segment.frame_index, Segment.local_id)
+        ).all()
+        answered = s.execute(
+            select(AnchorProposal.segment_id, AnchorProposal.track_id, AnchorProposal.level).where(
+                AnchorProposal.sequence_id == params.sequence_id,
+                AnchorProposal.status != "proposed" if params.replace else AnchorProposal.id.is_not(None),
+            )
+        ).all()
+    if not rows:
+        raise Invalid(f"sequence {params.sequence_id} has no samples on tracks to propose")
+    ctx.progress(0.0, f"scoring {len(rows)} samples with {chosen.name}")
+    model, meta = load_checkpoint(mv_path)
+    classes = tuple(meta.classes[: meta.model_config.num_classes])
+    if meta.sample_config.channels != model.config.in_channels:  # pragma: no cover - load_checkpoint checks
+        raise Invalid(f"{chosen.name}: inconsistent checkpoint")
+
+    seg_ids = np.array([r[0] for r in rows], np.int64)
+    track_ids = np.array([r[1] for r in rows], np.int64)
+
+    def scored(done: int, total: int) -> None:
+        if done % 20 == 0:
+            ctx.progress(0.9 * done / total, f"scored frame {done}/{total}")
+
+    scores = score_stored_samples(ctx.artifacts, [(r[3], int(r[2])) for r in rows], model, chosen.name, params.batch,
+                                  features=params.strategy in ("diverse", "track_diverse"), on_file=scored)
+    probs, feats = scores.probs, scores.features
+
+    exclude = _excluded(rows, answered, params.strategy in TRACK_STRATEGIES)
+    counts = class_counts(params.per_class, params.unknown, classes)
+    out = propose(probs, params.strategy, counts, features=feats, tracks=track_ids, exclude=exclude,
+                  min_track_samples=params.min_track_samples)
+    level = "track" if params.strategy in TRACK_STRATEGIES else "sample"
+    values = _proposal_rows(ctx, params, out, classes, seg_ids, track_ids, mv_id, level)
     ctx.checkpoint()
     with ctx.db.write() as s:
         removed = 0
@@ -203,5 +168,7 @@ register(
         admin_only=False,
         description="Score a sequence's samples with a model and propose anchors (per class) to confirm.",
         prepare=prepare_propose,
+        operator_rule=OperatorRule(max_values={"per_class": 200, "unknown": 500, "batch": 1024}),
+        max_run_seconds=1800.0,
     )
 )

@@ -18,7 +18,7 @@ from app.models import Job
 
 
 class JobStopped(Exception):
-    """Raised at a checkpoint; `reason` is "cancelled" or "lease lost"."""
+    """Raised at a checkpoint; `reason` is "cancelled", "lease lost" or "timed out"."""
 
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
@@ -36,11 +36,15 @@ class JobContext:
     user_id: int | None = None
     cancelled: threading.Event = field(default_factory=threading.Event)
     lease_lost: threading.Event = field(default_factory=threading.Event)
+    # set (with `cancelled`, which long handlers poll) when the job ran past its type's limit
+    timed_out: threading.Event = field(default_factory=threading.Event)
 
     def checkpoint(self) -> None:
         """Raise JobStopped when the job was cancelled or its lease is gone."""
         if self.lease_lost.is_set():
             raise JobStopped("lease lost")
+        if self.timed_out.is_set():
+            raise JobStopped("timed out")
         if self.cancelled.is_set():
             raise JobStopped("cancelled")
 

@@ -14,53 +14,48 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ConfigDict, Field, ValidationError
+from sqlalchemy import select
 
 from app.anchors import confirmed_sample_anchors
-from app.core.errors import Conflict, Invalid, NotFound, ServiceError
+from app.core.errors import Conflict, Invalid, ServiceError
 from app.jobs import models_util
 from app.jobs.context import JobContext
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, get_job_type, register
-from app.models import Sequence
-from pipeline.config import FINETUNE_DEFAULTS
+from app.jobs.training_params import job_training_config, with_training_fields
+from app.schemas import JsonModel
+from pipeline.config import TrainingConfig
 
 
-class FinetuneParams(BaseModel):
+class _FinetuneJobParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1, description="The new scene.")
     model_id: int = Field(ge=1, le=2**31 - 1, description="The pretrained model (a model version id).")
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0, description="automatic: drop pairs scored below this.")
-    # Training defaults: the library's fine-tuning defaults (pipeline.config.FINETUNE_DEFAULTS).
-    epochs: int = Field(default=FINETUNE_DEFAULTS["epochs"], ge=1, le=1000)
-    steps_per_epoch: int | None = Field(default=FINETUNE_DEFAULTS["steps_per_epoch"], ge=1, le=100_000)
-    batch_labelled: int = Field(default=FINETUNE_DEFAULTS["batch_labelled"], ge=1, le=4096,
-                                description="Anchors per step.")
-    pairs_per_label: int = Field(default=FINETUNE_DEFAULTS["pairs_per_label"], ge=0, le=100,
-                                 description="Constraint pairs per anchor in a step.")
-    lr: float = Field(default=FINETUNE_DEFAULTS["lr"], gt=0.0, le=1.0)
-    lr_schedule: Literal["constant", "cosine"] = FINETUNE_DEFAULTS["lr_schedule"]
-    transitive_pairs: bool = Field(default=FINETUNE_DEFAULTS["transitive_pairs"],
-                                   description="Pair a drawn sample with any sample of its track.")
     balance: bool = Field(default=True, description="Draw the anchors' classes evenly (see pipeline/finetune.py).")
-    gamma: float = Field(default=1.0, ge=0.0, le=1.0)
-    augment: bool = FINETUNE_DEFAULTS["augment"]
-    seed: int = 0
-    threads: int = Field(default=0, ge=0, le=256, description="torch CPU threads, 0 = torch's default.")
     name: str | None = Field(default=None, max_length=128)
     predict: bool = Field(default=False, description="Queue a predict job on the sequence with the new model.")
 
 
-def prepare_finetune(s: Any, params: FinetuneParams) -> None:
-    seq = s.get(Sequence, params.sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {params.sequence_id} not found")
-    if seq.status != "ready":
-        raise Conflict(f"sequence {params.sequence_id} is {seq.status}; fine-tune once it is ready")
+# The training options (epochs, lr, ...) are TrainingConfig's, with its fine-tuning defaults.
+FinetuneParams = with_training_fields("FinetuneParams", _FinetuneJobParams, TrainingConfig().finetuning())
+
+
+def finetune_job_config(params: Any) -> TrainingConfig:
+    """The TrainingConfig a finetune job runs: the library's fine-tuning defaults with the job's
+    options; pairs always weighted (verified ones weigh 1)."""
+    cfg = job_training_config(params, TrainingConfig().finetuning())
+    return cfg.model_copy(update={"weighted_pairs": True})
+
+
+def prepare_finetune(s: Any, params: Any) -> None:
+    models_util.ready_sequence(s, params.sequence_id)
     models_util.get_model_version(s, params.model_id)
 
 
-def _training_data(ctx: JobContext, params: FinetuneParams, classes: tuple[str, ...]) -> Any:
+def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> Any:
     """TrainingData of the sequence: labels + sample anchors + constraints (see module doc)."""
     from pipeline.training import TrainingData
 
@@ -109,8 +104,7 @@ def _training_data(ctx: JobContext, params: FinetuneParams, classes: tuple[str, 
     return TrainingData.build(samples, labelled, labels, pairs, weights)
 
 
-def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
-    from pipeline.config import TrainingConfig
+def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
     from pipeline.finetune import finetune
     from pipeline.model import load_checkpoint
 
@@ -130,23 +124,7 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
             f"sequence {params.sequence_id} has samples {data.samples.shape[1:]}, model {parent_id} expects "
             f"({meta.sample_config.channels}, {meta.sample_config.size}, {meta.sample_config.size})"
         )
-    base = meta.training_config or TrainingConfig()
-    cfg = base.model_copy(
-        update={
-            "epochs": params.epochs,
-            "steps_per_epoch": params.steps_per_epoch,
-            "batch_labelled": params.batch_labelled,
-            "pairs_per_label": params.pairs_per_label,
-            "lr": params.lr,
-            "lr_schedule": params.lr_schedule,
-            "transitive_pairs": params.transitive_pairs,
-            "gamma": params.gamma,
-            "augment": params.augment,
-            "seed": params.seed,
-            "threads": params.threads,
-            "weighted_pairs": True,
-        }
-    )
+    cfg = finetune_job_config(params)
     out_dir = models_util.model_dir(ctx.settings, "finetune", ctx.job_id)
 
     def on_progress(p: Any) -> None:
@@ -157,7 +135,7 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
         return ctx.cancelled.is_set() or ctx.lease_lost.is_set()
 
     ctx.progress(0.05, f"fine-tuning on {len(data.labelled)} labelled samples and {len(data.pairs)} pairs")
-    res = finetune((model, meta), data, cfg, checkpoint_dir=out_dir, progress=on_progress, stop=stop, parent=parent_path)
+    res = finetune((model, meta), data, cfg, checkpoint_dir=out_dir, report=on_progress, stop=stop, parent=parent_path)
     ctx.checkpoint()
     if res.checkpoint is None:
         raise Invalid("fine-tuning finished no epoch")
@@ -178,7 +156,10 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
         mv_id = mv.id
         s.commit()
     predict_error = None
-    if params.predict:
+    if params.predict and not _created_by_admin(ctx):
+        # queued before the policy refused it for operators: predict stays an admin's decision
+        predict_error = "predict needs the admin role"
+    elif params.predict:
         try:
             with ctx.db.write() as s:
                 predict_job_id = _queue_predict(s, params.sequence_id, mv_id, ctx.user_id)
@@ -195,6 +176,13 @@ def run_finetune(ctx: JobContext, params: FinetuneParams) -> dict[str, Any]:
         "predict_job_id": predict_job_id,
         "predict_error": predict_error,
     }
+
+
+def _created_by_admin(ctx: JobContext) -> bool:
+    from app.models import User
+
+    with ctx.db.read() as s:
+        return s.scalar(select(User.role).where(User.id == ctx.user_id)) == "admin"
 
 
 def _queue_predict(s: Any, sequence_id: int, model_version_id: int, user_id: int | None) -> int:
@@ -218,5 +206,12 @@ register(
         admin_only=False,
         description="Fine-tune a model on a sequence's confirmed anchors and constraints; register it; optionally predict.",
         prepare=prepare_finetune,
+        # operators: a run of minutes on the shared worker, and no predict (it rewrites every
+        # track's predicted class, an admin decision)
+        operator_rule=OperatorRule(
+            max_values={"epochs": 50, "steps_per_epoch": 1000, "batch_labelled": 256, "threads": 8},
+            admin_switches=("predict",),
+        ),
+        max_run_seconds=3600.0,
     )
 )

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import insert, select, update
 from sqlalchemy.orm import Session
 
@@ -30,10 +30,10 @@ from app.core.errors import Conflict, NotFound
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
-from app.schemas import IngestPoses
+from app.schemas import IngestPoses, JsonModel
 
 
-class IngestParams(BaseModel):
+class IngestParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     force: bool = False  # re-ingest a ready sequence (drops its reviews)
@@ -158,6 +158,8 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     ctx.artifacts.remove_sequence(params.sequence_id)
     ctx.progress(0.0, "opening the sequence")
 
+    # the files may have changed since registration: no link out of the data roots is read
+    crud.check_tree_inside_roots(Path(path), ctx.settings.data_roots)
     config = _backend.config(ctx.settings.pipeline_config, overrides)
     opened = _backend.open(path, fmt, getattr(getattr(config, "sensor", None), "name", "auto"), params.poses)
     source, sensor = opened.source, opened.sensor
@@ -177,7 +179,16 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         state.skipped.append(f"frame {index}: {error}")
 
     batch: list[Any] = []
-    for fr in processor.iter_frames(source, progress=False, workers=1, poses=opened.poses, on_skip=on_skip):
+    for fr in processor.iter_frames(source, workers=1, poses=opened.poses, on_skip=on_skip):
+        if _input_row_count(fr) == 0:
+            # an empty file is a truncated copy, never a scan: skipped and reported like a corrupt
+            # frame, not stored as a frame with nothing to label
+            if batch:
+                _write_batch(ctx, state, batch)
+                batch = []
+            on_skip(int(fr.index), ValueError(f"{fr.name}: empty scan file (0 points)"))
+            state.prev_seg_ids, state.prev_db_track = np.zeros(0, np.int64), np.zeros(0, np.int64)
+            continue
         batch.append(fr)
         if len(batch) >= ctx.settings.ingest_batch_frames:
             _write_batch(ctx, state, batch)
@@ -205,6 +216,12 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
         "skipped": state.skipped,
         "linked": bool(getattr(processor, "linked", True)),
     }
+
+
+def _input_row_count(fr: Any) -> int:
+    """Rows the frame's file held (points plus dropped rows; `Scan.input_rows` masks them)."""
+    rows = getattr(getattr(fr, "scan", None), "input_rows", None)
+    return len(fr.segment) if rows is None else len(rows)
 
 
 def _sensor_dict(sensor: Any) -> dict[str, Any] | None:
@@ -483,6 +500,17 @@ def active_ingest_job(s: Session, sequence_id: int) -> int | None:
         if isinstance(params, dict) and params.get("sequence_id") == sequence_id:
             return int(job_id)
     return None
+
+
+def note_queued(s: Session, sequence_id: int, job_id: int) -> None:
+    """Point a sequence that is not ingested yet at its queued ingest job (`ingest_job_id`).
+
+    A ready sequence keeps the id of the job that made it until the forced re-ingest starts:
+    `run_ingest` reads "ready with my job id" as "I finished before a crash" and returns at once,
+    so pointing a ready sequence at a queued job would turn `force` into a no-op."""
+    seq = s.get(Sequence, sequence_id)
+    if seq is not None and seq.status != "ready":
+        seq.ingest_job_id = job_id
 
 
 def prepare_ingest(s: Session, params: IngestParams) -> None:

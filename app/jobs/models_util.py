@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -83,6 +84,36 @@ def get_model_version(session: Session, model_id: int) -> ModelVersion:
     return mv
 
 
+@dataclass(frozen=True)
+class ChosenModel:
+    """The model a job runs: a registered model version, or the shipped default (id None)."""
+
+    id: int | None
+    path: str
+
+    @property
+    def name(self) -> str:
+        return "the default model" if self.id is None else f"model {self.id}"
+
+
+def choose_model(session: Session, model_id: int | None) -> ChosenModel:
+    """`model_id`'s model; None = the newest registered one, or the shipped default model
+    (`pipeline.model.default_model_path`) while none is registered."""
+    if model_id is not None:
+        mv = get_model_version(session, model_id)
+        return ChosenModel(mv.id, mv.path)
+    mv = session.scalars(select(ModelVersion).order_by(ModelVersion.id.desc()).limit(1)).first()
+    if mv is not None:
+        return ChosenModel(mv.id, mv.path)
+    from pipeline.errors import ConfigError
+    from pipeline.model import default_model_path
+
+    try:
+        return ChosenModel(None, str(default_model_path()))
+    except ConfigError as exc:
+        raise NotFound(f"no model is registered and {exc}") from None
+
+
 def model_version_for_job(session: Session, job_id: int) -> ModelVersion | None:
     """The model a job registered already (a retried job returns it instead of training again)."""
     return session.scalars(select(ModelVersion).where(ModelVersion.job_id == job_id).limit(1)).first()
@@ -119,16 +150,39 @@ class TrainingSet:
         return self.track_ids[self.data.labelled]
 
 
+def ready_sequence(session: Session, sequence_id: int) -> Sequence:
+    """The sequence, which the jobs that read its samples need ingested: NotFound / Conflict."""
+    seq = session.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    if seq.status != "ready":
+        raise Conflict(f"sequence {sequence_id} is {seq.status}, not ready: ingest it first")
+    return seq
+
+
 def _ready_sequences(session: Session, sequence_ids: list[int]) -> list[Sequence]:
-    out = []
-    for sid in sequence_ids:
-        seq = session.get(Sequence, sid)
-        if seq is None:
-            raise NotFound(f"sequence {sid} not found")
-        if seq.status != "ready":
-            raise Conflict(f"sequence {sid} is {seq.status}, not ready: ingest it first")
-        out.append(seq)
-    return out
+    return [ready_sequence(session, sid) for sid in sequence_ids]
+
+
+def sample_chunks(
+    artifacts: ArtifactStore, refs: list[tuple[str, int]]
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Stored samples frame file by frame file: for `refs` [(artifact, sample index)], yields
+    (positions (n,) into `refs`, samples (n, C, S, S) uint8) once per frame file, in the order the
+    files first appear. Every reader of stored samples goes through here."""
+    by_file: dict[str, list[tuple[int, int]]] = defaultdict(list)
+    for pos, (artifact, index) in enumerate(refs):
+        by_file[artifact].append((pos, index))
+    for artifact, items in by_file.items():
+        try:
+            samples = artifacts.read_arrays(artifact, ("samples",))["samples"]
+        except ArtifactMissing as exc:
+            raise Conflict(str(exc)) from None
+        dst = np.array([d for d, _ in items], np.int64)
+        src = np.array([i for _, i in items], np.int64)
+        if len(src) and src.max() >= len(samples):
+            raise Conflict(f"artifact {artifact} holds {len(samples)} samples, a segment points at {src.max()}")
+        yield dst, samples[src]
 
 
 def read_samples(
@@ -146,36 +200,81 @@ def read_samples(
             .join(Frame, Frame.id == Segment.frame_id)
             .where(Segment.id.in_(ids[i : i + 5000]))
         ).all()
+    if len(rows) != len(set(ids)):
+        raise NotFound(f"{len(set(ids)) - len(rows)} segment(s) not found")
     pos = {sid: k for k, sid in enumerate(ids)}
-    by_file: dict[str, list[tuple[int, int]]] = defaultdict(list)
+    refs: list[tuple[str, int]] = [("", 0)] * len(ids)
     track = np.zeros(len(ids), np.int64)
     for seg_id, sample_index, track_id, artifact in rows:
         if sample_index is None:
             raise Invalid(f"segment {seg_id} has no sample (not a valid segment)")
-        by_file[artifact].append((pos[int(seg_id)], int(sample_index)))
+        refs[pos[int(seg_id)]] = (artifact, int(sample_index))
         track[pos[int(seg_id)]] = track_id or 0
-    if len(rows) != len(set(ids)):
-        raise NotFound(f"{len(set(ids)) - len(rows)} segment(s) not found")
+    n_files = len({a for a, _ in refs})
     out: np.ndarray | None = None
-    for done, (artifact, items) in enumerate(sorted(by_file.items()), 1):
-        try:
-            samples = artifacts.read_arrays(artifact, ("samples",))["samples"]
-        except ArtifactMissing as exc:
-            raise Conflict(str(exc)) from None
+    for done, (dst, samples) in enumerate(sample_chunks(artifacts, refs), 1):
         if out is None:
             out = np.zeros((len(ids), *samples.shape[1:]), np.uint8)
         elif samples.shape[1:] != out.shape[1:] and len(samples):
-            raise Conflict(f"artifact {artifact}: samples are {samples.shape[1:]}, others {out.shape[1:]}")
-        dst = np.array([d for d, _ in items], np.int64)
-        src = np.array([s for _, s in items], np.int64)
-        if len(src) and src.max() >= len(samples):
-            raise Conflict(f"artifact {artifact} holds {len(samples)} samples, a segment points at {src.max()}")
-        out[dst] = samples[src]
+            raise Conflict(f"samples of {len(samples)} segments are {samples.shape[1:]}, others {out.shape[1:]}")
+        out[dst] = samples
         if progress is not None:
-            progress(done, len(by_file))
+            progress(done, n_files)
     if out is None:
         out = np.zeros((0, 4, 1, 1), np.uint8)
     return out, track
+
+
+@dataclass(frozen=True)
+class Scores:
+    """probs: (N, K) float32 class probabilities; features: (N, D) float32 embeddings or None."""
+
+    probs: np.ndarray
+    features: np.ndarray | None
+
+
+def score_stored_samples(
+    artifacts: ArtifactStore,
+    refs: list[tuple[str, int]],
+    model: Any,
+    model_name: str,
+    batch: int,
+    features: bool = False,
+    on_file: Callable[[int, int], None] | None = None,
+) -> Scores:
+    """Run stored samples [(artifact, sample index)] through `model` (a SampleCNN), at least
+    `batch` samples per forward; on_file(done, total) after each frame file. Samples of another
+    shape than the model reads are an Invalid naming both."""
+    from pipeline.model import embed, predict
+
+    cfg = model.config
+    want = (cfg.in_channels, cfg.size, cfg.size)
+    probs = np.zeros((len(refs), cfg.num_classes), np.float32)
+    feats = np.zeros((len(refs), model.feature_dim), np.float32) if features else None
+    pending: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def flush() -> None:
+        if not pending:
+            return
+        dst = np.concatenate([d for d, _ in pending])
+        x = np.concatenate([x for _, x in pending])  # (n, C, S, S)
+        probs[dst] = predict(model, x, batch)
+        if feats is not None:
+            feats[dst] = embed(model, x, batch)
+        pending.clear()
+
+    n_files = len({a for a, _ in refs})
+    for done, (dst, samples) in enumerate(sample_chunks(artifacts, refs), 1):
+        if samples.shape[1:] != want:
+            raise Invalid(f"the sequence has {tuple(samples.shape[1:])} samples, {model_name} reads {want} "
+                          "(channels, size, size): re-ingest the sequence with the model's sample size")
+        pending.append((dst, samples))
+        if sum(len(d) for d, _ in pending) >= batch:
+            flush()
+        if on_file is not None:
+            on_file(done, n_files)
+    flush()
+    return Scores(probs, feats)
 
 
 def load_training_set(
@@ -192,7 +291,9 @@ def load_training_set(
     constraints: "verified" = pairs inside the kept range of accepted tracks, weight 1 (the paper);
       "automatic" = pairs of every non-discarded track with score >= min_score, weighted by the
       association score (accepted tracks' pairs weigh 1); "none" = labels only.
-    Pairs of tracks labelled "unknown" are left out (the paper makes no constraints for unknown).
+    Pairs of tracks labelled "unknown" are kept: they join views of one object like any other
+    track's (the paper makes none; `tracklabel experiment paper` measured constraint100 better with
+    them, its ablation constraint100_no_unknown).
     classes: the model's class table (default pipeline.classes.SAMPLE_CLASSES); labels outside it
       are an error.
     """
@@ -204,20 +305,15 @@ def load_training_set(
     lab_seg: list[int] = []
     lab_cls: list[int] = []
     pair_rows: list[tuple[int, int, float, bool]] = []
-    unknown_tracks: set[int] = set()
     for seq in seqs:
-        for seg_id, track_id, _frame, class_name, _idx in session.execute(crud.labels_query(seq.id)).all():
+        for seg_id, _track, _frame, class_name, _idx in session.execute(crud.labels_query(seq.id)).all():
             if class_name not in classes:
                 raise Invalid(f"label {class_name!r} of segment {seg_id} is not a class of the model ({', '.join(classes)})")
             lab_seg.append(int(seg_id))
             lab_cls.append(classes.index(class_name))
-            if class_name == "unknown":
-                unknown_tracks.add(int(track_id))
         if constraints != "none":
             q = crud.constraints_query(seq.id, verified_only=constraints == "verified")
             for row in session.execute(q).all():
-                if int(row.track_id) in unknown_tracks:
-                    continue
                 verified = bool(row.verified)
                 score = float(row.score)
                 if not verified and score < min_score:

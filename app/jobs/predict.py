@@ -15,50 +15,69 @@ from collections import defaultdict
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from app import crud
-from app.artifacts import ArtifactMissing
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Invalid
 from app.jobs.context import JobContext
-from app.jobs.models_util import get_model_version
+from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.registry import JobType, register
-from app.models import Frame, ModelVersion, Segment, Sequence, Track
+from app.models import Frame, Segment, Track
+from app.schemas import JsonModel
 
 
-class PredictParams(BaseModel):
+class PredictParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
-    model_id: int = Field(ge=1, le=2**31 - 1)
+    model_id: int | None = Field(default=None, ge=1, le=2**31 - 1,
+                                 description="None = the newest model, or the shipped default model while none is registered.")
     sequence_id: int = Field(ge=1, le=2**31 - 1)
     batch_samples: int = Field(default=512, ge=1, le=65536)
     threads: int = Field(default=0, ge=0, le=256)
 
 
-def _load_model(mv: ModelVersion) -> Any:
+def _load_model(chosen: ChosenModel) -> Any:
     from pipeline.errors import DataError
     from pipeline.model import load_checkpoint
 
     try:
-        return load_checkpoint(mv.path, "auto")
+        return load_checkpoint(chosen.path, "auto")
     except DataError as exc:
-        raise Invalid(f"model {mv.id}: {exc}") from None
+        raise Invalid(f"{chosen.name}: {exc}") from None
+
+
+def _track_sums(
+    probs: np.ndarray, seg_rows: list[Any], tracks: dict[int, tuple[int, int]], labels: dict[int, int]
+) -> tuple[dict[int, np.ndarray], dict[int, int], list[int], list[int]]:
+    """Per track the sum (K,) and count of its kept samples' probabilities (N, K); and the
+    verified labels with the arg-max of their samples."""
+    sums: dict[int, np.ndarray] = {}
+    counts: dict[int, int] = defaultdict(int)
+    truth: list[int] = []
+    pred_labelled: list[int] = []
+    for p, row in zip(probs, seg_rows, strict=True):
+        seg_id, track_id, frame_index = int(row.id), int(row.track_id or 0), int(row.frame_index)
+        if seg_id in labels:
+            truth.append(labels[seg_id])
+            pred_labelled.append(int(p.argmax()))
+        keep = tracks.get(track_id)
+        if keep is None or not keep[0] <= frame_index <= keep[1]:
+            continue
+        acc = sums.get(track_id)
+        sums[track_id] = p.astype(np.float64) if acc is None else acc + p
+        counts[track_id] += 1
+    return sums, counts, truth, pred_labelled
 
 
 def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
     import torch
 
     from pipeline.metrics import classification_report
-    from pipeline.model import predict
 
     with ctx.db.read() as s:
-        mv = get_model_version(s, params.model_id)
-        seq = s.get(Sequence, params.sequence_id)
-        if seq is None:
-            raise NotFound(f"sequence {params.sequence_id} not found")
-        if seq.status != "ready":
-            raise Conflict(f"sequence {seq.id} is {seq.status}, not ready")
+        chosen = choose_model(s, params.model_id)
+        seq = ready_sequence(s, params.sequence_id)
         frames = s.execute(
             select(Frame.id, Frame.index, Frame.artifact).where(Frame.sequence_id == seq.id).order_by(Frame.index)
         ).all()
@@ -72,70 +91,29 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
             for t in s.execute(select(Track.id, Track.keep_start, Track.keep_end).where(Track.sequence_id == seq.id))
         }
         labels = {int(r.segment_id): int(r.class_index) for r in s.execute(crud.labels_query(seq.id)).all()}
-        model_id, model_path = mv.id, mv.path
-        model, meta = _load_model(mv)
+        model_id, model_path = chosen.id, chosen.path
+        model, meta = _load_model(chosen)
     classes = meta.classes
     k = len(classes)
-    want = (model.config.in_channels, model.config.size, model.config.size)
+    # (artifact, sample index) and (segment, track, frame index) of every sample, in frame order
+    artifact_of = {int(f.id): f.artifact for f in frames}
+    seg_rows = sorted(seg_rows, key=lambda r: (int(r.frame_index), int(r.sample_index)))
+    refs = [(artifact_of[int(r.frame_id)], int(r.sample_index)) for r in seg_rows]
 
-    by_frame: dict[int, list[tuple[int, int, int, int]]] = defaultdict(list)  # frame id -> (sample, seg, track, index)
-    for seg_id, frame_id, frame_index, sample_index, track_id in seg_rows:
-        by_frame[int(frame_id)].append((int(sample_index), int(seg_id), int(track_id or 0), int(frame_index)))
+    def scored(done: int, total: int) -> None:
+        if done % 20 == 0 or done == total:
+            ctx.progress(0.95 * done / total, f"classified {done}/{total} frames")
 
-    sums: dict[int, np.ndarray] = {}
-    counts: dict[int, int] = defaultdict(int)
-    truth: list[int] = []
-    pred_labelled: list[int] = []
     threads_before = torch.get_num_threads()
     if params.threads:
         torch.set_num_threads(params.threads)
-    ctx.progress(0.0, f"model {model_id} over {len(frames)} frames")
+    ctx.progress(0.0, f"{chosen.name} over {len(frames)} frames")
     try:
-        pending: list[tuple[np.ndarray, list[tuple[int, int, int, int]]]] = []
-        n_pending = 0
-
-        def flush() -> None:
-            nonlocal n_pending
-            if not pending:
-                return
-            probs = predict(model, np.concatenate([x for x, _ in pending]), params.batch_samples)
-            rows = [r for _, rs in pending for r in rs]
-            for p, (_sample, seg_id, track_id, frame_index) in zip(probs, rows, strict=True):
-                if seg_id in labels:
-                    truth.append(labels[seg_id])
-                    pred_labelled.append(int(p.argmax()))
-                keep = tracks.get(track_id)
-                if keep is None or not keep[0] <= frame_index <= keep[1]:
-                    continue
-                acc = sums.get(track_id)
-                sums[track_id] = p.astype(np.float64) if acc is None else acc + p
-                counts[track_id] += 1
-            pending.clear()
-            n_pending = 0
-
-        for done, (frame_id, _index, artifact) in enumerate(frames, 1):
-            rows = sorted(by_frame.get(int(frame_id), []))
-            if rows:
-                try:
-                    samples = ctx.artifacts.read_arrays(artifact, ("samples",))["samples"]
-                except ArtifactMissing as exc:
-                    raise Conflict(str(exc)) from None
-                if samples.shape[1:] != want:
-                    raise Invalid(
-                        f"sequence {seq.id} has {tuple(samples.shape[1:])} samples, model {model_id} reads {want} "
-                        "(channels, size, size): re-ingest the sequence with the model's sample size"
-                    )
-                idx = np.array([r[0] for r in rows], np.int64)
-                pending.append((samples[idx], rows))
-                n_pending += len(rows)
-            if n_pending >= params.batch_samples:
-                flush()
-            if done % 20 == 0 or done == len(frames):
-                flush()
-                ctx.progress(0.95 * done / max(len(frames), 1), f"classified {done}/{len(frames)} frames")
-        flush()
+        probs = score_stored_samples(ctx.artifacts, refs, model, chosen.name, params.batch_samples,
+                                     on_file=scored).probs
     finally:
         torch.set_num_threads(threads_before)
+    sums, counts, truth, pred_labelled = _track_sums(probs, seg_rows, tracks, labels)
 
     updates = []
     per_class: dict[str, int] = defaultdict(int)
@@ -171,12 +149,8 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
 
 
 def prepare_predict(s: Session, params: PredictParams) -> None:
-    get_model_version(s, params.model_id)
-    seq = s.get(Sequence, params.sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {params.sequence_id} not found")
-    if seq.status != "ready":
-        raise Conflict(f"sequence {seq.id} is {seq.status}, not ready: ingest it first")
+    choose_model(s, params.model_id)
+    ready_sequence(s, params.sequence_id)
 
 
 register(

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
+from app.jobs.policy import OperatorRule
+
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
@@ -27,6 +29,8 @@ class JobType:
 
     handler(ctx, params) -> result dict; it calls `ctx.progress(...)` at checkpoints.
     on_stop(ctx, params, reason) runs when the handler raised or was cancelled ("failed"/"cancelled").
+    operator_rule: what operators may queue (app.jobs.policy); None with admin_only = admins only.
+    max_run_seconds: the worker stops a job running longer and marks it failed.
     prepare(session, params) runs when the job is created, inside that transaction: it checks what
     the job needs (raising app.core.errors.ServiceError) and may mark rows (e.g. the sequence).
     """
@@ -38,6 +42,15 @@ class JobType:
     description: str = ""
     on_stop: Callable[[JobContext, Any, str], None] | None = None
     prepare: Callable[[Session, Any], None] | None = None
+    operator_rule: OperatorRule | None = None
+    max_run_seconds: float = 6 * 3600.0
+
+    def rule_for_operators(self) -> OperatorRule | None:
+        """The operators' rule: the declared one, an unbounded one for a type that is not
+        admin-only but declares none (plugins), None for admin-only types."""
+        if self.operator_rule is not None:
+            return self.operator_rule
+        return None if self.admin_only else OperatorRule(own_sequence=False)
 
 
 _REGISTRY: dict[str, JobType] = {}

@@ -5,13 +5,15 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from app.jobs.context import JobContext
+from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
+from app.schemas import JsonModel
 
 
-class SelftestParams(BaseModel):
+class SelftestParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
     steps: int = Field(default=3, ge=1, le=1000)
     step_seconds: float = Field(default=0.05, ge=0.0, le=10.0)
@@ -31,5 +33,7 @@ register(
         handler=run_selftest,
         admin_only=False,
         description="Sleep in steps and report progress (checks that a worker runs).",
+        operator_rule=OperatorRule(max_values={"steps": 500, "step_seconds": 1.0}, own_sequence=False),
+        max_run_seconds=600.0,
     )
 )

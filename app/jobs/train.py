@@ -2,9 +2,10 @@
 
 1. Read the labelled samples and must-link pairs (`models_util.load_training_set`): verified pairs
    of accepted tracks (the paper), automatic ones weighted by their association score, or none.
-2. Split the labelled samples 70/30 into train/validation by track (stratified by class), so
+2. Split the labelled samples 70/30 into train/validation by track (`split_by_track`), so
    near-identical samples of one track never sit on both sides; or validate on other sequences.
-3. Train (`pipeline.training.train`); every few steps the progress and, after each epoch, the
+3. Train (`pipeline.training.train`) with the library's defaults (`TrainingConfig`, the config
+   of the paper experiment's constraint100) and the job's options; every few steps the progress and, after each epoch, the
    epoch's loss and validation F go into the job row (`message`, and `result.history` while it
    runs). A cancel stops the run at the next step; nothing is registered then.
 4. Write the checkpoint under `<data_dir>/models/train_<job>/` and register a model version with
@@ -16,24 +17,31 @@ from __future__ import annotations
 
 import json
 import shutil
-from typing import Any, Literal
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field
 from sqlalchemy import update
 from sqlalchemy.orm import Session
 
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, Invalid
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.models_util import (
+    TrainingSet,
     load_training_set,
     model_dir,
     model_version_for_job,
+    ready_sequence,
     register_model_version,
     sample_config_for,
 )
 from app.jobs.registry import JobType, register
+from app.jobs.training_params import job_training_config, with_training_fields
 from app.models import Job, Sequence
+from app.schemas import JsonModel
+from pipeline.config import SampleConfig, TrainingConfig
 
 MODEL_SIZES: dict[str, dict[str, int]] = {
     "tiny": {"width": 8, "max_width": 16, "depth": 2},
@@ -43,56 +51,29 @@ MODEL_SIZES: dict[str, dict[str, int]] = {
 }
 
 Id = Field(ge=1, le=2**31 - 1)
+SequenceId = Annotated[int, Field(ge=1, le=2**31 - 1)]  # in the schema, so that clients see the range
 
 
-class TrainParams(BaseModel):
+class _TrainJobParams(JsonModel):
     model_config = ConfigDict(extra="forbid")
-    sequence_ids: list[int] = Field(min_length=1, max_length=1000)  # labels and constraints from these
-    val_sequence_ids: list[int] = Field(default_factory=list, max_length=1000)  # else a split by track
+    sequence_ids: list[SequenceId] = Field(min_length=1, max_length=1000)  # labels and constraints from these
+    val_sequence_ids: list[SequenceId] = Field(default_factory=list, max_length=1000)  # else a split by track
     val_fraction: float = Field(default=0.3, ge=0.0, lt=1.0)
     constraints: Literal["verified", "automatic", "none"] = "verified"
     min_score: float = Field(default=0.0, ge=0.0, le=1.0)  # automatic pairs below this are left out
-    gamma: float = Field(default=1.0, ge=0.0, le=1.0)
-    epochs: int = Field(default=10, ge=1, le=1000)
-    steps_per_epoch: int | None = Field(default=None, ge=1, le=100_000)
-    batch_labelled: int = Field(default=32, ge=1, le=4096)
-    pairs_per_label: int = Field(default=5, ge=0, le=100)
-    lr: float = Field(default=1e-3, gt=0.0, le=1.0)
-    balance_weight: float = Field(default=0.0, ge=0.0, le=10.0)
-    augment: bool = True
     model_size: Literal["tiny", "small", "default", "large"] = "default"
     size: int | None = Field(default=None, ge=8, le=1024)  # expected sample size; None = as ingested
-    seed: int = Field(default=0, ge=0, le=2**31 - 1)
-    threads: int = Field(default=0, ge=0, le=256)
     name: str | None = Field(default=None, max_length=128)
 
-    @model_validator(mode="after")
-    def _ids(self) -> TrainParams:
-        for v in (*self.sequence_ids, *self.val_sequence_ids):
-            if not 1 <= v <= 2**31 - 1:
-                raise ValueError(f"sequence id {v} out of range")
-        return self
+
+# The training options (epochs, lr, ...) are TrainingConfig's, with its defaults.
+TrainParams = with_training_fields("TrainParams", _TrainJobParams, TrainingConfig())
 
 
-def _track_split(
-    labels: np.ndarray, tracks: np.ndarray, val_fraction: float, seed: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(train, val) indices into `labels`: whole tracks go to one side, ~val_fraction per class."""
-    rng = np.random.default_rng(seed)
-    train_idx, val_idx = [], []
-    for k in np.unique(labels):
-        idx = np.flatnonzero(labels == k)
-        groups = np.unique(tracks[idx])
-        groups = groups[rng.permutation(len(groups))]
-        n_val = int(round(len(groups) * val_fraction))
-        if n_val == len(groups) and len(groups) > 1:
-            n_val -= 1
-        val_groups = set(groups[:n_val].tolist())
-        in_val = np.array([t in val_groups for t in tracks[idx]], bool)
-        val_idx.append(idx[in_val])
-        train_idx.append(idx[~in_val])
-    cat = lambda parts: np.sort(np.concatenate(parts)).astype(np.int64) if parts else np.zeros(0, np.int64)  # noqa: E731
-    return cat(train_idx), cat(val_idx)
+def train_config(params: Any) -> TrainingConfig:
+    """The TrainingConfig a train job runs: the library's defaults, the job's options, and the
+    constraint source's rule (`TrainingConfig.for_constraints`)."""
+    return job_training_config(params, TrainingConfig()).for_constraints(params.constraints)
 
 
 def _record(ctx: JobContext, result: dict[str, Any]) -> None:
@@ -106,14 +87,18 @@ def _record(ctx: JobContext, result: dict[str, Any]) -> None:
         s.commit()
 
 
-def run_train(ctx: JobContext, params: TrainParams) -> dict[str, Any]:
-    from pipeline.config import ModelConfig, TrainingConfig
-    from pipeline.training import LabelledSamples, TrainingData, train
+@dataclass
+class _JobData:
+    """What a train job reads: the training set, the sample config its samples were made with,
+    the optional validation sequences' set and the user who queued the job."""
 
-    with ctx.db.read() as s:
-        done = model_version_for_job(s, ctx.job_id)
-        if done is not None:
-            return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
+    ts: TrainingSet
+    samples_cfg: SampleConfig
+    val_set: TrainingSet | None
+    user_id: int | None
+
+
+def _read(ctx: JobContext, params: Any) -> _JobData:
     ctx.progress(0.0, "reading labels and constraints")
 
     def reading(done: int, total: int) -> None:
@@ -127,61 +112,60 @@ def run_train(ctx: JobContext, params: TrainParams) -> dict[str, Any]:
         seq = s.get(Sequence, params.sequence_ids[0])
         assert seq is not None  # load_training_set checked it
         samples_cfg = sample_config_for(ctx.settings, seq)
-        val_set = None
-        if params.val_sequence_ids:
-            val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none")
+        val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none") if params.val_sequence_ids else None
         job = s.get(Job, ctx.job_id)
         user_id = None if job is None else job.created_by_id
-    data = ts.data
-    shape = data.samples.shape[1:]
+    shape = ts.data.samples.shape[1:]
     if params.size is not None and shape[1] != params.size:
         raise Invalid(f"the sequences' samples are {shape[1]}x{shape[2]}, params.size asks for {params.size}")
     if shape != (samples_cfg.channels, samples_cfg.size, samples_cfg.size):
         # the stored samples are the truth; adopt their size/channels
         samples_cfg = samples_cfg.model_copy(update={"size": int(shape[1]), "foreground_channel": shape[0] == 4})
-    if len(data.labelled) == 0:
+    if len(ts.data.labelled) == 0:
         raise Invalid(f"sequences {params.sequence_ids} hold no verified labels: review some tracks first")
+    return _JobData(ts, samples_cfg, val_set, user_id)
 
-    labels = data.labels
-    if val_set is not None:
+
+def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
+    """(training data, validation samples or None, indices of the training labels): the
+    validation sequences, else a split by track of the labels, else no validation."""
+    from pipeline.training import LabelledSamples, TrainingData, split_by_track
+
+    data = job.ts.data
+    labels, shape = data.labels, data.samples.shape[1:]
+    if job.val_set is not None:
         train_sel = np.arange(len(labels))
-        val = LabelledSamples(val_set.data.samples[val_set.data.labelled], val_set.data.labels)
+        val = LabelledSamples(job.val_set.data.samples[job.val_set.data.labelled], job.val_set.data.labels)
         if val.samples.shape[1:] != shape:
             raise Invalid(f"validation samples are {val.samples.shape[1:]}, training samples {shape}")
     elif params.val_fraction > 0:
-        train_sel, val_sel = _track_split(labels, ts.label_track_ids, params.val_fraction, params.seed)
+        train_sel, val_sel = split_by_track(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
         val = LabelledSamples(data.samples[data.labelled[val_sel]], labels[val_sel])
     else:
         train_sel, val = np.arange(len(labels)), None
     train_data = TrainingData.build(
         data.samples, data.labelled[train_sel], labels[train_sel], data.pairs, data.pair_weights
     )
+    return train_data, val, train_sel
 
-    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
-    cfg = TrainingConfig(
-        epochs=params.epochs,
-        steps_per_epoch=params.steps_per_epoch,
-        batch_labelled=params.batch_labelled,
-        pairs_per_label=params.pairs_per_label,
-        gamma=params.gamma,
-        lr=params.lr,
-        seed=params.seed,
-        balance_weight=params.balance_weight,
-        augment=params.augment,
-        weighted_pairs=params.constraints == "automatic",
-        threads=params.threads,
-    )
-    counts = {
+
+def _counts(job: _JobData, train_sel: np.ndarray, val: Any, num_classes: int) -> dict[str, Any]:
+    from pipeline.classes import SAMPLE_CLASSES
+
+    data = job.ts.data
+    binc = np.bincount(data.labels[train_sel], minlength=num_classes)
+    return {
         "labelled_train": int(len(train_sel)),
         "labelled_val": 0 if val is None else len(val),
         "pairs": int(len(data.pairs)),
-        "pairs_verified": int(ts.pair_verified.sum()),
-        "labels_per_class": {},
+        "pairs_verified": int(job.ts.pair_verified.sum()),
+        "labels_per_class": {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(num_classes)},
     }
-    from pipeline.classes import SAMPLE_CLASSES
 
-    binc = np.bincount(labels[train_sel], minlength=model_cfg.num_classes)
-    counts["labels_per_class"] = {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(model_cfg.num_classes)}
+
+def _reporter(ctx: JobContext, counts: dict[str, Any]) -> Callable[[Any], None]:
+    """The training report callback: progress into the job row, and each finished epoch's loss
+    and validation F into its running result."""
     history: list[dict[str, Any]] = []
 
     def on_progress(p: Any) -> None:
@@ -197,10 +181,26 @@ def run_train(ctx: JobContext, params: TrainParams) -> dict[str, Any]:
         except JobStopped:
             pass  # the flag is set: `stop` ends training at the next step
 
+    return on_progress
+
+
+def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
+    from pipeline.config import ModelConfig
+    from pipeline.training import train
+
+    with ctx.db.read() as s:
+        done = model_version_for_job(s, ctx.job_id)
+        if done is not None:
+            return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
+    job = _read(ctx, params)
+    train_data, val, train_sel = _split(job, params)
+    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
+    cfg = train_config(params)
+    counts = _counts(job, train_sel, val, model_cfg.num_classes)
     out = model_dir(ctx.settings, "train", ctx.job_id)
     ctx.progress(0.05, f"training on {counts['labelled_train']} labels and {counts['pairs']} pairs")
     result = train(
-        train_data, cfg, model_cfg, samples_cfg, val=val, checkpoint_dir=out, progress=on_progress,
+        train_data, cfg, model_cfg, job.samples_cfg, val=val, checkpoint_dir=out, report=_reporter(ctx, counts),
         stop=lambda: ctx.cancelled.is_set() or ctx.lease_lost.is_set(),
     )
     if result.cancelled:
@@ -213,13 +213,13 @@ def run_train(ctx: JobContext, params: TrainParams) -> dict[str, Any]:
         "params": params.model_dump(mode="json"),
         "training": cfg.model_dump(mode="json"),
         "model": model_cfg.model_dump(mode="json"),
-        "samples": samples_cfg.model_dump(mode="json"),
+        "samples": job.samples_cfg.model_dump(mode="json"),
     }
     name = params.name or f"train {params.constraints} seq {','.join(map(str, params.sequence_ids))} (job {ctx.job_id})"
     with ctx.db.write() as s:
         mv = register_model_version(
             s, name=name, kind="train", path=result.checkpoint.resolve(), metrics=metrics, config=config,
-            job_id=ctx.job_id, created_by_id=user_id,
+            job_id=ctx.job_id, created_by_id=job.user_id,
         )
         s.commit()
         model_id = mv.id
@@ -237,13 +237,9 @@ def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def prepare_train(s: Session, params: TrainParams) -> None:
+def prepare_train(s: Session, params: Any) -> None:
     for sid in (*params.sequence_ids, *params.val_sequence_ids):
-        seq = s.get(Sequence, sid)
-        if seq is None:
-            raise NotFound(f"sequence {sid} not found")
-        if seq.status != "ready":
-            raise Conflict(f"sequence {sid} is {seq.status}, not ready: ingest it first")
+        ready_sequence(s, sid)
 
 
 register(

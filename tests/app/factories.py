@@ -99,7 +99,7 @@ class Factory:
 
 def simulated_campus(tmp_path_factory: Any, frames: int, seed: int) -> Path:
     """A few frames of the simulated campus (SemanticKITTI layout) in a fresh temporary folder."""
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     out = tmp_path_factory.mktemp("sim") / "campus"
     simulate_sequence(out, frames=frames, seed=seed)

@@ -35,6 +35,8 @@ def model_id(db, tmp_path: Path) -> int:
 
 
 def _run_job(client, settings, db, caller, type_: str, **params) -> dict:
+    if caller.role != "admin":  # operators queue jobs on sequences they review (app/jobs/policy.py)
+        client.post("/api/v1/review/next", params={"sequence_id": params["sequence_id"]}, headers=caller.headers)
     r = client.post("/api/v1/jobs", json={"type": type_, "params": params}, headers=caller.headers)
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
@@ -203,7 +205,8 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
     tid = items[3]["track_id"]
     t = client.get(f"/api/v1/tracks/{tid}", headers=op.headers).json()
     client.post(f"/api/v1/tracks/{tid}/label", json={"version": t["version"], "label": "car"}, headers=op.headers)
-    res = _run_job(client, settings, db, op, "finetune", sequence_id=seq, model_id=model_id,
+    admin = factory.user("admin")  # the chained predict rewrites every track's prediction: admins only
+    res = _run_job(client, settings, db, admin, "finetune", sequence_id=seq, model_id=model_id,
                    epochs=2, steps_per_epoch=2, threads=1, predict=True)
     # the chained predict job re-labels the sequence's tracks with the new model
     assert res["predict_job_id"] and res["predict_error"] is None
@@ -211,11 +214,11 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
     with db.read() as s:
         job = s.get(Job, res["predict_job_id"])
         assert job is not None and job.status == "succeeded", job.error
-        assert job.params["model_id"] == res["model_id"] and job.created_by_id == op.id
+        assert job.params["model_id"] == res["model_id"] and job.created_by_id == admin.id
         assert s.scalar(select(func.count()).select_from(Track).where(Track.predicted_class.is_(None))) == 0
     with db.read() as s:
         mv = s.get(ModelVersion, res["model_id"])
-        assert mv is not None and mv.kind == "finetune" and mv.parent_id == model_id and mv.created_by_id == op.id
+        assert mv is not None and mv.kind == "finetune" and mv.parent_id == model_id and mv.created_by_id == admin.id
         assert Path(mv.path).is_file()
         n_track = s.scalar(select(func.count()).select_from(Label).where(Label.track_id == tid))
         pairs = s.scalar(select(Track.n_samples).where(Track.id == tid)) - 1
@@ -233,10 +236,34 @@ def test_finetune_job_registers_child_model(client, factory, settings, db, model
 
 
 def test_finetune_job_defaults_follow_the_library():
-    """The REST job's defaults are the library's fine-tuning defaults (chosen by the experiment)."""
-    from app.jobs.finetune import FinetuneParams
-    from pipeline.finetune import FINETUNE_DEFAULTS
+    """The REST job trains with the library's fine-tuning defaults (chosen by the experiment)."""
+    from app.jobs.finetune import FinetuneParams, finetune_job_config
+    from pipeline.config import TrainingConfig
 
     params = FinetuneParams(sequence_id=1, model_id=1)
-    for key, value in FINETUNE_DEFAULTS.items():
-        assert getattr(params, key) == value, key
+    assert finetune_job_config(params) == TrainingConfig().finetuning().model_copy(update={"weighted_pairs": True})
+    assert finetune_job_config(FinetuneParams(sequence_id=1, model_id=1, epochs=3)).epochs == 3
+
+
+def test_propose_without_a_registered_model_uses_the_shipped_default(client, factory, settings, db, tmp_path,
+                                                                     monkeypatch):
+    import torch
+
+    import pipeline.model
+    from pipeline.config import ModelConfig, SampleConfig
+    from pipeline.model import get_model, save_checkpoint
+
+    torch.manual_seed(0)
+    mc = ModelConfig(width=4, max_width=8, depth=2, dropout=0.0)
+    sc = SampleConfig(size=SAMPLE_SHAPE[1], foreground_channel=SAMPLE_SHAPE[0] == 4)
+    # the shipped model reads 64 x 64 samples; the fake pipeline's are 8 x 8
+    monkeypatch.setattr(pipeline.model, "DEFAULT_MODEL", save_checkpoint(tmp_path / "d.pt", get_model(mc, sc), mc, sc))
+    seq = factory.ingested_sequence(n_frames=6, n_objects=4)
+    op = factory.user()
+    res = _run_job(client, settings, db, op, "propose_anchors", sequence_id=seq, strategy="confident", per_class=1,
+                   unknown=1)
+    assert res["model_id"] is None and res["proposals"] == 7
+    assert {a["model_id"] for a in _anchors(client, op, sequence_id=seq)} == {None}
+    monkeypatch.setattr(pipeline.model, "DEFAULT_MODEL", tmp_path / "missing.pt")
+    r = client.post("/api/v1/jobs", json={"type": "propose_anchors", "params": {"sequence_id": seq}}, headers=op.headers)
+    assert r.status_code == 404 and "no model is registered" in r.text

@@ -15,9 +15,7 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     out = tmp_path / "paper"
     r = runner.invoke(
         app,
-        ["experiment", "paper", "--out", str(out), "--frames", "20", "--test-frames", "10", "--size", "32",
-         "--steps", "4", "--labels-per-class", "3", "--threads", "1", "--evals", "2", "--eval-max", "300",
-         "--ablations"],
+        ["experiment", "paper", "--out", str(out), "--config", "paper-smoke", "--config", "paper-ablations"],
     )
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
@@ -30,30 +28,29 @@ def test_cli_experiment_paper_writes_tables_json_and_plots(tmp_path):
     assert doc["results"]["constraint100_no_mask"]["training"]["foreground_channel"] is False
     assert doc["results"]["constraint100_no_closure"]["training"]["closure_labels"] is False
     assert doc["results"]["constraint100_auto"]["training"]["closure_labels"] is False  # unverified pairs
-    assert doc["config"]["closure_labels"] is True
+    assert doc["config"]["training"]["closure_labels"] is True
     assert doc["config"]["unknown_constraints"] is True  # the default; constraint100_no_unknown: the paper's
-    assert doc["config"]["closure_draw"] == "annotation"  # labels via constraints: per annotation
+    assert doc["config"]["training"]["closure_draw"] == "annotation"  # labels via constraints: per annotation
     assert doc["results"]["constraint100_sample_closure"]["training"]["closure_draw"] == "sample"
     assert "closure_draw" not in doc["results"]["constraint100"]["training"]  # the config's
     assert "drawn per annotation" in (out / "paper.md").read_text()
-    m = doc["config"]["batch_labelled"]
-    big = m * (1 + 2 * doc["config"]["pairs_per_label"])  # a constraint step's canvases
+    m = doc["config"]["paper_batch_labelled"]
+    big = m * (1 + 2 * doc["config"]["paper_pairs_per_label"])  # the paper step's canvases
     for name in ("baseline_min", "baseline_max", "oracle_objects20"):  # labels only: both tried, the better kept
         row = doc["results"][name]
         tried = {int(k): v for k, v in row["batch_select"].items()}
         assert set(tried) == {m, big} and row["training"]["batch_labelled"] == max(tried, key=lambda b: (tried[b], -b))
     # constraint settings: 1 pair per label at a constraint step's canvases (58 + 58 of 176);
     # constraint100_paper_batch keeps the paper's m labels + 5 m pairs
-    assert doc["config"]["constraint_pairs_per_label"] == 1
     assert doc["config"]["constraint_batch"] == {"batch_labelled": big // 3, "pairs_per_label": 1}
     for name in ("constraint30", "constraint100", "constraint100_auto", "oracle_object_constraints"):
         tr = doc["results"][name]["training"]
-        assert (tr["batch_labelled"], tr["pairs_per_label"]) == (big // 3, 1)
+        assert tr["batch_labelled"] == big // 3 and "pairs_per_label" not in tr  # the training config's 1
     tr = doc["results"]["constraint100_paper_batch"]["training"]
-    assert (tr["batch_labelled"], tr["pairs_per_label"]) == (m, doc["config"]["pairs_per_label"])
+    assert (tr["batch_labelled"], tr["pairs_per_label"]) == (m, doc["config"]["paper_pairs_per_label"])
     tr = doc["results"]["constraint100_closure_only"]["training"]
     assert (tr["batch_labelled"], tr["pairs_per_label"]) == (big, 0)
-    assert f"{big // 3} labels + {big // 3} pairs (the paper's step: {m} + {m * doc['config']['pairs_per_label']})" in (out / "paper.md").read_text()
+    assert f"{big // 3} labels + {big // 3} pairs (the paper's step: {m} + {m * doc['config']['paper_pairs_per_label']})" in (out / "paper.md").read_text()
     assert "batch_select" not in doc["results"]["constraint100"]
     data = doc["data"]
     assert data["baseline_min"]["closure_labels"] == data["baseline_min"]["labels"]  # no pairs: nothing spreads
@@ -78,8 +75,8 @@ def test_cli_experiment_paper_default_runs_the_issues_settings(tmp_path):
     out = tmp_path / "paper"
     r = runner.invoke(
         app,
-        ["experiment", "paper", "--out", str(out), "--frames", "20", "--test-frames", "10", "--size", "32",
-         "--steps", "2", "--labels-per-class", "2", "--threads", "1", "--evals", "1", "--eval-max", "100"],
+        ["experiment", "paper", "--out", str(out), "--config", "paper-smoke", "--set", "steps=2", "--set", "evals=1",
+         "--set", "labels_per_class=2", "--set", "eval_max=100"],
     )
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "paper.json").read_text())
@@ -88,17 +85,29 @@ def test_cli_experiment_paper_default_runs_the_issues_settings(tmp_path):
     assert doc["config"]["labels_only_batch"] == "select" and "ordering_train_val" in doc["targets"]
 
 
-def test_cli_experiment_paper_rejects_bad_sizes(tmp_path):
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--frames", "5"])
-    assert r.exit_code == 2
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--bridge-pixels", "0"])
-    assert r.exit_code == 2
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--labels-only-batch", "big"])
-    assert r.exit_code == 2 and "labels_only_batch" in r.output
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--constraint-pairs-per-label", "-1"])
-    assert r.exit_code == 2 and "constraint-pairs-per-label" in r.output
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--closure-draw", "track"])
-    assert r.exit_code == 2 and "closure_draw" in r.output
-    r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), "--test-style", "z"])
-    assert r.exit_code == 2 and "test_style" in r.output and "a+" in r.output
+def test_cli_experiment_paper_rejects_bad_configs(tmp_path):
+    for args, msg in (
+        (["--set", "frames=5"], "frames"),
+        (["--set", "bridge_pixels=0"], "bridge_pixels"),
+        (["--set", "labels_only_batch=big"], "labels_only_batch"),
+        (["--set", "training.closure_draw=track"], "training.closure_draw"),
+        (["--set", "training.pairs_per_label=-1"], "training.pairs_per_label"),
+        (["--set", "settings=[constraint200]"], "constraint200"),
+        (["--set", "test_style=z"], "test_style"),
+        (["--config", "nonesuch"], "paper-full"),
+        (["--set", "frames"], "KEY=VALUE"),
+    ):
+        r = runner.invoke(app, ["experiment", "paper", "--out", str(tmp_path), *args])
+        assert r.exit_code == 2 and msg in r.output, (args, r.output)
     assert not (tmp_path / "cache").exists()  # refused before simulating anything
+
+
+def test_cli_experiment_paper_config_file_overrides_apply_in_order(tmp_path):
+    from research.configs import load_experiment_config
+    from research.experiments.paper import PaperConfig
+
+    own = tmp_path / "mine.yaml"
+    own.write_text("frames: 300\ntraining:\n  lr: 0.002\n")
+    cfg = load_experiment_config(PaperConfig, ["paper-full", str(own)], ["steps=10", "training.threads=1"])
+    assert (cfg.frames, cfg.labels_per_class, cfg.steps) == (300, 350, 10)  # full, then mine, then --set
+    assert (cfg.training.lr, cfg.training.threads, cfg.training.batch_labelled) == (0.002, 1, 58)

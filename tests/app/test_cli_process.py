@@ -15,7 +15,7 @@ runner = CliRunner()
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     out = tmp_path_factory.mktemp("sim") / "seq"
     simulate_sequence(out, frames=6, seed=3)

@@ -117,7 +117,7 @@ def test_repair_split_region_selecting_nothing_or_everything_422(client, factory
     tid = factory.track_ids(seq)[0]
     r = client.post(f"/api/v1/tracks/{tid}/split", json={"version": 1, "region": {**HALF, "offset": offset}},
                     headers=op.headers)
-    assert r.status_code == 422 and words in r.json()["detail"]
+    assert r.status_code == 422 and words in r.json()["detail"][0]["msg"]
     assert factory.track(tid).version == 1
 
 

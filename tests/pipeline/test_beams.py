@@ -86,7 +86,7 @@ def test_find_beams_none_without_beams() -> None:
 
 
 def test_find_beams_simulated_campus_frame(tmp_path: Path) -> None:
-    from pipeline.simulation import simulate_sequence
+    from research.simulation import simulate_sequence
 
     simulate_sequence(tmp_path / "sim", frames=1, seed=1)
     pts = shuffled(read_bin(tmp_path / "sim" / "velodyne" / "000000.bin")[:, :3])[0]

@@ -6,7 +6,7 @@ import pytest
 from pipeline.anchors import propose
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
 from pipeline.errors import ConfigError, DataError
-from pipeline.finetune import finetune, finetune_config, finetune_data
+from pipeline.finetune import finetune, finetune_data
 from pipeline.model import embed as embed_features
 from pipeline.model import load_checkpoint, predict
 from pipeline.training import LabelledSamples, TrainingData, evaluate, train
@@ -54,7 +54,8 @@ def consecutive_pairs(tracks: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def pretrained(tmp_path_factory: pytest.TempPathFactory):
     x, y, _ = scene(140, 5, shift=0, seed=0)
-    cfg = TrainingConfig(epochs=6, batch_labelled=32, lr=3e-3, device="cpu", threads=1, seed=0)
+    cfg = TrainingConfig(epochs=6, steps_per_epoch=None, batch_labelled=32, lr=3e-3, lr_schedule="constant",
+                         augment=False, balanced_labels=False, device="cpu", threads=1, seed=0)
     out = tmp_path_factory.mktemp("pre")
     res = train(TrainingData.build(x, np.arange(len(y)), y), cfg, TINY, SAMPLES, checkpoint_dir=out)
     assert res.checkpoint is not None
@@ -71,7 +72,7 @@ def test_finetune_on_new_scene_beats_pretrained(pretrained, tmp_path):
     labelled = np.isin(tracks, props.track)  # each confirmed track labels its samples
     pairs = consecutive_pairs(tracks)
     data = finetune_data(x, np.flatnonzero(labelled), y[labelled], pairs, constraints="verified")
-    cfg = finetune_config(TrainingConfig(device="cpu", threads=1, seed=0), epochs=6, lr=1e-3, steps_per_epoch=15)
+    cfg = TrainingConfig(device="cpu", threads=1, seed=0).finetuning().model_copy(update={"epochs": 6, "steps_per_epoch": 15})
     res = finetune(pretrained, data, cfg, checkpoint_dir=tmp_path)
     after = evaluate(res.model, LabelledSamples(x, y))
     assert before.mean_f < 75.0  # the scene shift hurts the pretrained model
@@ -105,13 +106,18 @@ def test_finetune_refuses_constraints_only(pretrained):
     x = np.zeros((4, 4, SIZE, SIZE), np.uint8)
     data = finetune_data(x, [], [], np.array([[0, 1]]))
     with pytest.raises(DataError, match="at least one confirmed anchor"):
-        finetune(pretrained, data, finetune_config(TrainingConfig(device="cpu"), epochs=1))
+        finetune(pretrained, data, TrainingConfig(device="cpu", epochs=1).finetuning())
 
 
-def test_finetune_config_keeps_explicit_base_values():
-    cfg = finetune_config(TrainingConfig(lr=0.01))
-    assert cfg.lr == 0.01 and cfg.augment is True
-    assert finetune_config(None, epochs=2).epochs == 2
+def test_finetuning_config_changes_only_the_step_budget_batch_and_label_draws():
+    base = TrainingConfig(lr=0.01, seed=3)
+    cfg = base.finetuning()
+    assert (cfg.lr, cfg.seed, cfg.augment, cfg.transitive_pairs, cfg.lr_schedule) == (0.01, 3, True, True, "cosine")
+    assert (cfg.epochs * cfg.steps_per_epoch, cfg.batch_labelled, cfg.pairs_per_label) == (800, 16, 2)
+    assert not cfg.closure_labels and not cfg.balanced_labels  # anchors are balanced by repetition
+    changed = {k for k in TrainingConfig.model_fields if getattr(cfg, k) != getattr(base, k)}
+    assert changed == {"steps_per_epoch", "batch_labelled", "pairs_per_label", "closure_labels",
+                       "balanced_labels"}
 
 
 def test_balance_classes_repeats_rare_classes():

@@ -113,3 +113,13 @@ def test_model_load_checkpoint_foreign_dict_raises_data_error(tmp_path):
 def test_model_get_model_follows_sample_config():
     model = get_model(TINY, SampleConfig(size=32, foreground_channel=False))
     assert model.config.in_channels == 3 and model.config.size == 32 and model.config.stem_stride == 2
+
+
+def test_model_checkpoint_written_with_removed_training_options_still_loads(tmp_path):
+    model = build_model(_net())
+    path = save_checkpoint(tmp_path / "m.pt", model, TINY, SampleConfig(size=16), {}, TrainingConfig(epochs=3))
+    payload = torch.load(path, weights_only=True)
+    payload["training_config"] |= {"gamma_rampup": 0.0, "component_power": None}  # as older checkpoints hold
+    torch.save(payload, path)
+    _, meta = load_checkpoint(path, "cpu")
+    assert meta.training_config == TrainingConfig(epochs=3)

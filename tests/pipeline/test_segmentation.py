@@ -117,7 +117,7 @@ def test_segmentation_separates_foliage_flush_against_a_wall():
     scan, hedge, wall = _hedge_on_wall(slice(6, 14), slice(100, 130), scatter=0.12)
     _, _, seg = _segment(scan)
     assert _dominant(seg, hedge) != _dominant(seg, wall)
-    _, _, no_texture = _segment(scan, SegmentationConfig(texture_base=0.0))
+    _, _, no_texture = _segment(scan, SegmentationConfig(texture_base=0.0, texture_slope=0.0))
     assert _dominant(no_texture, hedge) == _dominant(no_texture, wall)
 
 
@@ -146,7 +146,8 @@ def test_segmentation_takes_the_feet_of_an_object_back_from_the_ground_band():
     box = np.isclose(np.linalg.norm(scan.points, axis=1), 12.0, atol=1e-3)
     feet = box & (scan.points[:, 2] < -1.8 + 0.2)
     assert feet.any()
-    _, g, seg = _segment(scan)
+    # rings 0.28 m apart at 12 m: the foot lies more than the default 0.25 m below the next pixel
+    _, g, seg = _segment(scan, SegmentationConfig(foot_height=0.35))
     assert len(np.unique(seg.point[box])) == 1 and (seg.point[box] >= 0).all()
     _, _, cut = _segment(scan, SegmentationConfig(foot_height=0.0))
     assert (cut.point[feet] == -1).all()
@@ -207,34 +208,6 @@ def test_segmentation_bridges_up_to_bridge_pixels_empty_pixels():
                 cfg = SegmentationConfig(**{key: limit}, merge_pixels=0, occluder_pixels=0)
                 _, _, seg = _segment(scan, cfg)
                 assert (len(np.unique(seg.point[obj])) == 1) == (gap <= limit), (vertical, gap, limit)
-
-
-def _tree(crown_range: float) -> tuple[Scan, np.ndarray, np.ndarray]:
-    """A thin trunk (3 columns, ~0.6 m wide, ~1.7 m tall at 12 m) under a wide crown (31 columns)."""
-    rimg = flat_ground(SENSOR, W)
-    add_box(rimg, slice(8, 14), slice(104, 107), 12.0)  # trunk
-    add_box(rimg, slice(2, 8), slice(90, 121), crown_range)  # crown right above it
-    scan = scan_from_range_image(rimg, SENSOR)
-    r = np.linalg.norm(scan.points, axis=1)
-    above = scan.points[:, 2] > -1.8 + 0.25
-    trunk = np.isclose(r, 12.0, atol=1e-3) & above & (scan.ring >= 8)
-    crown = np.isclose(r, crown_range, atol=1e-3) & (scan.ring < 8)
-    return scan, trunk, crown
-
-
-def _joined(seg, a: np.ndarray, b: np.ndarray) -> bool:
-    ids_a, ids_b = np.unique(seg.point[a]), np.unique(seg.point[b])
-    assert len(ids_a) == 1 and len(ids_b) == 1 and ids_a[0] >= 0 and ids_b[0] >= 0
-    return bool(ids_a[0] == ids_b[0])
-
-
-def test_segmentation_cuts_an_overhang():
-    scan, trunk, crown = _tree(11.6)  # the crown 0.4 m nearer: within the vertical threshold, an overhang
-    assert not _joined(_segment(scan)[2], trunk, crown)
-    assert _joined(_segment(scan, SegmentationConfig(overhang_slope=0.0))[2], trunk, crown)
-    # a wall stepping back above (upper pixel farther) is not an overhang
-    scan, trunk, crown = _tree(12.4)
-    assert _joined(_segment(scan)[2], trunk, crown)
 
 
 @settings(max_examples=60, deadline=None)

@@ -18,7 +18,7 @@ from pipeline.training import (
     augment_batch,
     learning_rate,
     semi_supervised_loss,
-    stratified_split,
+    split_by_track,
     train,
 )
 
@@ -57,7 +57,10 @@ def same_class_pairs(y: np.ndarray, seed: int) -> np.ndarray:
 
 
 def _cfg(**kw) -> TrainingConfig:
-    base = {"epochs": 8, "batch_labelled": 32, "lr": 3e-3, "device": "cpu"}
+    # the paper's plain training (no extension) unless a test turns one on
+    base = {"epochs": 8, "steps_per_epoch": None, "batch_labelled": 32, "pairs_per_label": 5, "lr": 3e-3,
+            "lr_schedule": "constant", "augment": False, "balanced_labels": False, "transitive_pairs": False,
+            "closure_labels": False, "device": "cpu"}
     return TrainingConfig(**(base | kw))
 
 
@@ -156,11 +159,16 @@ def test_augment_batch_flips_and_shifts_whole_canvases():
     assert set(lit[:, 2].tolist()) == {1, 2, 3, 5, 6, 7}  # column 2 or its mirror 6, +-1
 
 
-def test_stratified_split_keeps_each_class_fraction():
-    labels = np.repeat(np.arange(3), [10, 20, 30])
-    tr, va = stratified_split(labels, 0.3, seed=0)
-    assert np.bincount(labels[va]).tolist() == [3, 6, 9]
-    assert sorted(np.concatenate([tr, va]).tolist()) == list(range(60))
+def test_split_by_track_keeps_tracks_whole_and_each_class_fraction():
+    # class 0: 10 tracks of 3 samples, class 1: 20 tracks of 2, class 2: one track of 4
+    tracks = np.concatenate([np.repeat(np.arange(10), 3), np.repeat(np.arange(10, 30), 2), np.full(4, 99)])
+    labels = np.repeat([0, 1, 2], [30, 40, 4])
+    tr, va = split_by_track(labels, tracks, 0.3, seed=0)
+    assert sorted(np.concatenate([tr, va]).tolist()) == list(range(len(labels)))
+    assert not set(tracks[tr].tolist()) & set(tracks[va].tolist())  # no track on both sides
+    assert [len(np.unique(tracks[va][labels[va] == k])) for k in range(3)] == [3, 6, 0]  # a lone track stays in training
+    again = split_by_track(labels, tracks, 0.3, seed=0)
+    assert np.array_equal(again[1], va) and not np.array_equal(split_by_track(labels, tracks, 0.3, seed=1)[1], va)
 
 
 def _rec(epoch: int, loss: float, val_f: float) -> EpochRecord:
@@ -234,7 +242,7 @@ def test_train_progress_callback_reports_each_epoch(blob_data):
     x, y, val = blob_data
     seen = []
     data = TrainingData.build(x[:96], np.arange(96), y[:96])
-    train(data, _cfg(epochs=2, batch_labelled=16), TINY, SAMPLES, val=val, progress=seen.append)
+    train(data, _cfg(epochs=2, batch_labelled=16), TINY, SAMPLES, val=val, report=seen.append)
     ends = [p for p in seen if p.epoch_done]
     assert [p.epoch for p in ends] == [0, 1]
     assert ends[-1].fraction == 1.0 and ends[-1].val_f is not None
@@ -293,7 +301,7 @@ def test_train_threads_option_applies_during_the_run_only(blob_data):
     during = []
     data = TrainingData.build(x[:32], np.arange(32), y[:32])
     try:
-        train(data, _cfg(epochs=1, threads=1), TINY, SAMPLES, progress=lambda _p: during.append(torch.get_num_threads()))
+        train(data, _cfg(epochs=1, threads=1), TINY, SAMPLES, report=lambda _p: during.append(torch.get_num_threads()))
         after = torch.get_num_threads()
     finally:
         torch.set_num_threads(original)
@@ -339,45 +347,13 @@ def test_track_partners_draw_any_other_member_of_the_track():
     assert set(right[left == 5].tolist()) == {6} and set(right[left == 6].tolist()) == {5}
 
 
-def test_track_partners_draw_components_by_size_power():
-    # a component of 4 samples (0-3), one of 2 (5-6); sample 4 and 7 are in no pair
-    pairs = np.array([[0, 1], [1, 2], [2, 3], [5, 6]])
-    tp = _TrackPartners(pairs, 8, np.random.default_rng(0))
-    for power, share_big in ((0.0, 0.5), (1.0, 4 / 6), (2.0, 16 / 20)):
-        starts, p = tp.components(power)
-        assert len(starts) == 2 and p.sum() == pytest.approx(1.0)
-        left = tp.draw_left(6000, starts, p)
-        assert set(left.tolist()) == {0, 1, 2, 3, 5, 6}  # members only, every member drawn
-        assert np.isin(left, [0, 1, 2, 3]).mean() == pytest.approx(share_big, abs=0.02)
-        counts = np.bincount(left, minlength=8)[:4]
-        assert counts.min() > 0.8 * counts.max()  # uniform inside a component
-
-
-def test_train_with_component_draws_runs(blob_data):
+def test_train_with_transitive_pairs_and_cosine_lr_runs(blob_data):
     x, y, _ = blob_data
     labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
     data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
-    res = train(data, _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, component_power=0.5),
-                TINY, SAMPLES)
-    assert len(res.history) == 2 and all(math.isfinite(r.loss) for r in res.history)
-
-
-def test_train_with_transitive_pairs_and_gamma_rampup_runs(blob_data):
-    x, y, _ = blob_data
-    labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
-    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
-    cfg = _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, gamma_rampup=0.5,
-               lr_schedule="cosine")
+    cfg = _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, lr_schedule="cosine")
     res = train(data, cfg, TINY, SAMPLES)
     assert len(res.history) == 2 and all(math.isfinite(r.loss) for r in res.history)
-
-
-def test_gamma_rampup_rises_from_near_zero_to_one():
-    from pipeline.training import _rampup
-
-    vals = [_rampup(t) for t in np.linspace(0, 1.5, 16)]
-    assert vals[0] < 0.01 and vals[-1] == 1.0 and _rampup(1.0) == 1.0
-    assert all(a <= b for a, b in zip(vals[:-1], vals[1:], strict=True))
 
 
 def test_closure_labels_spread_over_components_and_skip_disagreeing_ones():
@@ -420,7 +396,7 @@ def test_annotation_draw_gives_each_annotation_its_own_weight_spread_over_its_co
     counts = np.bincount(got, minlength=30)[:10]
     assert counts.min() > 0.6 * counts.max()  # uniform inside the component
     # drawing the closure's samples alike instead gives the 10-sample component 10 / 14 of them
-    # (the default, closure_draw="sample"); balanced: class-uniform over the annotations' classes
+    # (closure_draw="sample"); balanced: class-uniform over the annotations' classes
     bal = lab[_AnnotationDraw(np.searchsorted(idx, annotated), labels, group, True,
                               np.random.default_rng(0)).take(9000)]
     assert np.bincount(bal, minlength=4)[1:] / 9000 == pytest.approx([1 / 3] * 3, abs=0.02)

@@ -5,7 +5,10 @@ from sqlalchemy import select
 
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
-from app.core.errors import Invalid, NotFound
+from app.core.errors import Conflict, Invalid, NotFound
+from app.crud import AuthUser
+from app.jobs import policy
+from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
 from app.models import Dataset, Job, Sequence
 from app.schemas import (
@@ -38,10 +41,8 @@ def _queue_ingest(session: WriteSessionDep, sequence_id: int, force: bool, user_
     params = ingest.params.model_validate({"sequence_id": sequence_id, "force": force, "poses": poses})
     assert ingest.prepare is not None
     ingest.prepare(session, params)
-    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id)
-    seq = session.get(Sequence, sequence_id)
-    assert seq is not None
-    seq.ingest_job_id = job.id
+    job = crud.create_job(session, "ingest", params.model_dump(mode="json"), user_id, policy.ADMIN_PRIORITY)
+    note_queued(session, sequence_id, job.id)
     return job
 
 
@@ -51,13 +52,21 @@ def register_dataset(
 ) -> DatasetPublic:
     """Register a sequence by its path under a configured data root (admin).
 
-    A path with `..` or outside the roots is refused with 403. With `ingest` (default) the ingest
-    job is queued at once; its id is the sequence's `ingest_job_id`.
+    A path with `..`, outside the roots, or holding a link to outside them is refused with 403; a
+    folder registered before with 409 and the existing `sequence_id` (unless `reregister`). With
+    `ingest` (default) the ingest job is queued at once; its id is the sequence's `ingest_job_id`.
     """
     from pipeline.errors import TracklabelError
     from pipeline.io.registry import detect_format, reader_names
 
     path = crud.resolve_registration_path(body.path, settings.data_roots)
+    crud.check_tree_inside_roots(path, settings.data_roots)
+    existing = crud.registered_sequence_id(session, path)
+    if existing is not None and not body.reregister:
+        raise Conflict(
+            f"this folder is already registered as sequence {existing}; pass reregister=true to register it again",
+            sequence_id=existing,
+        )
     if body.format != "auto" and body.format not in reader_names():
         raise Invalid(f"unknown format {body.format!r}; known: {', '.join(reader_names())}")
     if body.config:
@@ -101,22 +110,27 @@ def inspect_dataset(dataset_id: IdPath, _admin: AdminUser, session: SessionDep) 
 
 @router.get("/sequences")
 def list_sequences(
-    _user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
+    user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
 ) -> list[SequencePublic]:
-    """Sequences to review (any user; datasets and their paths are admin routes)."""
+    """Sequences to review (any user; the folder `path` only for admins)."""
     q = select(Sequence).order_by(Sequence.id)
     if status is not None:
         q = q.where(Sequence.status == status)
-    return [SequencePublic.model_validate(s) for s in session.scalars(q).all()]
+    return [_sequence_public(s, user) for s in session.scalars(q).all()]
+
+
+def _sequence_public(seq: Sequence, user: AuthUser) -> SequencePublic:
+    pub = SequencePublic.model_validate(seq)
+    return pub if user.is_admin else pub.model_copy(update={"path": None})
 
 
 @router.get("/sequences/{sequence_id}")
-def read_sequence(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) -> SequencePublic:
-    """One sequence: path, format, sensor, ingest status."""
+def read_sequence(sequence_id: IdPath, user: CurrentUser, session: SessionDep) -> SequencePublic:
+    """One sequence: format, sensor, ingest status (and its path, for admins)."""
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
-    return SequencePublic.model_validate(seq)
+    return _sequence_public(seq, user)
 
 
 @router.post("/sequences/{sequence_id}/ingest", status_code=status.HTTP_202_ACCEPTED)

@@ -5,7 +5,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
-from app import crud, exports
+from app import audits, crud, exports
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
 from app.core.errors import NotFound
 from app.models import Sequence
@@ -88,5 +88,6 @@ def export_semantickitti(
 
 @router.get("/stats")
 def export_stats(_user: CurrentUser, session: SessionDep, sequence_id: SeqQuery = None) -> ProgressStats:
-    """Progress: tracks by status and reviewed, samples labelled per class, constraint counts."""
-    return ProgressStats(**crud.progress_stats(session, sequence_id))
+    """Progress: tracks by status and reviewed, samples labelled per class, constraint counts, and
+    the audits' agreement per operator and per class."""
+    return ProgressStats(**crud.progress_stats(session, sequence_id), audit=audits.audit_stats(session, sequence_id))

@@ -7,9 +7,11 @@ from pydantic import ValidationError
 from sqlalchemy import select
 
 from app import crud
-from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.api.deps import CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
+from app.api.redact import job_public
 from app.core.errors import Forbidden, Invalid, NotFound
 from app.crud import AuthUser
+from app.jobs import policy
 from app.jobs.registry import get_job_type, job_types
 from app.models import Job
 from app.schemas import JobCreate, JobPublic, JobStatus, JobTypePublic
@@ -18,42 +20,44 @@ router = APIRouter(tags=["jobs"])
 
 
 @router.get("/job-types")
-def list_job_types(_user: CurrentUser) -> list[JobTypePublic]:
-    """The job types this service knows, who may start them and their params schema."""
+def list_job_types(_user: CurrentUser, settings: SettingsDep) -> list[JobTypePublic]:
+    """The job types this service knows, who may start them (and within which bounds), their
+    maximum run time and their params schema."""
     return [
         JobTypePublic(
-            name=jt.name, admin_only=jt.admin_only, description=jt.description, params_schema=jt.params.model_json_schema()
+            name=jt.name, admin_only=jt.rule_for_operators() is None, description=jt.description,
+            params_schema=jt.params.model_json_schema(), **policy.describe(jt, settings),
         )
         for jt in job_types()
     ]
 
 
-@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED)
-def create_job(body: JobCreate, user: CurrentUser, session: WriteSessionDep) -> JobPublic:
-    """Queue a job `{type, params}`; a worker runs it. Unknown type or bad params -> 422;
-    admin-only types (e.g. `ingest`) from an operator -> 403."""
+@router.post("/jobs", status_code=status.HTTP_202_ACCEPTED, responses={429: {"description": "Too many queued jobs."}})
+def create_job(body: JobCreate, user: CurrentUser, session: WriteSessionDep, settings: SettingsDep) -> JobPublic:
+    """Queue a job `{type, params}`; a worker runs it, admins' jobs first. Unknown type or bad
+    params -> 422; a type or params beyond the caller's role (app/jobs/policy.py) -> 403; past the
+    per-user queue limit -> 429."""
     try:
         jt = get_job_type(body.type)
     except KeyError as exc:
         raise Invalid(str(exc.args[0])) from None
-    if jt.admin_only and not user.is_admin:
+    if jt.rule_for_operators() is None and not user.is_admin:
         raise Forbidden(f"job type {jt.name!r} needs the admin role")
     try:
         params = jt.params.model_validate(body.params)
     except ValidationError as exc:
         first = exc.errors()[0]
         raise Invalid(f"params.{'.'.join(str(p) for p in first['loc'])}: {first['msg']}") from None
-    if jt.prepare is not None:
+    if jt.prepare is not None:  # 404/409 for what the job needs come first; nothing is committed yet
         jt.prepare(session, params)
-    job = crud.create_job(session, jt.name, params.model_dump(mode="json"), user.id)
+    priority = policy.authorize(session, user, jt, params, settings)
+    job = crud.create_job(session, jt.name, params.model_dump(mode="json"), user.id, priority)
     if jt.name == "ingest":
-        from app.models import Sequence
+        from app.jobs.ingest import note_queued
 
-        seq = session.get(Sequence, params.sequence_id)
-        if seq is not None:
-            seq.ingest_job_id = job.id
+        note_queued(session, params.sequence_id, job.id)
     session.commit()
-    return JobPublic.model_validate(job)
+    return job_public(job, user)
 
 
 @router.get("/jobs")
@@ -70,7 +74,7 @@ def list_jobs(
         q = q.where(Job.status == status)
     if not user.is_admin:
         q = q.where(Job.created_by_id == user.id)
-    return [JobPublic.model_validate(j) for j in session.scalars(q).all()]
+    return [job_public(j, user) for j in session.scalars(q).all()]
 
 
 def _visible_job(session: SessionDep, job_id: int, user: AuthUser) -> Job:
@@ -85,11 +89,11 @@ def _visible_job(session: SessionDep, job_id: int, user: AuthUser) -> Job:
 @router.get("/jobs/{job_id}")
 def read_job(job_id: IdPath, user: CurrentUser, session: SessionDep) -> JobPublic:
     """A job's status, progress, message and result."""
-    return JobPublic.model_validate(_visible_job(session, job_id, user))
+    return job_public(_visible_job(session, job_id, user), user)
 
 
 @router.post("/jobs/{job_id}/cancel", status_code=status.HTTP_202_ACCEPTED)
 def cancel_job(job_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> JobPublic:
     """Cancel a queued job, or ask a running one to stop at its next checkpoint."""
     _visible_job(session, job_id, user)
-    return JobPublic.model_validate(crud.cancel_job(session, job_id, by=user.name))
+    return job_public(crud.cancel_job(session, job_id, by=user.name), user)

@@ -4,18 +4,20 @@ validation confusion matrix as PNG). Models are registered by the `train` / `fin
 
 from __future__ import annotations
 
-from datetime import datetime
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import select
 
 from app.api.deps import CurrentUser, IdPath, SessionDep
+from app.api.redact import hide_paths_in
 from app.core.errors import NotFound
+from app.crud import AuthUser
 from app.models import ModelVersion
+from app.schemas import UtcDateTime
 
 router = APIRouter(tags=["models"])
 
@@ -26,11 +28,11 @@ class ModelSummary(BaseModel):
     id: int
     name: str
     kind: str
-    path: str
+    path: str | None = Field(description="The checkpoint on the server (admins only).")
     parent_id: int | None
     job_id: int | None
     created_by_id: int | None
-    created_at: datetime
+    created_at: UtcDateTime
     val_mean_f: float | None = None
     val_f: dict[str, float | None] | None = None
     num_labelled: int | None = None
@@ -57,13 +59,18 @@ def _summary_fields(mv: ModelVersion) -> dict[str, Any]:
     }
 
 
-def _summary(mv: ModelVersion) -> ModelSummary:
-    return ModelSummary.model_validate(mv).model_copy(update=_summary_fields(mv))
+def _summary(mv: ModelVersion, user: AuthUser) -> ModelSummary:
+    return ModelSummary.model_validate(mv).model_copy(update=_summary_fields(mv) | _hidden(user))
+
+
+def _hidden(user: AuthUser) -> dict[str, Any]:
+    """What operators do not see: the checkpoint's server path (defect 11 of issue 23)."""
+    return {} if user.is_admin else {"path": None}
 
 
 @router.get("/models")
 def list_models(
-    _user: CurrentUser,
+    user: CurrentUser,
     session: SessionDep,
     kind: Annotated[str | None, Query(max_length=32)] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
@@ -73,16 +80,19 @@ def list_models(
     q = select(ModelVersion).order_by(ModelVersion.id.desc()).limit(limit).offset(offset)
     if kind is not None:
         q = q.where(ModelVersion.kind == kind)
-    return [_summary(mv) for mv in session.scalars(q).all()]
+    return [_summary(mv, user) for mv in session.scalars(q).all()]
 
 
 @router.get("/models/{model_id}")
-def get_model(model_id: IdPath, _user: CurrentUser, session: SessionDep) -> ModelDetail:
+def get_model(model_id: IdPath, user: CurrentUser, session: SessionDep) -> ModelDetail:
     """One model with all its stored metrics and the config it was trained with; 404 when unknown."""
     mv = session.get(ModelVersion, model_id)
     if mv is None:
         raise NotFound(f"model {model_id} not found")
-    return ModelDetail.model_validate(mv).model_copy(update=_summary_fields(mv))
+    detail = ModelDetail.model_validate(mv).model_copy(update=_summary_fields(mv) | _hidden(user))
+    if not user.is_admin:
+        detail = detail.model_copy(update={"metrics": hide_paths_in(detail.metrics), "config": hide_paths_in(detail.config)})
+    return detail
 
 
 @router.get("/models/{model_id}/plots/{name}", response_class=FileResponse,

@@ -10,10 +10,9 @@ from fastapi import APIRouter
 from sqlalchemy.orm import Session
 
 from app import repair
-from app.api.deps import ArtifactsDep, BigIdPath, CurrentUser, SettingsDep, WriteSessionDep
+from app.api.deps import ArtifactsDep, BigIdPath, LeaseGuard, LeaseGuardDep, SettingsDep, WriteSessionDep
 from app.core.config import Settings
 from app.core.errors import NotFound
-from app.crud import AuthUser
 from app.models import Track
 from app.schemas import MergeAction, SplitAction, SplitPublic, TrackPublic, UndoAction
 
@@ -25,13 +24,13 @@ RESPONSES: dict[int | str, dict[str, str]] = {
 }
 
 
-def _check_lease(session: Session, track_ids: list[int], user: AuthUser) -> None:
-    """The one place a track-changing route asks whether `user` may change these tracks now.
-
-    Leases are advisory today: they keep the review queue from handing a track to two operators,
-    and an action from anyone is taken on its version alone, so nothing is refused here. The
-    enforced lease check (409 when another operator holds the lease) replaces this body."""
-    del session, track_ids, user
+def _check_lease(session: Session, track_ids: list[int], guard: LeaseGuard) -> None:
+    """Refuse the change when another user holds the lease of one of these tracks (409 naming
+    the holder, app.leases), unless an admin overrides; renews the caller's own leases."""
+    for track_id in track_ids:
+        track = session.get(Track, track_id, with_for_update=True)
+        if track is not None:
+            guard.check(session, track)
 
 
 def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, track_id: int) -> repair.RepairContext:
@@ -60,42 +59,42 @@ def _selector(session: Session, ctx: repair.RepairContext, track_id: int, body: 
 
 @router.post("/tracks/{track_id}/split", responses=RESPONSES)
 def split_track(
-    track_id: BigIdPath, body: SplitAction, user: CurrentUser, session: WriteSessionDep, settings: SettingsDep,
+    track_id: BigIdPath, body: SplitAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
     artifacts: ArtifactsDep,
 ) -> SplitPublic:
     """Cut the track's points inside `region` (world frame) out into a new pending track, in every
     kept frame or in `frame_index` only: a box, a half-space, a top-view prism, a screen lasso, the
     points above a height, or (`predicted`) the whole segments a model classifies as a class. Cut
     segments get new samples; both tracks get new versions."""
-    _check_lease(session, [track_id], user)
+    _check_lease(session, [track_id], guard)
     ctx = _context(session, settings, artifacts, track_id)
     selector = _selector(session, ctx, track_id, body)
-    res = repair.split_track(session, ctx, track_id, user, body.version, selector, body.frame_index)
+    res = repair.split_track(session, ctx, track_id, guard.user, body.version, selector, body.frame_index)
     return SplitPublic(track=TrackPublic.model_validate(res.track), new_track=TrackPublic.model_validate(res.new_track),
                        moved_points=res.moved_points)
 
 
 @router.post("/tracks/{track_id}/merge", responses=RESPONSES)
 def merge_tracks(
-    track_id: BigIdPath, body: MergeAction, user: CurrentUser, session: WriteSessionDep, settings: SettingsDep,
+    track_id: BigIdPath, body: MergeAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
     artifacts: ArtifactsDep,
 ) -> TrackPublic:
     """Join `other_track_id` into this track (one object in two tracks, e.g. both sides of a
     stitch). The other track becomes `merged`; the joined track keeps the review state both
     shared, else it is pending without a class."""
-    _check_lease(session, [track_id, body.other_track_id], user)
+    _check_lease(session, [track_id, body.other_track_id], guard)
     ctx = _context(session, settings, artifacts, track_id)
-    track = repair.merge_tracks(session, ctx, track_id, user, body.version, body.other_track_id, body.other_version)
+    track = repair.merge_tracks(session, ctx, track_id, guard.user, body.version, body.other_track_id, body.other_version)
     return TrackPublic.model_validate(track)
 
 
 @router.post("/tracks/{track_id}/undo", responses=RESPONSES)
 def undo_track(
-    track_id: BigIdPath, body: UndoAction, user: CurrentUser, session: WriteSessionDep, settings: SettingsDep,
+    track_id: BigIdPath, body: UndoAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
     artifacts: ArtifactsDep,
 ) -> TrackPublic:
     """Revert the caller's last not-yet-undone action on this track, a split or merge included
     (409 `nothing to undo` when there is none)."""
-    _check_lease(session, [track_id], user)
+    _check_lease(session, [track_id], guard)
     ctx = _context(session, settings, artifacts, track_id)
-    return TrackPublic.model_validate(repair.undo(session, ctx, track_id, user, body.version))
+    return TrackPublic.model_validate(repair.undo(session, ctx, track_id, guard.user, body.version, guard.override))

@@ -10,14 +10,14 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from app import stitches
-from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.api.deps import CurrentUser, IdPath, LeaseGuardDep, SessionDep, WriteSessionDep
 from app.schemas import StitchDecision, StitchList, StitchPublic, StitchStatus
 
 router = APIRouter(tags=["stitches"])
 BIG = 2**31 - 1
 DECIDE_RESPONSES: dict[int | str, dict[str, str]] = {
     404: {"description": "No such stitch."},
-    409: {"description": "Stale version, or its sequence is not ready."},
+    409: {"description": "Stale version, its sequence is not ready, or a track is leased to another user."},
     422: {"description": "Missing or invalid version."},
 }
 
@@ -45,12 +45,16 @@ def read_stitch(stitch_id: IdPath, _user: CurrentUser, session: SessionDep) -> S
 
 
 @router.post("/stitches/{stitch_id}/confirm", responses=DECIDE_RESPONSES)
-def confirm_stitch(stitch_id: IdPath, body: StitchDecision, user: CurrentUser, session: WriteSessionDep) -> StitchPublic:
+def confirm_stitch(stitch_id: IdPath, body: StitchDecision, guard: LeaseGuardDep, session: WriteSessionDep) -> StitchPublic:
     """The two tracks show one object: their fragment pairs become constraints."""
-    return StitchPublic.model_validate(stitches.decide_stitch(session, stitch_id, user, "confirm", body.version))
+    return StitchPublic.model_validate(stitches.decide_stitch(
+        session, stitch_id, guard.user, "confirm", body.version, guard.override, guard.lease_seconds
+    ))
 
 
 @router.post("/stitches/{stitch_id}/reject", responses=DECIDE_RESPONSES)
-def reject_stitch(stitch_id: IdPath, body: StitchDecision, user: CurrentUser, session: WriteSessionDep) -> StitchPublic:
+def reject_stitch(stitch_id: IdPath, body: StitchDecision, guard: LeaseGuardDep, session: WriteSessionDep) -> StitchPublic:
     """The two tracks are different objects: their fragment pairs are never constraints."""
-    return StitchPublic.model_validate(stitches.decide_stitch(session, stitch_id, user, "reject", body.version))
+    return StitchPublic.model_validate(stitches.decide_stitch(
+        session, stitch_id, guard.user, "reject", body.version, guard.override, guard.lease_seconds
+    ))

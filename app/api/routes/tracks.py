@@ -7,11 +7,20 @@ from pydantic import Field
 from sqlalchemy import select
 
 from app import crud
-from app.api.deps import MAX_BIG_ID, ArtifactsDep, BigIdPath, CurrentUser, SessionDep, WriteSessionDep
+from app.api.deps import (
+    MAX_BIG_ID,
+    ArtifactsDep,
+    BigIdPath,
+    CurrentUser,
+    LeaseGuardDep,
+    SessionDep,
+    WriteSessionDep,
+)
 from app.core.errors import NotFound
 from app.models import Frame, Segment
 from app.schemas import (
     AcceptAction,
+    ClassName,
     DiscardAction,
     EventPublic,
     LabelAction,
@@ -26,8 +35,6 @@ from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["tracks"])
 
-ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
-assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 SortKey = Literal[tuple(k for key in crud.TRACK_SORTS for k in (key, f"-{key}"))]  # type: ignore[valid-type]
 BIG = 2**31 - 1
 
@@ -94,33 +101,36 @@ def track_events(track_id: BigIdPath, _user: CurrentUser, session: SessionDep) -
     return [EventPublic.model_validate(e) for e in crud.track_events(session, track_id)]
 
 
-def _act(session: WriteSessionDep, track_id: int, user: CurrentUser, action: str, version: int, **kw: object) -> TrackPublic:
-    track = crud.apply_action(session, track_id, user, action, version, sample_classes=SAMPLE_CLASSES, **kw)  # type: ignore[arg-type]
+def _act(session: WriteSessionDep, track_id: int, guard: LeaseGuardDep, action: str, version: int, **kw: object) -> TrackPublic:
+    track = crud.apply_action(
+        session, track_id, guard.user, action, version, sample_classes=SAMPLE_CLASSES,
+        override_lease=guard.override, lease_seconds=guard.lease_seconds, **kw,  # type: ignore[arg-type]
+    )
     return TrackPublic.model_validate(track)
 
 
 @router.post("/tracks/{track_id}/accept")
-def accept_track(track_id: BigIdPath, body: AcceptAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def accept_track(track_id: BigIdPath, body: AcceptAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Accept the track (its constraints become verified). Stale `version` -> 409."""
-    return _act(session, track_id, user, "accept", body.version)
+    return _act(session, track_id, guard, "accept", body.version)
 
 
 @router.post("/tracks/{track_id}/discard")
-def discard_track(track_id: BigIdPath, body: DiscardAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def discard_track(track_id: BigIdPath, body: DiscardAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409."""
-    return _act(session, track_id, user, "discard", body.version)
+    return _act(session, track_id, guard, "discard", body.version)
 
 
 @router.post("/tracks/{track_id}/truncate")
-def truncate_track(track_id: BigIdPath, body: TruncateAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def truncate_track(track_id: BigIdPath, body: TruncateAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 422."""
-    return _act(session, track_id, user, "truncate", body.version, start=body.start, end=body.end)
+    return _act(session, track_id, guard, "truncate", body.version, start=body.start, end=body.end)
 
 
 @router.post("/tracks/{track_id}/label")
-def label_track(track_id: BigIdPath, body: LabelAction, user: CurrentUser, session: WriteSessionDep) -> TrackPublic:
+def label_track(track_id: BigIdPath, body: LabelAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Give the whole track one class (and accept it); an unknown class -> 422."""
-    return _act(session, track_id, user, "label", body.version, label=body.label)
+    return _act(session, track_id, guard, "label", body.version, label=body.label)
 
 
 @router.get(

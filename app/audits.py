@@ -1,0 +1,91 @@
+"""The quality stage: accepted tracks sampled into an audit queue, and the auditor's verdicts.
+
+An admin or a reviewer samples `n` accepted tracks that were never audited (uniformly at random,
+seeded); each audit remembers the operator who accepted the track and the class they gave. The
+auditor agrees, or corrects the class: the correction is applied to the track as a `label`
+action (its event, its label rows, the lease check) in the same transaction. Agreement per
+operator and per class goes into `/exports/stats`.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+from sqlalchemy import Integer, func, select
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.core.errors import Conflict, NotFound
+from app.crud import AuthUser
+from app.models import Audit, Track, User, utcnow
+
+
+def sample_audits(session: Session, user: AuthUser, n: int, sequence_id: int | None, seed: int) -> list[Audit]:
+    """Queue up to `n` accepted, never-audited tracks (of one sequence or all). Commits."""
+    audited = select(Audit.track_id)
+    where = [Track.status == "accepted", Track.id.not_in(audited)]
+    if sequence_id is not None:
+        where.append(Track.sequence_id == sequence_id)
+    candidates = list(session.scalars(select(Track.id).where(*where).order_by(Track.id)).all())
+    picked = sorted(random.Random(seed).sample(candidates, min(n, len(candidates))))
+    audits = []
+    for track in session.scalars(select(Track).where(Track.id.in_(picked)).order_by(Track.id)):
+        audits.append(Audit(sequence_id=track.sequence_id, track_id=track.id, operator_id=track.reviewed_by_id,
+                            label=track.label, status="queued", sampled_by_id=user.id))
+    session.add_all(audits)
+    session.commit()
+    return audits
+
+
+def decide_audit(
+    session: Session,
+    audit_id: int,
+    user: AuthUser,
+    label: str | None,
+    sample_classes: tuple[str, ...],
+    override_lease: bool = False,
+    lease_seconds: float | None = None,
+) -> Audit:
+    """Agree (`label` None, or the operator's own class) or correct the class of an audited track.
+    NotFound / Conflict when it is decided already or the track is no longer accepted. Commits."""
+    audit = session.scalars(select(Audit).where(Audit.id == audit_id).with_for_update()).first()
+    if audit is None:
+        raise NotFound(f"audit {audit_id} not found")
+    if audit.status != "queued":
+        raise Conflict(f"audit {audit_id} is already {audit.status}")
+    track = crud.get_track(session, audit.track_id)
+    if track.status != "accepted":
+        raise Conflict(f"track {track.id} is {track.status} now; it left the audit's scope")
+    audit.auditor_id, audit.decided_at = user.id, utcnow()
+    if label is None or label == audit.label:
+        audit.status, audit.answer_label = "agreed", audit.label
+        session.commit()
+        return audit
+    audit.status, audit.answer_label = "corrected", label
+    crud.apply_action(session, track.id, user, "label", track.version, label=label, sample_classes=sample_classes,
+                      override_lease=override_lease, lease_seconds=lease_seconds)  # commits both
+    return audit
+
+
+def audit_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
+    """Decided audits and the share agreed, per operator (by name) and per operator's class."""
+    where = [Audit.status != "queued"] + ([] if sequence_id is None else [Audit.sequence_id == sequence_id])
+    agreed = func.sum((Audit.status == "agreed").cast(Integer))
+    rows_op = session.execute(
+        select(func.coalesce(User.name, "(deleted)"), func.count(), agreed)
+        .select_from(Audit).outerjoin(User, User.id == Audit.operator_id).where(*where).group_by(User.name)
+    ).all()
+    rows_cls = session.execute(
+        select(func.coalesce(Audit.label, "(none)"), func.count(), agreed).where(*where).group_by(Audit.label)
+    ).all()
+    queued = session.scalar(
+        select(func.count()).select_from(Audit).where(
+            Audit.status == "queued", *([] if sequence_id is None else [Audit.sequence_id == sequence_id]))
+    ) or 0
+
+    def table(rows: list[Any]) -> dict[str, dict[str, float]]:
+        return {str(k): {"audited": int(n), "agreed": int(a or 0), "agreement": round(int(a or 0) / int(n), 4)}
+                for k, n, a in rows}
+
+    return {"queued": int(queued), "per_operator": table(rows_op), "per_class": table(rows_cls)}

@@ -1,0 +1,66 @@
+"""The shipped default model (pipeline/models/default.pt, trained on the simulated campus only)
+on real scans: SemanticKITTI sequence 00, frames 0-2 (HDL-64E, the labelled frames).
+
+    python -m bench.run_all --only default_model
+
+1. `tracklabel predict` with no --model (the default model): point IoU per class against the
+   frames' labels (segmentation errors and unclassified points count against it).
+2. Sample level, as the experiments score models: every valid segment of the three frames whose
+   points are mostly one of the model's classes (`research.experiments.data.process_scene`:
+   the majority class of its points), classified by the model: per-class F and mean F.
+Skipped when ../shared/data/real is absent.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from bench.real_data import REAL, kitti_seq00
+
+
+def _sample_f(seq: Path) -> dict:
+    from pipeline.classes import SAMPLE_CLASSES
+    from pipeline.config import PipelineConfig
+    from pipeline.model import DEFAULT_MODEL, load_checkpoint
+    from pipeline.training import LabelledSamples, evaluate
+    from research.experiments.data import process_scene
+
+    model, meta = load_checkpoint(DEFAULT_MODEL)
+    config = PipelineConfig().override({"samples": meta.sample_config.model_dump()})
+    scene = process_scene(seq, config)
+    k = meta.model_config.num_classes
+    keep = scene.gt_class < k  # 7 = ground, 255 = unlabelled
+    rep = evaluate(model, LabelledSamples(scene.samples[keep], scene.gt_class[keep].astype(np.int64)))
+    d = rep.to_dict()
+    return {"samples": int(keep.sum()), "of_valid_samples": len(scene), "mean_f": round(d["mean_f"], 2),
+            "accuracy": round(d["accuracy"], 2),
+            "per_class": {c: {"f": d["per_class"][c]["f"], "support": d["per_class"][c]["support"]}
+                          for c in SAMPLE_CLASSES[:k]},
+            "confusion": d["confusion"]}
+
+
+def run(out_dir: Path, quick: bool) -> dict:
+    from pipeline.predict import run_predict
+
+    with tempfile.TemporaryDirectory() as tmp:
+        seq = kitti_seq00(Path(tmp) / "k00", frames=range(3))
+        if seq is None:
+            return {"skipped": f"{REAL / 'kitti_seq00'} is absent"}
+        summary = run_predict(seq, None, Path(tmp) / "pred", device="cpu")
+        iou = summary["point_iou"]
+        result = {
+            "model": summary["model"],
+            "frames": summary["frames"],
+            "point_iou": {"mean_iou": round(100 * iou["mean_iou"], 1),
+                          "per_class": {c: None if v is None else round(100 * v, 1) for c, v in iou["iou"].items()}},
+            "segments_classified": summary["segments_classified"],
+            "samples": _sample_f(seq),
+        }
+    result["headline"] = (f"default model on kitti_seq00 frames 0-2: sample mean F {result['samples']['mean_f']:.1f} "
+                          f"({result['samples']['samples']} samples), point mIoU {result['point_iou']['mean_iou']:.1f}")
+    (out_dir / "default_model_detail.json").write_text(json.dumps(result, indent=1))
+    return result

@@ -1,0 +1,116 @@
+"""`tracklabel experiment default-model`: train the model shipped in `pipeline/models/default.pt`.
+
+1. Simulate and review a training route of the varied campus (`research.experiments.data`:
+   the real perception pipeline, then the ground-truth-checking operator labels every track and
+   accepts its constraints) and a test scene D of another layout and campus style.
+2. Split the operator's labelled tracks 70/30 by track (`pipeline.training.split_by_track`).
+3. Train with the product's training, `pipeline.training.train` with the REST train job's
+   `TrainingConfig()` defaults (a quarter of the steps, see `training` below), on the training
+   tracks' labels and their verified
+   constraints (those of unknown tracks too, as the job); model selection on the validation
+   tracks.
+4. Evaluate on D and write the checkpoint (its metrics hold the validation report, D's report
+   and this config) and `<out>.json` with the same numbers.
+
+The checkpoint is the product's self-describing format, so `tracklabel predict` and the anchor
+proposals load it like any trained model. Rebuild it with
+`tracklabel experiment default-model --out pipeline/models/default.pt`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
+from pipeline.model import save_checkpoint
+from pipeline.progress import QUIET, Progress
+from pipeline.training import LabelledSamples, TrainingData, evaluate, split_by_track, train
+from research.experiments.data import SceneSamples, prepare_scene
+from research.experiments.paper import TEST_SEED_OFFSET, verified_constraints
+
+
+class DefaultModelConfig(BaseModel):
+    """What the shipped model is trained on; `training` is the product's TrainingConfig."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seed: int = 0
+    frames: int = Field(default=1200, ge=20)  # training route (the paper experiment's)
+    test_frames: int = Field(default=465, ge=10)  # test scene D (seed + 1000, another layout), as the paper experiment's
+    size: int = Field(default=64, ge=8)
+    crowd: float = Field(default=3.0, ge=0.1, le=10.0)  # as the paper experiment's campus
+    cyclists: float = Field(default=3.0, ge=0.1, le=10.0)
+    train_style: str = "a+"
+    test_style: str = "b+"
+    val_fraction: float = Field(default=0.3, gt=0.0, lt=1.0)
+    val_max: int = Field(default=2000, ge=1)  # validation samples for model selection (random subset)
+    # the product's defaults but 8 x 50 steps instead of 8 x 200 and one torch thread: the full
+    # budget takes over an hour on a busy 2-core machine
+    training: TrainingConfig = TrainingConfig(steps_per_epoch=50, threads=1)
+
+
+def _split(scene: SceneSamples, cfg: DefaultModelConfig) -> tuple[TrainingData, LabelledSamples]:
+    """Training data (labels + verified constraints of the training tracks) and validation samples."""
+    lab = scene.labelled
+    tr, va = split_by_track(scene.label[lab], scene.track[lab], cfg.val_fraction, cfg.seed)
+    pairs = verified_constraints(scene, unknown=True)
+    val_tracks = np.unique(scene.track[lab[va]])
+    pairs = pairs[~np.isin(scene.track[pairs], val_tracks).any(axis=1)]
+    data = TrainingData.build(scene.samples, lab[tr], scene.label[lab[tr]], pairs)
+    rng = np.random.default_rng(cfg.seed)
+    va_idx = lab[va] if len(va) <= cfg.val_max else np.sort(rng.choice(lab[va], cfg.val_max, replace=False))
+    return data, LabelledSamples(scene.samples[va_idx], scene.label[va_idx].astype(np.int64))
+
+
+def build_default_model(
+    out: str | Path,
+    cfg: DefaultModelConfig | None = None,
+    cache: str | Path | None = None,
+    progress: Progress = QUIET,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Train the default model (module docstring) into `out`; returns the summary also written
+    to `out` with the suffix .json."""
+    cfg = cfg or DefaultModelConfig()
+    out = Path(out)
+    # not beside OUT: the shipped model lives in the package, the scenes take gigabytes
+    cache = Path(cache) if cache is not None else Path("data") / "default_model_cache"
+    t0 = time.perf_counter()
+    sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
+    log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames, style {cfg.train_style}) and "
+        f"D (seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames, style {cfg.test_style})")
+    scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, style=cfg.train_style, **sim)
+    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
+                         style=cfg.test_style, **sim)
+    data, val = _split(scene, cfg)
+    sample_cfg = PipelineConfig().samples.model_copy(update={"size": cfg.size})
+    model_cfg = ModelConfig()
+    log(f"training on {len(data.labelled)} labels and {len(data.pairs)} verified pairs, selecting on {len(val)}")
+    t1 = time.perf_counter()
+    res = train(data, cfg.training, model_cfg, sample_cfg, val=val, progress=progress)
+    test_report = evaluate(res.model, LabelledSamples(test.samples[test.labelled],
+                                                      test.label[test.labelled].astype(np.int64)))
+    summary: dict[str, Any] = {
+        "command": "tracklabel experiment default-model",
+        "config": cfg.model_dump(mode="json"),
+        "labels": int(len(data.labelled)),
+        "pairs": int(len(data.pairs)),
+        "val_mean_f": round(res.val_report.mean_f, 2) if res.val_report is not None else None,
+        "test_d_mean_f": round(test_report.mean_f, 2),
+        "test_d_f": {k: v["f"] for k, v in test_report.to_dict()["per_class"].items()},
+        "selected_epoch": res.selected_epoch,
+        "seconds": {"data": round(t1 - t0, 1), "training": round(time.perf_counter() - t1, 1)},
+    }
+    metrics = json.loads(json.dumps(res.metrics, default=float)) | {"kind": "default", "default_model": summary,
+                                                                     "test_d": test_report.to_dict()}
+    save_checkpoint(out, res.model, model_cfg, sample_cfg, metrics, cfg.training)
+    out.with_suffix(".json").write_text(json.dumps(summary, indent=1) + "\n")
+    log(f"validation F {summary['val_mean_f']}, F on D {summary['test_d_mean_f']} -> {out}")
+    return summary

@@ -1,0 +1,55 @@
+"""The API contract check: schemathesis over every operation of the OpenAPI schema, with all of
+its checks (server errors, status codes, content types, headers and bodies conforming to the
+schema, negative data rejected, positive data accepted, auth not ignored, unsupported methods,
+...), as an admin over a database holding an ingested sequence, so that routes get past
+authentication. Used by tests/app/test_api_fuzz.py (few examples) and bench/bench_service.py
+(many). schemathesis' own pytest plugin does not run under this pytest, so operations are
+driven here.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import schemathesis
+from hypothesis import HealthCheck, given, settings
+from hypothesis.errors import Unsatisfiable
+from schemathesis import GenerationMode
+
+
+def run_contract(client: Any, factory: Any, examples: int) -> dict[str, Any]:
+    """Drive every operation with `examples` positive and `examples` negative cases; returns
+    operations, negated (operations that had negative cases), failures and their list."""
+    factory.ingested_sequence(n_frames=3, n_objects=2)
+    admin = factory.user("admin")
+    schema = schemathesis.openapi.from_asgi("/api/v1/openapi.json", client.app)
+    failures: list[str] = []
+    operations = negated = 0
+    for result in schema.get_all_operations():
+        operation = result.ok()
+        operations += 1
+        for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
+
+            @given(case=operation.as_strategy(generation_mode=mode))
+            @settings(
+                max_examples=examples,
+                deadline=None,
+                derandomize=True,
+                database=None,
+                suppress_health_check=list(HealthCheck),
+            )
+            def run(case: Any) -> None:
+                case.call_and_validate(headers=admin.headers)
+
+            try:
+                run()
+                negated += mode is GenerationMode.NEGATIVE
+            except Unsatisfiable:
+                # an operation without inputs has nothing to break: no negative case
+                if mode is not GenerationMode.NEGATIVE:
+                    failures.append(f"{operation.method.upper()} {operation.path}: no positive case")
+            except BaseException as exc:  # noqa: BLE001 - schemathesis' FailureGroup is a BaseExceptionGroup
+                if isinstance(exc, KeyboardInterrupt | SystemExit):
+                    raise
+                failures.append(f"{mode.value} {operation.method.upper()} {operation.path}: {str(exc)[:1500]}")
+    return {"operations": operations, "negated": negated, "failures": len(failures), "failure_list": failures}

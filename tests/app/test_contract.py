@@ -1,0 +1,68 @@
+"""The strict contract (issue 23, defect 12): time zones, one error shape, declared statuses,
+enums, strict integers; each reproduced as the audit reported it."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+
+def _openapi(client):
+    return client.get("/api/v1/openapi.json").json()
+
+
+def test_contract_timestamps_carry_a_time_zone(client, factory):
+    op = factory.user("operator")
+    created = client.get("/api/v1/users/me", headers=op.headers).json()["created_at"]
+    assert datetime.fromisoformat(created).utcoffset() is not None, created
+
+
+def test_contract_422_detail_is_always_a_list(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=1)
+    op = factory.user("operator")
+    track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]
+    # a route's own check (frame range outside the track) and a schema check give the same shape
+    for body in ({"version": 1, "start": 50, "end": 60}, {"version": 1}):
+        r = client.post(f"/api/v1/tracks/{track['id']}/truncate", json=body, headers=op.headers)
+        assert r.status_code == 422 and isinstance(r.json()["detail"], list), r.text
+        assert all({"loc", "msg", "type"} <= set(e) for e in r.json()["detail"])
+
+
+def test_contract_422_does_not_echo_the_input(client, factory):
+    op = factory.user("operator")
+    marker = "x" * 5000
+    r = client.post("/api/v1/tracks/1/accept", json={"version": marker}, headers=op.headers)
+    assert r.status_code == 422 and marker not in r.text
+
+
+def test_contract_version_must_be_a_json_integer(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=1)
+    op = factory.user("operator")
+    track_id = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]["id"]
+    for bad in ("1", True):
+        assert client.post(f"/api/v1/tracks/{track_id}/accept", json={"version": bad}, headers=op.headers).status_code == 422
+    assert client.post(f"/api/v1/tracks/{track_id}/accept", json={"version": 1}, headers=op.headers).status_code == 200
+
+
+def test_contract_label_is_an_enum(client, factory):
+    label = _openapi(client)["components"]["schemas"]["LabelAction"]["properties"]["label"]
+    assert "car" in label["enum"] and "vehicle" not in label["enum"]
+    op = factory.user("operator")
+    r = client.post("/api/v1/tracks/1/label", json={"version": 1, "label": "vehicle"}, headers=op.headers)
+    assert r.status_code == 422
+
+
+def test_contract_error_statuses_are_declared(client):
+    paths = _openapi(client)["paths"]
+    accept = paths["/api/v1/tracks/{track_id}/accept"]["post"]["responses"]
+    assert {"401", "403", "404", "409", "413", "422"} <= set(accept)
+    assert accept["409"]["content"]["application/json"]["schema"] == {"$ref": "#/components/schemas/ErrorBody"}
+    assert "401" in paths["/api/v1/users/me"]["get"]["responses"]
+    assert "429" in paths["/api/v1/jobs"]["post"]["responses"]
+
+
+def test_contract_job_body_is_one_schema_per_type(client):
+    doc = _openapi(client)
+    body = doc["components"]["schemas"]["JobCreate"]
+    assert {"finetune", "ingest", "selftest"} <= set(body["discriminator"]["mapping"])
+    finetune = doc["components"]["schemas"]["FinetuneJobCreate"]["properties"]["params"]
+    assert finetune == {"$ref": "#/components/schemas/FinetuneParams"}

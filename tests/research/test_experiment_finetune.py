@@ -1,0 +1,74 @@
+"""`tracklabel experiment finetune`: the simulated operator and the CLI's argument checks (the
+experiment itself runs for minutes; its numbers are in the README)."""
+
+from __future__ import annotations
+
+import numpy as np
+from typer.testing import CliRunner
+
+from app.cli import app
+from research.experiments.data import SceneSamples
+from research.experiments.finetune import simulated_answers
+
+runner = CliRunner()
+
+
+def _scene() -> SceneSamples:
+    # 3 tracks: track 1 (car, 3 samples, all labelled), track 2 (person, the operator truncated its
+    # last sample), track 3 (mostly ground: nothing labelled)
+    m = 7
+    gt_class = np.array([1, 1, 1, 0, 0, 4, 7], np.int16)
+    label = np.array([1, 1, 1, 0, 0, -1, -1], np.int16)
+    return SceneSamples(
+        samples=np.zeros((m, 4, 8, 8), np.uint8),
+        frame=np.array([0, 1, 2, 0, 1, 2, 0], np.int32),
+        segment=np.arange(m, dtype=np.int32),
+        track=np.array([1, 1, 1, 2, 2, 2, 3], np.int64),
+        link_score=np.full(m, 0.9, np.float32),
+        gt_class=gt_class,
+        gt_object=np.arange(m, dtype=np.int64),
+        gt_purity=np.ones(m, np.float32),
+        progress=np.zeros(m, np.float32),
+        label=label,
+        verified_pairs=np.zeros((0, 2), np.int64),
+        auto_pairs=np.zeros((0, 2), np.int64),
+        auto_scores=np.zeros(0, np.float32),
+    )
+
+
+def test_simulated_operator_answers_samples_from_truth():
+    idx, y, confirmed, rejected = simulated_answers(_scene(), np.array([0, 5, 6]), np.array([1, 2, 3]), False)
+    assert idx.tolist() == [0, 5] and y.tolist() == [1, 4]  # sample 6 is mostly ground: rejected
+    assert (confirmed, rejected) == (2, 1)
+
+
+def test_simulated_operator_labels_whole_tracks_as_reviewed():
+    idx, y, confirmed, rejected = simulated_answers(_scene(), np.array([0, 3, 6]), np.array([1, 2, 3]), True)
+    assert idx.tolist() == [0, 1, 2, 3, 4] and y.tolist() == [1, 1, 1, 0, 0]  # truncated track 2 keeps 2
+    assert (confirmed, rejected) == (2, 1)
+
+
+def test_cli_refuses_bad_arguments(tmp_path):
+    for args, msg in (
+        (["--set", "strategies=[random]"], "unknown random"),
+        (["--set", "budgets=[2,x]"], "budgets"),
+        (["--set", "budgets=[0]"], "budgets >= 1"),
+        (["--set", "constraints=all"], "constraints"),
+    ):
+        r = runner.invoke(app, ["experiment", "finetune", "--out", str(tmp_path), *args])
+        assert r.exit_code == 2 and msg in r.output, (args, r.output)
+
+
+def test_cli_experiment_finetune_smoke_writes_tables_and_curves(tmp_path):
+    import json
+
+    out = tmp_path / "ft"
+    r = runner.invoke(app, ["experiment", "finetune", "--out", str(out), "--config", "finetune-smoke"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "finetune.json").read_text())
+    assert set(doc["pretrained"]) == {"baseline_min", "constraint100", "baseline_max"}
+    assert [(run["strategy"], run["budget"]) for run in doc["runs"]] == [("confident", 2), ("track_diverse", 2)]
+    assert doc["config"]["finetune_steps_per_epoch"] == 1 and doc["seconds"]["total"] > 0
+    assert "constraint100 + fine-tuning" in (out / "finetune.md").read_text()
+    for name in ("finetune_f.png", "finetune_curve.png", "finetune_curve.json"):
+        assert (out / name).stat().st_size > 100
