@@ -320,9 +320,9 @@ class PredictedRegion(_Request):
     class_name: str = Field(min_length=1, max_length=16)
 
 
-# a plain union told apart by each member's `kind` literal: pydantic refuses a discriminator on a
-# field that JsonModel's before-validator reads
-SplitRegion = BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion
+SplitRegion = Annotated[
+    BoxRegion | HalfSpaceRegion | PrismRegion | LassoRegion | HeightRegion | PredictedRegion, Field(discriminator="kind")
+]
 
 
 class SplitAction(ActionBase):
