@@ -564,18 +564,6 @@ def _undo_merge(session: Session, track: Track, ev: AnnotationEvent, user: AuthU
     return track
 
 
-def last_geometry_events(session: Session, sequence_id: int) -> list[AnnotationEvent]:
-    """The split and merge events of a sequence that no undo reverted, oldest first (replay)."""
-    reverted = select(AnnotationEvent.reverts_event_id).where(AnnotationEvent.reverts_event_id.is_not(None))
-    tracks = select(Track.id).where(Track.sequence_id == sequence_id)
-    return list(session.scalars(
-        select(AnnotationEvent).where(
-            AnnotationEvent.track_id.in_(tracks), AnnotationEvent.action.in_(GEOMETRY_ACTIONS),
-            AnnotationEvent.id.not_in(reverted), AnnotationEvent.detail.is_not(None),
-        ).order_by(AnnotationEvent.id)
-    ).all())
-
-
 def repair_context(session: Session, settings: Any, artifacts: ArtifactStore, sequence_id: int) -> RepairContext:
     """The context of a sequence: its sensor, its pipeline config (settings' file + its overrides)."""
     from app.jobs.ingest import get_backend

@@ -321,3 +321,19 @@ def test_repair_split_by_predicted_class_moves_whole_segments(client, factory, d
     if other not in classes:  # a class the model gives no segment: nothing is selected
         _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": other}}, status=409)
     _post(client, op, tid, "split", {"version": 2, "region": {**region, "class_name": "spaceship"}}, status=409)
+
+
+def test_repair_split_and_merge_by_an_operator_without_the_lease_409(client, factory):
+    """While one operator holds a track's lease, another can neither split it nor merge it (either side)."""
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    holder, other = factory.user("operator", "ann"), factory.user("operator", "bob")
+    leased = client.post("/api/v1/review/next", headers=holder.headers).json()
+    free = next(t for t in factory.track_ids(seq) if t != leased["id"])
+    r = client.post(f"/api/v1/tracks/{leased['id']}/split", json={"version": leased["version"], "region": HALF},
+                    headers=other.headers)
+    assert r.status_code == 409 and "ann" in r.json()["detail"]
+    r = client.post(f"/api/v1/tracks/{free}/merge", headers=other.headers,
+                    json={"version": 1, "other_track_id": leased["id"], "other_version": leased["version"]})
+    assert r.status_code == 409 and "ann" in r.json()["detail"]
+    assert factory.track(leased["id"]).version == leased["version"] and factory.track(free).version == 1
+    _post(client, holder, leased["id"], "split", {"version": leased["version"], "region": HALF})  # the holder may
