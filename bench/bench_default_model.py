@@ -62,5 +62,6 @@ def run(out_dir: Path, quick: bool) -> dict:
         }
     result["headline"] = (f"default model on kitti_seq00 frames 0-2: sample mean F {result['samples']['mean_f']:.1f} "
                           f"({result['samples']['samples']} samples), point mIoU {result['point_iou']['mean_iou']:.1f}")
+    out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "default_model_detail.json").write_text(json.dumps(result, indent=1))
     return result
