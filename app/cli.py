@@ -193,7 +193,7 @@ def predict(
 
 
 # ----------------------------------------------------------------------------- experiments
-experiment_app = typer.Typer(no_args_is_help=True, help="Experiments on simulated scenes (issue 5, issue 7).")
+experiment_app = typer.Typer(no_args_is_help=True, help="Experiments on simulated scenes: the paper's tables, fine-tuning, the default model.")
 app.add_typer(experiment_app, name="experiment")
 
 
