@@ -205,8 +205,8 @@ class JobsPanel:
             except ApiError:
                 time.sleep(JOB_POLL_SECONDS)
                 continue
+            self._show(job)  # the bar and status first: whoever reads self.job sees them drawn
             self.job = job
-            self._show(job)
             if job["status"] in ("succeeded", "failed", "cancelled"):
                 model_id = (job.get("result") or {}).get("model_id")
                 if job["status"] == "succeeded" and model_id:
