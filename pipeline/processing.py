@@ -270,8 +270,9 @@ class SequenceProcessor:
             results = map(_load_and_process, jobs)
         threads_before = numba.get_num_threads()
         if pool is None:
-            # one numba thread per frame: on the 2-core machine under load, two threads took the
-            # stages 4-9x longer than one (docs/perception.md); --workers parallelises instead
+            # one numba thread per frame: two threads are 25 % faster on an idle 2-core machine
+            # but 1.6-20x slower whenever the other core is busy (docs/perception.md);
+            # --workers parallelises instead
             numba.set_num_threads(1)
         try:
             for job, core in zip(jobs, results, strict=True):
