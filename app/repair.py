@@ -508,11 +508,13 @@ def _undo_split(session: Session, track: Track, ev: AnnotationEvent, user: AuthU
     session.execute(delete(Label).where(Label.segment_id.in_(created)))
     session.execute(delete(PairConstraint).where(
         PairConstraint.segment_a_id.in_(created) | PairConstraint.segment_b_id.in_(created)))
-    _drop_track(session, new)
-    session.execute(delete(Segment).where(Segment.id.in_(created)))
+    # segments first: a segment the split moved whole belongs to the new track, and dropping that
+    # track deletes its segments (ON DELETE CASCADE)
     if d["segments_before"]:
         session.execute(Segment.__table__.update().where(Segment.__table__.c.id == _bind_id()),
                         [{"_id": r["id"], **{f: r[f] for f in SEGMENT_FIELDS}} for r in d["segments_before"]])
+    _drop_track(session, new)
+    session.execute(delete(Segment).where(Segment.id.in_(created)))
     _restore_track(track, d["track_before"])
     _restore_links(session, [track.id], d["links_before"])
     _event(session, track, user, "undo", version, before, None, reverts_event_id=ev.id)
