@@ -196,14 +196,15 @@ class PipelineConfig(_Section):
 
     def override(self, updates: dict) -> PipelineConfig:
         """A copy with nested `updates` applied ({"samples": {"size": 256}})."""
-        return _validate(_merge(self.model_dump(), updates), "overrides")
+        return _validate(merge_nested(self.model_dump(), updates), "overrides")
 
 
-def _merge(base: dict, updates: dict) -> dict:
+def merge_nested(base: dict, updates: dict) -> dict:
+    """`base` with nested `updates` applied (dicts merged key by key, anything else replaced)."""
     out = dict(base)
     for key, value in updates.items():
         if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
+            out[key] = merge_nested(out[key], value)
         else:
             out[key] = value
     return out
@@ -229,4 +230,4 @@ def load_config(path: str | Path | None = None) -> PipelineConfig:
         raise ConfigError(f"{p}: cannot read config: {exc}") from exc
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: config must be a mapping of sections")
-    return _validate(_merge(PipelineConfig().model_dump(), data), str(p))
+    return _validate(merge_nested(PipelineConfig().model_dump(), data), str(p))

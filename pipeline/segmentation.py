@@ -338,11 +338,11 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
 def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no cover - numba
     """Step 4 of the module docstring: (H, W) relabelled ids (raster order kept), sizes, count."""
     h, w = labels.shape
-    # pairs of a small component and another: pairs the angle criterion alone refused, within one
-    # texture (pieces of one foliage mass), and pairs the texture test alone refused; as keys
-    # small * count + other, kind 0 and 1
-    keys = np.empty((2, 4 * h * w), dtype=np.int64)
-    m = np.zeros(2, dtype=np.int64)
+    # pairs of a small component and another, as keys (small * count + other) * 2 + kind: kind 0
+    # for pairs of rough pixels the angle criterion alone refused (pieces of one foliage mass),
+    # kind 1 for pairs the texture test alone refused
+    keys = np.empty(4 * h * w, dtype=np.int64)
+    m = 0
     for r in range(h):
         for c in range(w):
             a = labels[r, c]
@@ -358,29 +358,29 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no
                 if b == a or b < 0:
                     continue
                 if sizes[a] < merge_pixels:
-                    keys[kind, m[kind]] = a * count + b
-                    m[kind] += 1
+                    keys[m] = (a * count + b) * 2 + kind
+                    m += 1
                 if sizes[b] < merge_pixels:
-                    keys[kind, m[kind]] = b * count + a
-                    m[kind] += 1
-    # each small component's partner: the one of its own texture it shares the most pairs with,
-    # else the one of the other texture it shares the most pairs with
-    best = np.full(count, -1, dtype=np.int64)
-    for kind in range(2):
-        k_sorted = np.sort(keys[kind, : m[kind]])
-        best_n = np.zeros(count, dtype=np.int64)
-        i = 0
-        n_keys = m[kind]
-        while i < n_keys:
-            j = i
-            while j < n_keys and k_sorted[j] == k_sorted[i]:
-                j += 1
-            a = k_sorted[i] // count
-            # kind 1 only for components without a partner of their own texture
-            if (kind == 0 or best[a] < 0 or best_n[a] > 0) and j - i > best_n[a]:
-                best_n[a] = j - i
-                best[a] = k_sorted[i] - a * count
-            i = j
+                    keys[m] = (b * count + a) * 2 + kind
+                    m += 1
+    keys = np.sort(keys[:m])
+    # each small component's partner: the one it shares the most kind-0 pairs with, else the one
+    # it shares the most kind-1 pairs with (ties: the lower id)
+    best = np.full((2, count), -1, dtype=np.int64)
+    best_n = np.zeros((2, count), dtype=np.int64)
+    i = 0
+    while i < m:
+        j = i
+        while j < m and keys[j] == keys[i]:
+            j += 1
+        kind = keys[i] & 1
+        pair = keys[i] >> 1
+        a = pair // count
+        if j - i > best_n[kind, a]:
+            best_n[kind, a] = j - i
+            best[kind, a] = pair - a * count
+        i = j
+    best = np.where(best[0] >= 0, best[0], best[1])
     parent = np.arange(count, dtype=np.int64)
     for a in np.argsort(sizes, kind="mergesort"):  # smallest first
         if sizes[a] >= merge_pixels:

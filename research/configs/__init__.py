@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from pipeline.config import merge_nested
 from pipeline.errors import ConfigError
 
 CONFIG_DIR = Path(__file__).resolve().parent
@@ -40,16 +41,6 @@ def _read(name: str) -> dict[str, Any]:
     return data
 
 
-def _merge(base: dict[str, Any], updates: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in updates.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def _assignment(item: str) -> dict[str, Any]:
     """'training.lr=0.01' -> {"training": {"lr": 0.01}}."""
     key, sep, raw = item.partition("=")
@@ -69,9 +60,9 @@ def load_experiment_config(cls: type[T], names: Sequence[str] = (), sets: Sequen
     KEY=VALUE overrides applied in order; a bad field is a ConfigError naming it."""
     data: dict[str, Any] = {}
     for name in names:
-        data = _merge(data, _read(name))
+        data = merge_nested(data, _read(name))
     for item in sets:
-        data = _merge(data, _assignment(item))
+        data = merge_nested(data, _assignment(item))
     try:
         return cls.model_validate(data)
     except ValidationError as exc:
