@@ -438,47 +438,9 @@ def apply_action(
     user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
     `lease_seconds`.
     """
-    track = session.get(Track, track_id, with_for_update=True)
-    if track is None:
-        raise NotFound(f"track {track_id} not found")
-    seq_status = session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": track.sequence_id})
-    if seq_status != "ready":
-        raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
-    leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
-    if track.version != version:
-        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
-    if track.status == "merged" and action != "undo":
-        raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
-
+    track = _track_for_review(session, track_id, user, action, version, override_lease, lease_seconds)
     before = review_state(track)
-    after = dict(before)
-    reverts: AnnotationEvent | None = None
-    if action == "accept":
-        after["status"] = "accepted"
-    elif action == "discard":
-        after["status"] = "discarded"
-    elif action == "label":
-        if label not in sample_classes:
-            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
-        after["label"] = label
-        after["status"] = "accepted"  # labelling a track is accepting it with that class
-    elif action == "truncate":
-        assert start is not None and end is not None
-        if not (track.first_frame <= start <= end <= track.last_frame):
-            raise NotApplicable(
-                f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
-            )
-        after["keep_start"], after["keep_end"] = start, end
-    elif action == "undo":
-        reverts = last_undoable_event(session, track_id, user.id)
-        if reverts is None:
-            raise Conflict(f"nothing to undo: no action of {user.name} on track {track_id} is left to undo")
-        for f in REVIEW_FIELDS:
-            if reverts.before.get(f) != reverts.after.get(f):
-                after[f] = reverts.before.get(f)
-    else:
-        raise Invalid(f"unknown action {action!r}")
-
+    after, reverts = _review_after(session, track, user, action, before, label, start, end, sample_classes)
     if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
         _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
@@ -502,6 +464,68 @@ def apply_action(
     refresh_labels(session, track, user.id, sample_classes)
     session.commit()
     return track
+
+
+def _track_for_review(
+    session: Session, track_id: int, user: AuthUser, action: str, version: int, override_lease: bool,
+    lease_seconds: float | None,
+) -> Track:
+    """The track, locked for update, once the action may go ahead: its sequence is ready, the
+    lease allows it (renewing the caller's own), `version` is current and it is not merged away."""
+    track = session.get(Track, track_id, with_for_update=True)
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    seq_status = session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": track.sequence_id})
+    if seq_status != "ready":
+        raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be reviewed once it is ready")
+    leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
+    if track.version != version:
+        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    if track.status == "merged" and action != "undo":
+        raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
+    return track
+
+
+def _review_after(
+    session: Session,
+    track: Track,
+    user: AuthUser,
+    action: str,
+    before: dict[str, Any],
+    label: str | None,
+    start: int | None,
+    end: int | None,
+    sample_classes: tuple[str, ...],
+) -> tuple[dict[str, Any], AnnotationEvent | None]:
+    """The review state after `action`, and the event an undo reverts (None for other actions)."""
+    after = dict(before)
+    reverts: AnnotationEvent | None = None
+    if action == "accept":
+        after["status"] = "accepted"
+    elif action == "discard":
+        after["status"] = "discarded"
+    elif action == "label":
+        if label not in sample_classes:
+            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
+        after["label"] = label
+        after["status"] = "accepted"  # labelling a track is accepting it with that class
+    elif action == "truncate":
+        assert start is not None and end is not None
+        if not (track.first_frame <= start <= end <= track.last_frame):
+            raise NotApplicable(
+                f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
+            )
+        after["keep_start"], after["keep_end"] = start, end
+    elif action == "undo":
+        reverts = last_undoable_event(session, track.id, user.id)
+        if reverts is None:
+            raise Conflict(f"nothing to undo: no action of {user.name} on track {track.id} is left to undo")
+        for f in REVIEW_FIELDS:
+            if reverts.before.get(f) != reverts.after.get(f):
+                after[f] = reverts.before.get(f)
+    else:
+        raise Invalid(f"unknown action {action!r}")
+    return after, reverts
 
 
 def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
