@@ -27,7 +27,8 @@ from app.models import Track
 from app.worker import Worker
 from pipeline.classes import SAMPLE_CLASSES
 
-SEED, FRAMES, SIZE = 3, 10, 32
+SEED, FRAMES, SIZE, MODEL_SIZE = 3, 10, 32, "tiny"
+SIMULATION: dict[str, Any] = {}  # the simulator's defaults (crowd, cyclists, style)
 # A short run of the tiny network: selection after each of 4 epochs of 25 steps.
 TRAINING = {"epochs": 4, "steps_per_epoch": 25, "threads": 1}
 # |job F - experiment F| bound, in F points: one standard deviation of validation F over training
@@ -50,7 +51,7 @@ def _experiment_side(scene: Any, train_seed: int) -> tuple[dict[str, Any], float
     data = TrainingData.build(scene.samples, labelled, scene.label[labelled].astype(np.int64), pairs, weights)
     val = LabelledSamples(scene.samples[split.val_labelled], scene.label[split.val_labelled].astype(np.int64))
     tcfg = cfg.setting_config("constraint100").model_copy(update={"threads": 1})
-    res = train(data, tcfg, ModelConfig(**MODEL_SIZES["tiny"]),
+    res = train(data, tcfg, ModelConfig(**MODEL_SIZES[MODEL_SIZE]),
                 PipelineConfig().samples.model_copy(update={"size": SIZE}), val=val)
     counts = {"labelled_train": len(labelled), "labelled_val": len(val), "pairs": len(pairs),
               "labels_per_class": dict(zip(SAMPLE_CLASSES, np.bincount(scene.label[labelled],
@@ -101,7 +102,7 @@ def _job_side(client: Any, settings: Any, db: Any, scene: Any, seq_dir: Any, tra
     _review(client, db, op, val_seq, scene, np.unique(scene.track[split.val_labelled]))
     results = []
     for seed in train_seeds:
-        params = {"sequence_ids": [train_seq], "val_sequence_ids": [val_seq], "model_size": "tiny", "seed": seed,
+        params = {"sequence_ids": [train_seq], "val_sequence_ids": [val_seq], "model_size": MODEL_SIZE, "seed": seed,
                   **TRAINING}
         r = client.post("/api/v1/jobs", json={"type": "train", "params": params}, headers=admin.headers)
         assert r.status_code == 202, r.text
@@ -124,10 +125,11 @@ def reviewed_scene(tmp_path_factory):
     from research.experiments.data import prepare_scene
 
     cache = tmp_path_factory.mktemp("scene")
-    scene = prepare_scene(cache, seed=SEED, frames=FRAMES, size=SIZE, keep_sequence=True)
+    scene = prepare_scene(cache, seed=SEED, frames=FRAMES, size=SIZE, keep_sequence=True, **SIMULATION)
     # stitches stay unconfirmed on both sides (see the module docstring)
     scene = dataclasses.replace(scene, stitched_pairs=np.zeros((0, 2), np.int64))
-    return scene, cache / f"seq_s{SEED}_f{FRAMES}_o0"
+    (seq_dir,) = cache.glob("seq_*")
+    return scene, seq_dir
 
 
 def test_train_job_matches_experiment_constraint100(client, settings, db, reviewed_scene):
