@@ -278,7 +278,7 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
     3. Runs are numbered in raster order of their first pixel, so components are too.
     """
     h, w = ok.shape
-    run_of = np.empty((h, w), dtype=np.int32)  # the run of each ok pixel, first as an id in its row
+    run_of = np.empty((h, w), dtype=np.int32)  # the run of each ok pixel, as an id in its row
     row_len = np.empty((h, w), dtype=np.int32)  # pixel count of each row's k-th run
     row_runs = np.zeros(h, dtype=np.int32)
     for r in prange(h):
@@ -304,24 +304,21 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
     n = first[h]
     parent = np.arange(n, dtype=np.int32)
     length = np.empty(n, dtype=np.int32)
-    for r in prange(h):
-        for c in range(w):
-            if ok[r, c]:
-                run_of[r, c] += first[r]
+    for r in range(h):
         for k in range(row_runs[r]):
             length[first[r] + k] = row_len[r, k]
-    for r in range(h):
+    for r in range(h):  # run ids stay per row in run_of: first[r] makes them global
         last_a = -1
         last_b = -1
         for c in range(w):
             d = right[r, c]
             if 0 < d < ANGLE_CUT and (d > 1 or c + 1 == w):
                 c1 = c + d if c + d < w else c + d - w
-                _union(parent, run_of[r, c], run_of[r, c1])
+                _union(parent, first[r] + run_of[r, c], first[r] + run_of[r, c1])
             d = down[r, c]
             if 0 < d < ANGLE_CUT:
-                a = run_of[r, c]
-                b = run_of[r + d, c]
+                a = first[r] + run_of[r, c]
+                b = first[r + d] + run_of[r + d, c]
                 if a != last_a or b != last_b:  # neighbouring columns mostly join the same two runs
                     _union(parent, a, b)
                     last_a = a
@@ -340,13 +337,15 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
     for r in prange(h):
         for c in range(w):
             if ok[r, c]:
-                labels[r, c] = lab[run_of[r, c]]
+                labels[r, c] = lab[first[r] + run_of[r, c]]
     return labels, sizes[:nxt], nxt
 
 
 @njit(cache=True)
 def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no cover - numba
-    """Step 4 of the module docstring: (H, W) relabelled ids (raster order kept), sizes, count."""
+    """Step 4 of the module docstring: (count,) int32 merged id of each component (the merged
+    ones numbered in raster order of their first pixel), their sizes, their count. The image is
+    relabelled once, in `_finish`."""
     h, w = labels.shape
     # pairs of a small component and another, as keys (small * count + other) * 2 + kind: kind 0
     # for pairs of rough pixels the angle criterion alone refused (pieces of one foliage mass),
@@ -407,12 +406,7 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no
             nxt += 1
         remap[k] = remap[root]
         new_sizes[remap[k]] += sizes[k]
-    out = np.full((h, w), -1, dtype=np.int32)
-    for r in range(h):
-        for c in range(w):
-            if labels[r, c] >= 0:
-                out[r, c] = remap[labels[r, c]]
-    return out, new_sizes[:nxt], nxt
+    return remap, new_sizes[:nxt], nxt
 
 
 @njit(cache=True)
@@ -448,17 +442,22 @@ def _reclaim_feet(labels, index, points, foot):  # pragma: no cover - numba
 
 
 @njit(cache=True, parallel=True)
-def _finish(labels, sizes, count, min_points, row, col, point_range, pix_range, kept, ground, taken, hb, hs):  # pragma: no cover
-    """Drop segments under `min_points` pixels, renumber densely, and label every point whose
-    range agrees with its pixel's nearest point (within the horizontal threshold); ground points
-    only in pixels taken back by `_reclaim_feet`."""
+def _finish(labels, merged, sizes, count, min_points, row, col, point_range, pix_range, kept, ground, taken, hb,
+            hs):  # pragma: no cover
+    """Map the components of `labels` to their merged segments (`merged`), drop segments under
+    `min_points` pixels, renumber densely, and label every point whose range agrees with its
+    pixel's nearest point (within the horizontal threshold); ground points only in pixels taken
+    back by `_reclaim_feet`."""
     h, w = labels.shape
-    remap = np.full(count, -1, dtype=np.int32)
+    dense = np.full(count, -1, dtype=np.int32)
     nxt = 0
     for k in range(count):
         if sizes[k] >= min_points:
-            remap[k] = nxt
+            dense[k] = nxt
             nxt += 1
+    remap = np.empty(merged.shape[0], dtype=np.int32)
+    for k in range(merged.shape[0]):
+        remap[k] = dense[merged[k]]
     pixel = labels  # relabelled in place
     for r in prange(h):
         for c in range(w):
@@ -502,13 +501,14 @@ def _segment_kernel(
         rng, ok, empty, tex, vb, vs, hb, hs, tan_beta, v_alpha, col_angle, bridge_h, bridge_v, occ,
     )
     labels, sizes, count = _label_components(ok, right, down)
+    merged = np.arange(count, dtype=np.int32)
     if merge_pixels > 0:
-        labels, sizes, count = _merge_small(labels, sizes, count, right, down, merge_pixels)
+        merged, sizes, count = _merge_small(labels, sizes, count, right, down, merge_pixels)
     if foot > 0.0:
         taken = _reclaim_feet(labels, index, points, foot)
     else:
         taken = np.zeros((h, w), dtype=np.bool_)
-    return _finish(labels, sizes, count, min_points, row, col, point_range, rng, kept, ground, taken, hb, hs)
+    return _finish(labels, merged, sizes, count, min_points, row, col, point_range, rng, kept, ground, taken, hb, hs)
 
 
 def segment(
