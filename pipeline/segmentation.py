@@ -18,7 +18,10 @@
    refused pairs with, preferring pairs of rough pixels that only the angle criterion refused
    (pieces of one foliage mass, whose scattered returns fail the angle test) over pairs that
    only the texture test refused (a patch of glass goes back to its car, a smooth leaf cluster to
-   its hedge). Large components never merge: a hedge grown against a wall stays apart.
+   its hedge). Across the texture cut, a smooth component taller than wide (a trunk) and a rough
+   one above it (its crown) do not count their vertical pairs: neither joins the other, while a
+   wide smooth piece (a car's door under its glass) still goes back to its object. Large
+   components never merge: a hedge grown against a wall stays apart.
 
 Everything runs in numba, one call per frame.
 """
@@ -342,14 +345,37 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no cover - numba
-    """Step 4 of the module docstring: (count,) int32 merged id of each component (the merged
-    ones numbered in raster order of their first pixel), their sizes, their count. The image is
-    relabelled once, in `_finish`."""
+def _tall(labels, count, v_alpha, h_alpha):  # pragma: no cover - numba
+    """(count,) bool: components taller than wide in angle, by the bounding box of their pixels
+    (a trunk, a pole; a piece of car body is wide)."""
     h, w = labels.shape
-    # pairs of a small component and another, as keys (small * count + other) * 2 + kind: kind 0
-    # for pairs of rough pixels the angle criterion alone refused (pieces of one foliage mass),
-    # kind 1 for pairs the texture test alone refused
+    r0 = np.full(count, h, dtype=np.int64)
+    r1 = np.full(count, -1, dtype=np.int64)
+    c0 = np.full(count, w, dtype=np.int64)
+    c1 = np.full(count, -1, dtype=np.int64)
+    for r in range(h):
+        for c in range(w):
+            a = labels[r, c]
+            if a >= 0:
+                r0[a] = min(r0[a], r)
+                r1[a] = max(r1[a], r)
+                c0[a] = min(c0[a], c)
+                c1[a] = max(c1[a], c)
+    tall = np.zeros(count, dtype=np.bool_)
+    for a in range(count):
+        if r1[a] >= 0:
+            tall[a] = (r1[a] - r0[a] + 1) * v_alpha[r0[a]] > (c1[a] - c0[a] + 1) * h_alpha
+    return tall
+
+
+@njit(cache=True)
+def _refused_pair_keys(labels, sizes, count, right, down, merge_pixels, tex):  # pragma: no cover - numba
+    """Sorted int64 keys (small * count + other) * 4 + kind, one per refused pair of a small
+    component and another: kind 0 for pairs of rough pixels the angle criterion alone refused
+    (pieces of one foliage mass), 1 for pairs the texture test alone refused, 2 and 3 for those
+    of them that are vertical with the rough pixel above, 2 when the smooth one below belongs to
+    the small component, 3 when it belongs to the other."""
+    h, w = labels.shape
     keys = np.empty(4 * h * w, dtype=np.int64)
     m = 0
     for r in range(h):
@@ -362,34 +388,60 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels):  # pragma: no
                 if flag < ANGLE_CUT:
                     continue
                 d = flag & STEP_MASK
-                kind = 0 if flag & ANGLE_CUT else 1
                 b = labels[r, (c + d) % w] if side == 0 else labels[r + d, c]
                 if b == a or b < 0:
                     continue
+                kind_a = kind_b = 0 if flag & ANGLE_CUT else 1
+                if kind_a == 1 and side == 1 and tex[r, c] == 2:  # b is the smooth one below
+                    kind_a, kind_b = 3, 2
                 if sizes[a] < merge_pixels:
-                    keys[m] = (a * count + b) * 2 + kind
+                    keys[m] = (a * count + b) * 4 + kind_a
                     m += 1
                 if sizes[b] < merge_pixels:
-                    keys[m] = (b * count + a) * 2 + kind
+                    keys[m] = (b * count + a) * 4 + kind_b
                     m += 1
-    keys = np.sort(keys[:m])
-    # each small component's partner: the one it shares the most kind-0 pairs with, else the one
-    # it shares the most kind-1 pairs with (ties: the lower id)
+    return np.sort(keys[:m])
+
+
+@njit(cache=True)
+def _partners(keys, count, tall):  # pragma: no cover - numba
+    """(count,) int64 partner of each small component (-1 = none): the one it shares the most
+    kind-0 pairs with, else the one it shares the most texture pairs with (ties: the lower id).
+    Vertical texture pairs whose smooth lower component is tall do not count: a trunk does not
+    join the crown above it, nor a piece of crown the trunk below it."""
     best = np.full((2, count), -1, dtype=np.int64)
     best_n = np.zeros((2, count), dtype=np.int64)
+    m = keys.shape[0]
     i = 0
     while i < m:
-        j = i
-        while j < m and keys[j] == keys[i]:
-            j += 1
-        kind = keys[i] & 1
-        pair = keys[i] >> 1
+        pair = keys[i] >> 2
         a = pair // count
-        if j - i > best_n[kind, a]:
-            best_n[kind, a] = j - i
-            best[kind, a] = pair - a * count
-        i = j
-    best = np.where(best[0] >= 0, best[0], best[1])
+        b = pair - a * count
+        n_angle = 0
+        n_texture = 0
+        while i < m and keys[i] >> 2 == pair:
+            kind = keys[i] & 3
+            if kind == 0:
+                n_angle += 1
+            elif kind == 1 or not tall[a if kind == 2 else b]:
+                n_texture += 1
+            i += 1
+        if n_angle > best_n[0, a]:
+            best_n[0, a] = n_angle
+            best[0, a] = b
+        if n_texture > best_n[1, a]:
+            best_n[1, a] = n_texture
+            best[1, a] = b
+    return np.where(best[0] >= 0, best[0], best[1])
+
+
+@njit(cache=True)
+def _merge_small(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, h_alpha):  # pragma: no cover - numba
+    """Step 4 of the module docstring: (count,) int32 merged id of each component (the merged
+    ones numbered in raster order of their first pixel), their sizes, their count. The image is
+    relabelled once, in `_finish`."""
+    keys = _refused_pair_keys(labels, sizes, count, right, down, merge_pixels, tex)
+    best = _partners(keys, count, _tall(labels, count, v_alpha, h_alpha))
     parent = np.arange(count, dtype=np.int64)
     for a in np.argsort(sizes, kind="mergesort"):  # smallest first
         if sizes[a] >= merge_pixels:
@@ -503,7 +555,7 @@ def _segment_kernel(
     labels, sizes, count = _label_components(ok, right, down)
     merged = np.arange(count, dtype=np.int32)
     if merge_pixels > 0:
-        merged, sizes, count = _merge_small(labels, sizes, count, right, down, merge_pixels)
+        merged, sizes, count = _merge_small(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, col_angle)
     if foot > 0.0:
         taken = _reclaim_feet(labels, index, points, foot)
     else:
