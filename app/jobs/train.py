@@ -2,7 +2,7 @@
 
 1. Read the labelled samples and must-link pairs (`models_util.load_training_set`): verified pairs
    of accepted tracks (the paper), automatic ones weighted by their association score, or none.
-2. Split the labelled samples 70/30 into train/validation by track (`split_by_track`), so
+2. Split the labelled samples 70/30 into train/validation by track (`split_by_group`), so
    near-identical samples of one track never sit on both sides; or validate on other sequences.
 3. Train (`pipeline.training.train`) with the library's defaults (`TrainingConfig`, the config
    of the paper experiment's constraint100) and the job's options; every few steps the progress and, after each epoch, the
@@ -129,7 +129,7 @@ def _read(ctx: JobContext, params: Any) -> _JobData:
 def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
     """(training data, validation samples or None, indices of the training labels): the
     validation sequences, else a split by track of the labels, else no validation."""
-    from pipeline.training import LabelledSamples, TrainingData, split_by_track
+    from pipeline.training import LabelledSamples, TrainingData, split_by_group
 
     data = job.ts.data
     labels, shape = data.labels, data.samples.shape[1:]
@@ -139,7 +139,7 @@ def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
         if val.samples.shape[1:] != shape:
             raise Invalid(f"validation samples are {val.samples.shape[1:]}, training samples {shape}")
     elif params.val_fraction > 0:
-        train_sel, val_sel = split_by_track(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
+        train_sel, val_sel = split_by_group(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
         val = LabelledSamples(data.samples[data.labelled[val_sel]], labels[val_sel])
     else:
         train_sel, val = np.arange(len(labels)), None

@@ -44,8 +44,15 @@ from pipeline.finetune import finetune, finetune_data
 from pipeline.metrics import classification_report
 from pipeline.model import SampleCNN, embed, load_checkpoint, predict
 from pipeline.progress import QUIET, Progress
-from pipeline.training import LabelledSamples, TrainingData, split_by_track, train
-from research.experiments.data import SceneSamples, ground_truth_label, prepare_scene
+from pipeline.training import LabelledSamples, TrainingData, train
+from research.experiments.data import (
+    SceneSamples,
+    code_fingerprint,
+    ground_truth_label,
+    prepare_scene,
+    split_by_object,
+    training_side,
+)
 
 K = NUM_SAMPLE_CLASSES
 UNKNOWN = K - 1
@@ -113,13 +120,15 @@ class FinetuneExperimentConfig(BaseModel):
 
     def key(self, scene: SceneSamples | None = None) -> str:
         """Hash of what the pretrained models depend on (they are cached under this key): these
-        settings, the training configs and the training scene (its summary changes with the
-        pipeline's config)."""
+        settings, the training configs, the training scene (its summary changes with the
+        pipeline's config) and the training code."""
         fields_ = ("train_seed", "train_frames", "crowd", "cyclists", "size", "min_labels", "val_max", "seed")
         data: dict[str, Any] = {k: getattr(self, k) for k in fields_}
         data["training"] = [self.pretrain_config(p).model_dump(mode="json", exclude={"threads"}) for p in (False, True)]
         if scene is not None:
             data["scene"] = scene.summary()
+        # the code that trains them: a change to the training loop, model or split makes new models
+        data["code"] = code_fingerprint(("pipeline", "research/experiments/data.py", "research/experiments/finetune.py"))
         blob = json.dumps(data, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:10]
 
@@ -147,27 +156,19 @@ def evaluate_on(model: SampleCNN, scene: SceneSamples, mask: np.ndarray | None =
 
 
 def _pretrain_sets(scene: SceneSamples, cfg: FinetuneExperimentConfig) -> dict[str, tuple[TrainingData, LabelledSamples]]:
-    """Training data and validation samples of the three pretrained settings."""
-    rng = np.random.default_rng(cfg.seed)
-    lab = scene.labelled
-    y = scene.label[lab].astype(np.int64)
-    chosen = []
-    for k in range(K):
-        idx = lab[y == k]
-        chosen.append(rng.permutation(idx)[: cfg.min_labels])
-    few = np.sort(np.concatenate(chosen))
+    """Training data of the three pretrained settings and their one validation set: the route's
+    labels split 70/30 by ground-truth object (`data.split_by_object`, as the paper experiment),
+    no constraint touching the validation side."""
+    split = split_by_object(scene, 0.3, cfg.seed, cfg.min_labels)
+    va = split.val_labelled
+    if len(va) > cfg.val_max:
+        va = np.sort(np.random.default_rng(cfg.seed).choice(va, cfg.val_max, replace=False))
+    val = LabelledSamples(scene.samples[va], scene.label[va].astype(np.int64))
+    pairs = scene.verified_pairs[training_side(scene, split, scene.verified_pairs)]
     out = {}
-    for name, idx, pairs in (
-        ("baseline_min", few, None),
-        ("constraint100", few, scene.verified_pairs),
-        ("baseline_max", lab, None),
-    ):
-        yy = scene.label[idx].astype(np.int64)
-        tr, va = split_by_track(yy, scene.track[idx], 0.3, cfg.seed)
-        if len(va) > cfg.val_max:
-            va = np.sort(rng.choice(va, cfg.val_max, replace=False))
-        data = TrainingData.build(scene.samples, idx[tr], yy[tr], pairs)
-        out[name] = (data, LabelledSamples(scene.samples[idx[va]], yy[va]))
+    for name, idx, p in (("baseline_min", split.min_labelled, None), ("constraint100", split.min_labelled, pairs),
+                         ("baseline_max", split.train_labelled, None)):
+        out[name] = (TrainingData.build(scene.samples, idx, scene.label[idx].astype(np.int64), p), val)
     return out
 
 
