@@ -29,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -202,6 +202,50 @@ def confirm_stitches(pairs: np.ndarray, label: np.ndarray, gt_object: np.ndarray
     a, b = pairs[:, 0], pairs[:, 1]
     ok = (label[a] >= 0) & (label[b] >= 0) & (gt_object[a] == gt_object[b]) & (label[a] != UNKNOWN)
     return pairs[ok].astype(np.int64)
+
+
+def _noisy_track_labels(track: np.ndarray, frame: np.ndarray, gt_class: np.ndarray, gt_object: np.ndarray,
+                        gt_purity: np.ndarray, miss_rate: float, mislabel_rate: float,
+                        rng: np.random.Generator, min_purity: float = 0.5) -> np.ndarray:
+    """(M,) int16 labels of the realistic operator (`realistic_review`), -1 = none."""
+    label = np.full(len(track), -1, np.int16)
+    order = np.lexsort((frame, track))
+    clean = (gt_class >= 0) & (gt_class < NUM_SAMPLE_CLASSES) & (gt_purity >= min_purity)
+    starts = np.flatnonzero(np.r_[True, track[order][1:] != track[order][:-1]])
+    for lo, hi in zip(starts, np.r_[starts[1:], len(order)], strict=True):
+        members = order[lo:hi]
+        first = members[0]
+        if not clean[first]:
+            continue  # discarded, as the careful operator does
+        cls = int(gt_class[first])
+        if rng.random() < mislabel_rate:  # a wrong class, any other sample class alike
+            cls = int(rng.choice([k for k in range(NUM_SAMPLE_CLASSES) if k != cls]))
+        n = 1
+        for m in members[1:]:
+            if not (clean[m] and gt_object[m] == gt_object[first]) and rng.random() >= miss_rate:
+                break  # the wrong link seen: truncated here
+            n += 1
+        label[members[:n]] = cls
+    return label
+
+
+def realistic_review(scene: SceneSamples, miss_rate: float, mislabel_rate: float, seed: int) -> SceneSamples:
+    """The scene as an imperfect operator reviews it (assumed rates, not measured ones): at each
+    sample where the careful operator truncates a track (another object, an impure segment, the
+    ground), this one misses it with probability `miss_rate` and labels on, so the track's later
+    samples of other objects get its class and its links become verified constraints; each
+    accepted track gets a wrong class (uniform over the other sample classes) with probability
+    `mislabel_rate`. Stitches are confirmed as the careful operator does (both tracks kept, one
+    object). The ground truth (gt_*) is unchanged, so evaluation still scores the truth."""
+    rng = np.random.default_rng(seed)
+    label = _noisy_track_labels(scene.track, scene.frame, scene.gt_class, scene.gt_object, scene.gt_purity,
+                                miss_rate, mislabel_rate, rng)
+    pairs = track_pairs(scene.track, scene.frame)
+    keep = (label[pairs[:, 0]] >= 0) & (label[pairs[:, 1]] >= 0) & (label[pairs[:, 0]] != UNKNOWN)
+    # a stitch is confirmed between kept samples of one object whatever classes the tracks were given
+    stitched = confirm_stitches(scene.fragment_pairs, np.where(label >= 0, 0, -1).astype(np.int16), scene.gt_object)
+    stitched = stitched[(label[stitched[:, 0]] != UNKNOWN) & (label[stitched[:, 0]] == label[stitched[:, 1]])]
+    return replace(scene, label=label, verified_pairs=pairs[keep], stitched_pairs=stitched)
 
 
 # the code that makes a scene's samples (paths from the repository root): all of the pipeline and

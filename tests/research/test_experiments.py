@@ -300,3 +300,22 @@ def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ab
     assert not np.isin(scene.track[ours], split.val_tracks).any()
     assert np.array_equal(verified_constraints(scene, False, stitches=False), scene.verified_pairs)
     assert len(verified_constraints(scene, True)) > len(scene.verified_pairs)  # D's adaptation takes the same set
+
+
+def test_realistic_operator_misses_wrong_links_and_mislabels_tracks_at_the_given_rates():
+    from research.experiments.data import realistic_review
+
+    scene = _toy_scene(n_tracks=40, length=6)
+    obj = scene.gt_object.copy()
+    obj[np.arange(len(scene)) % 6 == 3] += 1000  # every track runs into another object at its 4th sample
+    scene = dataclasses.replace(scene, gt_object=obj)
+    careful, _ = operator_review(scene.track, scene.frame, scene.gt_class, obj, scene.gt_purity)
+    same = realistic_review(scene, 0.0, 0.0, seed=0)
+    assert np.array_equal(same.label, careful) and (same.label >= 0).sum() == 40 * 3
+    blind = realistic_review(scene, 1.0, 0.0, seed=0)  # sees no wrong link: whole tracks labelled
+    assert (blind.label >= 0).all() and np.array_equal(blind.label, scene.gt_class)
+    crossing = blind.gt_object[blind.verified_pairs[:, 0]] != blind.gt_object[blind.verified_pairs[:, 1]]
+    assert crossing.sum() > 0  # its missed links became verified constraints
+    wrong = realistic_review(scene, 0.0, 1.0, seed=0)
+    kept = wrong.label >= 0
+    assert np.array_equal(kept, careful >= 0) and (wrong.label[kept] != scene.gt_class[kept]).all()
