@@ -86,17 +86,22 @@ class ReviewSession:
         self.skipped: set[int] = set()
         self.done = False  # the queue had nothing left
         self.held_by: str | None = None  # why the shown out-of-queue track could not be leased (None = leased)
+        self.leased: set[int] = set()  # tracks this tab leased (queue and picked), given back on close
         self.lock = threading.RLock()
         self.coordinator.register(self)
 
     def close(self) -> None:
-        """Give back the queue lease (when one is held) and leave the coordinator."""
+        """Leave the coordinator and give back every lease this tab took (the queue's and those of
+        picked tracks) that no other tab of the same user shows, so a closed tab does not keep
+        other operators off its tracks until the leases run out."""
         self.coordinator.unregister(self)
-        if self.track is not None and self.from_queue and self.track["status"] == "pending":
+        shown_elsewhere = {s.track_id for s in self.coordinator.sessions() if s.api.token == self.api.token}
+        for track_id in sorted(self.leased - shown_elsewhere):
             try:
-                self.api.release(self.track["id"])
+                self.api.release(track_id)
             except Exception:  # noqa: BLE001 - closing a tab never fails on a dead service
                 pass
+        self.leased.clear()
 
     # ------------------------------------------------------------------ what is shown
     @property
@@ -129,6 +134,7 @@ class ReviewSession:
         if track is None:
             self.track, self.frame_index, self.from_queue, self.done = None, None, False, True
             return
+        self.leased.add(int(track["id"]))
         self._show(self.api.track(track["id"]), from_queue=True)
 
     def _show(self, detail: dict[str, Any], from_queue: bool, frame_index: int | None = None) -> None:
@@ -152,6 +158,7 @@ class ReviewSession:
         try:
             self.api.lease(track_id)
             self.held_by = None
+            self.leased.add(int(track_id))
         except StaleEdit as exc:
             self.held_by = exc.detail
 

@@ -509,6 +509,9 @@ class ClientTab:
             mask = payload.track == int(t["id"])
             colours = fade(point_colours(payload.segment, payload.track, self.colour_mode, info), mask)
             t_coloured = time.perf_counter()
+            # what the canvas shows is known before the client sees it (a click or a cut may
+            # arrive as soon as the cloud does)
+            self.frame_points, self.frame_tracks = payload.points, payload.track
             with self.client.atomic():
                 self.client.scene.add_point_cloud("/frame/points", payload.points, colours, point_size=POINT_SIZE,
                                                   precision="float32", point_shading="flat")
@@ -521,7 +524,6 @@ class ClientTab:
                 if reset_camera and self.gui_follow.value:
                     self._aim_camera(t, fi, payload.points[mask])
             self.client.flush()
-            self.frame_points, self.frame_tracks = payload.points, payload.track
             t_sent = time.perf_counter()
             self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
                                    send=1e3 * (t_sent - t_coloured))

@@ -88,9 +88,7 @@ def _lock_track(session: Session, track_id: int, version: int) -> Track:
     track = session.get(Track, track_id, with_for_update=True)
     if track is None:
         raise NotFound(f"track {track_id} not found")
-    seq_status = session.scalar(select(Sequence.status).where(Sequence.id == track.sequence_id))
-    if seq_status != "ready":
-        raise Conflict(f"sequence {track.sequence_id} is {seq_status}; tracks can be changed once it is ready")
+    crud.require_ready(session, track.sequence_id, "tracks can be changed once it is ready")
     if track.version != version:
         raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
     return track

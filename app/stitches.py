@@ -15,10 +15,10 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app import leases
+from app import crud, leases
 from app.core.errors import Conflict, NotFound
 from app.crud import AuthUser
-from app.models import Sequence, Stitch, Track, utcnow
+from app.models import Stitch, Track, utcnow
 
 DECISIONS = {"confirm": "confirmed", "reject": "rejected"}
 
@@ -63,9 +63,7 @@ def decide_stitch(
     st = session.scalars(select(Stitch).where(Stitch.id == stitch_id).with_for_update()).first()
     if st is None:
         raise NotFound(f"stitch {stitch_id} not found")
-    seq_status = session.scalar(select(Sequence.status).where(Sequence.id == st.sequence_id))
-    if seq_status != "ready":
-        raise Conflict(f"sequence {st.sequence_id} is {seq_status}; stitches can be decided once it is ready")
+    crud.require_ready(session, st.sequence_id, "stitches can be decided once it is ready")
     if version != st.version:
         raise Conflict(f"stale version {version}: stitch {stitch_id} is at version {st.version}")
     now = utcnow()

@@ -12,7 +12,9 @@ left unlinked.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 from numba import njit
@@ -198,6 +200,26 @@ def vote_matrix(
     )
 
 
+@dataclass(frozen=True)
+class _Block:
+    """The (valid t) x (valid t-1) block that association works on.
+
+    va: (A,) and vb: (B,) segment ids; n_a: (A,), n_b: (B,) float64 point counts (>= 1);
+    cw_a: (A, 3), cw_b: (B, 3) world centroids; vel_b: (B, 3) world velocity of each b's track,
+    speed: (B,) its norm; dt: seconds from t-1 to t.
+    """
+
+    va: np.ndarray
+    vb: np.ndarray
+    n_a: np.ndarray
+    n_b: np.ndarray
+    cw_a: np.ndarray
+    cw_b: np.ndarray
+    vel_b: np.ndarray
+    speed: np.ndarray
+    dt: float
+
+
 def associate(
     curr_points: np.ndarray,
     curr_seg_point: np.ndarray,
@@ -222,92 +244,125 @@ def associate(
     if len(va) == 0 or len(vb) == 0:
         return links
     votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)[np.ix_(va, vb)]
-    n_a = np.maximum(curr.n_points[va], 1).astype(np.float64)
-    n_b = np.maximum(prev.n_points[vb], 1).astype(np.float64)
-    share = votes / n_a[:, None]  # (A, B) share of a's points voting for b
-    # link score: votes over the larger of the two segments, so that the pieces of a split do not
-    # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
-    overlap = votes / np.maximum(n_a[:, None], n_b[None, :])
-
-    # 1. ambiguity: a segment whose votes split between two t-1 segments is a likely merge
-    if len(vb) >= 2:
-        top2 = np.sort(share, axis=1)[:, -2:]
-        ambiguous = (top2[:, 0] > config.ambiguity_ratio * top2[:, 1]) & (top2[:, 0] >= 0.1)
-        overlap[ambiguous] = 0.0
-    score = np.where(share >= config.min_overlap, overlap, 0.0)
-
+    vel_b = prev_velocity[vb]
+    blk = _Block(
+        va, vb, np.maximum(curr.n_points[va], 1).astype(np.float64), np.maximum(prev.n_points[vb], 1).astype(np.float64),
+        curr.centroid_world[va], prev.centroid_world[vb], vel_b, np.linalg.norm(vel_b, axis=1),
+        max(curr.time - prev.time, 1e-3),
+    )
+    share = votes / blk.n_a[:, None]  # (A, B) share of a's points voting for b, raised by motion votes
+    # 1. overlap, with likely merges left out
+    score = _overlap_score(votes, share, blk, config)
     # 2. moving tracks: predicted-centroid matching where the overlap is weak
-    dt = max(curr.time - prev.time, 1e-3)
-    cw_a, cw_b, vel_b = curr.centroid_world[va], prev.centroid_world[vb], prev_velocity[vb]
-    speed = np.linalg.norm(vel_b, axis=1)
     if config.use_motion_prediction:
-        moving = speed > 0.5
-        if moving.any():
-            mv = np.flatnonzero(moving)
-            pred = cw_b[mv] + vel_b[mv] * dt
-            dist = cdist(cw_a[:, :2], pred[:, :2])
-            cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
-            # a moving object keeps its height: a bollard under a crown is not the crown moved
-            dz = np.abs(cw_a[:, None, 2] - cw_b[None, mv, 2])
-            cscore[dz > config.max_height_change] = 0.0
-            # motion-compensated votes: a's points moved back by the b track's own motion, for
-            # the pairs whose plain votes leave them under the score or the strong-share gate
-            # (only there can motion votes change the outcome)
-            near = dist < config.max_centroid_distance + 1.5
-            near &= (score[:, mv] < config.min_score) | (share[:, mv] < config.strong_share)
-            ia, jb = np.nonzero(near)
-            if len(ia):
-                R_wp = prev.T_world_lidar[:3, :3]
-                shift = -(vel_b[mv[jb]] * dt) @ R_wp  # world -> t-1 lidar frame: R^T d
-                mvotes = moving_votes(curr_points, curr_seg_point, n_curr,
-                                      np.stack([va[ia], vb[mv[jb]]], axis=1), shift, prev, T_prev_curr, sensor)
-                mshare = mvotes / n_a[ia]
-                mover = mvotes / np.maximum(n_a[ia], n_b[mv[jb]])
-                good = (mshare >= config.min_overlap) & (dz[ia, jb] <= config.max_height_change)
-                cscore[ia[good], jb[good]] = np.maximum(cscore[ia[good], jb[good]], mover[good])
-                share[ia[good], mv[jb[good]]] = np.maximum(share[ia[good], mv[jb[good]]], mshare[good])
-            sub = score[:, mv]
-            score[:, mv] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
-
+        vote_moving = partial(moving_votes, curr_points, curr_seg_point, n_curr, prev=prev,
+                              T_prev_curr=T_prev_curr, sensor=sensor)
+        _add_motion_scores(score, share, blk, prev.T_world_lidar, vote_moving, config)
     # 3. gates: point counts must be comparable, centroids must be near after ego-motion
-    ratio = n_a[:, None] / n_b[None, :]
-    bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
-    max_jump = config.max_centroid_distance + 1.0 + speed[None, :] * dt * 2.0
-    jump = cdist(cw_a, cw_b)
-    # strong votes are geometric evidence already: the centroid of a large segment (a wall, a
-    # hedge) moves by metres as the visible part changes, so only weak matches face the jump gate
-    strong = share >= config.strong_share
-    score[bad_ratio | ((jump > max_jump) & ~strong)] = 0.0
-
+    ratio = blk.n_a[:, None] / blk.n_b[None, :]
+    _apply_gates(score, share, ratio, blk, config)
     # 4. one-to-one
     r, c = linear_sum_assignment(-score)
     ok = score[r, c] >= config.min_score
     links.prev[va[r[ok]]] = vb[c[ok]]
     links.score[va[r[ok]]] = score[r[ok], c[ok]]
-
-    # 5. objects that start moving (no velocity yet) or move across their own extent: match the
-    # leftovers by world centroid, only where the match is mutual and unambiguous
+    # 5. objects that start moving (no velocity yet) or move across their own extent
     if config.use_motion_prediction:
-        free_a = np.setdiff1d(np.arange(len(va)), r[ok])
-        free_b = np.setdiff1d(np.arange(len(vb)), c[ok])
-        if len(free_a) and len(free_b):
-            d = cdist(cw_a[free_a, :2], cw_b[free_b, :2])
-            dz = np.abs(cw_a[free_a, None, 2] - cw_b[None, free_b, 2])
-            rat = ratio[np.ix_(free_a, free_b)]
-            d = np.where((dz < 0.3) & (rat < 1.5) & (rat > 1 / 1.5), d, np.inf)
-            near_b = np.argmin(d, axis=1)
-            near_a = np.argmin(d, axis=0)
-            # the second nearest candidate of each row and column: a match is ambiguous when
-            # another one is nearly as close
-            second_b = np.partition(d, 1, axis=1)[:, 1] if d.shape[1] > 1 else np.full(len(d), np.inf)
-            second_a = np.partition(d, 1, axis=0)[1] if d.shape[0] > 1 else np.full(d.shape[1], np.inf)
-            i = np.arange(len(near_b))
-            dij = d[i, near_b]
-            take = (np.isfinite(dij) & (dij <= config.max_centroid_distance) & (near_a[near_b] == i)
-                    & (np.minimum(second_b, second_a[near_b]) >= 2.0 * dij + 0.5))
-            links.prev[va[free_a[take]]] = vb[free_b[near_b[take]]]
-            links.score[va[free_a[take]]] = (1.0 - dij[take] / config.max_centroid_distance) * 0.5
-    return _with_fragments(links, votes, n_a, n_b, va, vb, config.fragment_min_share)
+        _link_leftovers(links, blk, ratio, r[ok], c[ok], config)
+    return _with_fragments(links, votes, blk.n_a, blk.n_b, va, vb, config.fragment_min_share)
+
+
+def _overlap_score(votes: np.ndarray, share: np.ndarray, blk: _Block, config: AssociationConfig) -> np.ndarray:
+    """(A, B) float64 link score from the plain votes: 0 where a's share on b is under
+    min_overlap or a's votes split between two t-1 segments (a likely merge)."""
+    # votes over the larger of the two segments, so that the pieces of a split do not tie with
+    # the whole at 1.0 (the smaller piece scores low and stays unlinked)
+    overlap = votes / np.maximum(blk.n_a[:, None], blk.n_b[None, :])
+    if len(blk.vb) >= 2:
+        top2 = np.sort(share, axis=1)[:, -2:]
+        ambiguous = (top2[:, 0] > config.ambiguity_ratio * top2[:, 1]) & (top2[:, 0] >= 0.1)
+        overlap[ambiguous] = 0.0
+    return np.where(share >= config.min_overlap, overlap, 0.0)
+
+
+def _add_motion_scores(
+    score: np.ndarray,
+    share: np.ndarray,
+    blk: _Block,
+    T_world_prev: np.ndarray,
+    vote_moving: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    config: AssociationConfig,
+) -> None:
+    """Raise, in place, the weak scores of moving t-1 tracks to their predicted-centroid score,
+    and score and share to the motion-compensated votes where those are higher.
+
+    vote_moving(pairs, shift): `moving_votes` of (P, 2) (t, t-1) segment pairs, shifts (P, 3).
+    """
+    moving = blk.speed > 0.5
+    if not moving.any():
+        return
+    mv = np.flatnonzero(moving)
+    pred = blk.cw_b[mv] + blk.vel_b[mv] * blk.dt
+    dist = cdist(blk.cw_a[:, :2], pred[:, :2])
+    cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
+    # a moving object keeps its height: a bollard under a crown is not the crown moved
+    dz = np.abs(blk.cw_a[:, None, 2] - blk.cw_b[None, mv, 2])
+    cscore[dz > config.max_height_change] = 0.0
+    # motion-compensated votes: a's points moved back by the b track's own motion, for the pairs
+    # whose plain votes leave them under the score or the strong-share gate (only there can
+    # motion votes change the outcome)
+    near = dist < config.max_centroid_distance + 1.5
+    near &= (score[:, mv] < config.min_score) | (share[:, mv] < config.strong_share)
+    ia, jb = np.nonzero(near)
+    if len(ia):
+        shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
+        mvotes = vote_moving(np.stack([blk.va[ia], blk.vb[mv[jb]]], axis=1), shift)
+        mshare = mvotes / blk.n_a[ia]
+        mover = mvotes / np.maximum(blk.n_a[ia], blk.n_b[mv[jb]])
+        good = (mshare >= config.min_overlap) & (dz[ia, jb] <= config.max_height_change)
+        cscore[ia[good], jb[good]] = np.maximum(cscore[ia[good], jb[good]], mover[good])
+        share[ia[good], mv[jb[good]]] = np.maximum(share[ia[good], mv[jb[good]]], mshare[good])
+    sub = score[:, mv]
+    score[:, mv] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
+
+
+def _apply_gates(score: np.ndarray, share: np.ndarray, ratio: np.ndarray, blk: _Block, config: AssociationConfig) -> None:
+    """Zero, in place, the scores of pairs whose point counts differ too much (ratio: (A, B)
+    n_a / n_b) or, for weak matches, whose centroids jumped too far."""
+    bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
+    max_jump = config.max_centroid_distance + 1.0 + blk.speed[None, :] * blk.dt * 2.0
+    jump = cdist(blk.cw_a, blk.cw_b)
+    # strong votes are geometric evidence already: the centroid of a large segment (a wall, a
+    # hedge) moves by metres as the visible part changes, so only weak matches face the jump gate
+    strong = share >= config.strong_share
+    score[bad_ratio | ((jump > max_jump) & ~strong)] = 0.0
+
+
+def _link_leftovers(
+    links: Links, blk: _Block, ratio: np.ndarray, rows: np.ndarray, cols: np.ndarray, config: AssociationConfig
+) -> None:
+    """Link, in place, the segments left unmatched (block rows/cols not in `rows`/`cols`) by world
+    centroid, only where the match is mutual and unambiguous."""
+    free_a = np.setdiff1d(np.arange(len(blk.va)), rows)
+    free_b = np.setdiff1d(np.arange(len(blk.vb)), cols)
+    if not (len(free_a) and len(free_b)):
+        return
+    d = cdist(blk.cw_a[free_a, :2], blk.cw_b[free_b, :2])
+    dz = np.abs(blk.cw_a[free_a, None, 2] - blk.cw_b[None, free_b, 2])
+    rat = ratio[np.ix_(free_a, free_b)]
+    d = np.where((dz < 0.3) & (rat < 1.5) & (rat > 1 / 1.5), d, np.inf)
+    near_b = np.argmin(d, axis=1)
+    near_a = np.argmin(d, axis=0)
+    # the second nearest candidate of each row and column: a match is ambiguous when another one
+    # is nearly as close
+    second_b = np.partition(d, 1, axis=1)[:, 1] if d.shape[1] > 1 else np.full(len(d), np.inf)
+    second_a = np.partition(d, 1, axis=0)[1] if d.shape[0] > 1 else np.full(d.shape[1], np.inf)
+    i = np.arange(len(near_b))
+    dij = d[i, near_b]
+    take = (np.isfinite(dij) & (dij <= config.max_centroid_distance) & (near_a[near_b] == i)
+            & (np.minimum(second_b, second_a[near_b]) >= 2.0 * dij + 0.5))
+    links.prev[blk.va[free_a[take]]] = blk.vb[free_b[near_b[take]]]
+    links.score[blk.va[free_a[take]]] = (1.0 - dij[take] / config.max_centroid_distance) * 0.5
 
 
 def _with_fragments(

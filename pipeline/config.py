@@ -60,7 +60,7 @@ class SegmentationConfig(_Section):
     bridge_horizontal: int = Field(default=3, ge=0, le=32)
     bridge_vertical: int = Field(default=4, ge=0, le=32)
     # pixels of a nearer occluder stepped over (a pole or a person in front of a car)
-    occluder_pixels: int = Field(default=12, ge=0, le=32)
+    occluder_pixels: int = Field(default=10, ge=0, le=32)
     # ground points up to this many metres below a segment's lowest pixel that join it by the
     # vertical rules go back to it (wheels, the feet of walls and people; 0 = off)
     foot_height: float = Field(default=0.25, ge=0.0)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +21,9 @@ from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
 from pipeline.io import open_reader
-from pipeline.processing import SequenceProcessor
+from pipeline.processing import FrameResult, SequenceProcessor
 from pipeline.progress import QUIET, Progress
-from pipeline.sequence import open_sequence
+from pipeline.sequence import Sequence, open_sequence
 from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
 
 
@@ -31,6 +32,26 @@ def _stats(values: list[float]) -> dict[str, float]:
         return {"median": 0.0, "p95": 0.0}
     a = np.asarray(values)
     return {"median": round(float(np.median(a)), 3), "p95": round(float(np.percentile(a, 95)), 3)}
+
+
+@dataclass
+class _Tally:
+    """What `run_process` counts over the frames it writes."""
+
+    names: list[str] = field(default_factory=list)
+    segments: int = 0
+    valid: int = 0
+    samples: int = 0
+    timings: dict[str, list[float]] = field(default_factory=dict)
+    skipped: list[dict[str, str]] = field(default_factory=list)
+
+    def add(self, fr: FrameResult) -> None:
+        self.names.append(fr.name)
+        self.segments += len(fr.segments)
+        self.valid += int(fr.segments.valid.sum())
+        self.samples += len(fr.samples)
+        for k, v in fr.timings_ms.items():
+            self.timings.setdefault(k, []).append(v)
 
 
 def run_process(
@@ -52,79 +73,80 @@ def run_process(
     config = config or PipelineConfig()
     log = log or (lambda _m: None)
     out = Path(out)
+    # 1. open the sequence and the output folder
     seq = open_sequence(path, fmt, sensor if sensor != "auto" else config.sensor.name, poses, progress)
-    source, sens, pose_arr = seq.source, seq.sensor, seq.poses
-    if pose_arr is None:
+    if seq.poses is None:
         log("no poses (pass --poses icp to estimate them): frames are segmented but not linked into tracks")
     (out / "tracks").mkdir(parents=True, exist_ok=True)
     if samples:
         (out / "samples").mkdir(exist_ok=True)
     config.dump(out / "config.yaml")
-
-    skipped: list[dict[str, str]] = []
+    tally = _Tally()
 
     def on_skip(i: int, err: DataError) -> None:
-        skipped.append({"frame": source.frame_name(i), "error": str(err)})
-        log(f"skipped frame {source.frame_name(i)}: {err}")
+        tally.skipped.append({"frame": seq.source.frame_name(i), "error": str(err)})
+        log(f"skipped frame {seq.source.frame_name(i)}: {err}")
 
-    proc = SequenceProcessor(config, sens)
+    # 2. process and write every frame, collecting its segments into tracks
+    proc = SequenceProcessor(config, seq.sensor)
     builder = TrackBuilder()
-    timings: dict[str, list[float]] = {}
-    names: list[str] = []
-    n_segments = n_valid = n_samples = 0
     t0 = time.perf_counter()
-    for fr in proc.iter_frames(source, progress=progress, workers=workers, samples=True,
-                               poses=pose_arr, on_skip=on_skip):
-        fr.scan.to_input(fr.track_labels()).tofile(out / "tracks" / f"{fr.name}.label")
-        if samples:
-            np.savez_compressed(
-                out / "samples" / f"{fr.name}.npz",
-                samples=fr.samples,
-                segment=fr.sample_segment,
-                track_id=fr.segments.track_id[fr.sample_segment],
-            )
+    for fr in proc.iter_frames(seq.source, progress=progress, workers=workers, samples=True,
+                               poses=seq.poses, on_skip=on_skip):
+        _write_frame(out, fr, samples)
         builder.add(fr)
-        names.append(fr.name)
-        n_segments += len(fr.segments)
-        n_valid += int(fr.segments.valid.sum())
-        n_samples += len(fr.samples)
-        for k, v in fr.timings_ms.items():
-            timings.setdefault(k, []).append(v)
+        tally.add(fr)
     elapsed = time.perf_counter() - t0
-    builder.write(out / "tracks.json", proc.linked, names)
-    lengths = np.asarray([len(t.frames) for t in builder.tracks.values()] or [0])
+    # 3. the tracks and the summary
+    builder.write(out / "tracks.json", proc.linked, tally.names)
+    summary = {"sequence": str(path), **_summary(seq, proc, builder, tally, elapsed),
+               "workers": workers, "sample_size": config.samples.size, "samples_written": samples}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _write_frame(out: Path, fr: FrameResult, samples: bool) -> None:
+    """OUT/tracks/NAME.label and, with `samples`, OUT/samples/NAME.npz."""
+    fr.scan.to_input(fr.track_labels()).tofile(out / "tracks" / f"{fr.name}.label")
+    if samples:
+        np.savez_compressed(
+            out / "samples" / f"{fr.name}.npz",
+            samples=fr.samples,
+            segment=fr.sample_segment,
+            track_id=fr.segments.track_id[fr.sample_segment],
+        )
+
+
+def _summary(seq: Sequence, proc: SequenceProcessor, builder: TrackBuilder, tally: _Tally, elapsed: float) -> dict:
+    """summary.json's counts, track statistics and timings."""
+    names, timings, tracks = tally.names, tally.timings, list(builder.tracks.values())
+    lengths = np.asarray([len(t.frames) for t in tracks] or [0])
     per_frame = [sum(v) for v in zip(*(timings[k] for k in ("project", "ground", "segment")), strict=True)] \
         if timings else []
-    summary = {
-        "sequence": str(path),
-        "format": source.format,
-        "sensor": sens.name,
+    return {
+        "format": seq.source.format,
+        "sensor": seq.sensor.name,
         "sensor_from": seq.sensor_from,
-        "range_image": [sens.n_rings, sens.width],
+        "range_image": [seq.sensor.n_rings, seq.sensor.width],
         "poses": seq.pose_source,
         "linked": proc.linked,
         "frames": len(names),
-        "skipped": skipped,
-        "segments": n_segments,
-        "valid_segments": n_valid,
-        "samples": n_samples,
-        "tracks": len(builder.tracks),
+        "skipped": tally.skipped,
+        "segments": tally.segments,
+        "valid_segments": tally.valid,
+        "samples": tally.samples,
+        "tracks": len(tracks),
         "tracks_multi_frame": int((lengths > 1).sum()),
         "tracks_spanning_all_frames": int((lengths == len(names)).sum()) if names else 0,
-        "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in builder.tracks.values())),
+        "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in tracks)),
         "stitches": len(builder.stitches),
         "mean_track_length": float(lengths.mean()),
-        "track_statistics": track_statistics(list(builder.tracks.values()), len(names)),
+        "track_statistics": track_statistics(tracks, len(names)),
         "ms": {k: _stats(v) for k, v in timings.items()},
         "ms_project_ground_segment": _stats(per_frame),
         "seconds": round(elapsed, 3),
         "frames_per_second": round(len(names) / elapsed, 2) if elapsed > 0 else None,
-        "workers": workers,
-        "sample_size": config.samples.size,
-        "samples_written": samples,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
 
 
 def evaluate_folder(seq: str | Path, out: str | Path, progress: Progress = QUIET) -> dict:

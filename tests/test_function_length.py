@@ -1,8 +1,4 @@
-"""No function over 80 lines outside numba kernels: a long function becomes named steps.
-
-KNOWN_LONG lists the ones not split yet; the test fails when a new one appears and when a listed
-one has been split (so the list only shrinks).
-"""
+"""No function over 80 lines outside numba kernels: a long function becomes named steps."""
 
 from __future__ import annotations
 
@@ -12,14 +8,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("pipeline", "research", "app", "annotator_ui")
 MAX_LINES = 80
-KNOWN_LONG = {
-    "research/simulation/population.py:populate_actors",
-    "pipeline/association.py:associate",
-    "pipeline/pipeline.py:run_process",
-    "research/simulation/simulate.py:simulate_sequence",
-    "app/jobs/ingest.py:_write_frame",
-    "app/crud.py:apply_action",
-}
 
 
 def _is_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:
@@ -37,7 +25,5 @@ def _long_functions() -> set[str]:
     return found
 
 
-def test_function_length_no_new_function_over_80_lines():
-    long = _long_functions()
-    assert long - KNOWN_LONG == set(), "split these into named steps"
-    assert KNOWN_LONG - long == set(), "split already: remove them from KNOWN_LONG"
+def test_function_length_none_over_80_lines():
+    assert _long_functions() == set(), "split these into named steps"

@@ -344,14 +344,31 @@ def _write_artifact(ctx: JobContext, state: _IngestState, fr: Any) -> str:
 def _write_frame(
     s: Session, state: _IngestState, fr: Any, rel: str, touched: set[int], stitched: set[tuple[int, int]]
 ) -> None:
-    seg = fr.segments
-    n_seg = len(seg.n_points)
-    keys = np.asarray(seg.track_id, dtype=np.int64)
+    """The frame's row, its segments' rows, the must-link pairs of its tracks and its fragment
+    links; `touched` / `stitched` collect the tracks and stitches whose statistics changed."""
+    n_seg = len(fr.segments.n_points)
     sample_index = np.full(n_seg, -1, np.int64)
     sample_index[np.asarray(fr.sample_segment, dtype=np.int64)] = np.arange(len(fr.sample_segment))
     db_track = _db_tracks(state, fr)
+    frame_id = _insert_frame(s, state, fr, rel)
+    state.frames += 1
+    if n_seg == 0:
+        state.prev_seg_ids, state.prev_db_track = np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return
+    seg_ids = _insert_segments(s, state, fr, frame_id, db_track, sample_index)
+    state.segments += n_seg
+    pairs = _extend_tracks(state, fr, seg_ids, sample_index, touched)
+    if pairs:
+        s.execute(insert(PairConstraint), pairs)
+        state.constraints += len(pairs)
+    _write_fragments(s, state, fr, seg_ids, db_track, sample_index, stitched)
+    state.prev_seg_ids, state.prev_db_track = seg_ids, db_track
+
+
+def _insert_frame(s: Session, state: _IngestState, fr: Any, rel: str) -> int:
+    """Insert the frame's row; its id."""
     pose = getattr(fr, "T_world_lidar", None)
-    frame_id = s.execute(
+    return s.execute(
         insert(Frame).returning(Frame.id),
         [
             {
@@ -359,7 +376,7 @@ def _write_frame(
                 "index": int(fr.index),
                 "name": str(fr.name),
                 "n_points": len(fr.segment),
-                "n_segments": n_seg,
+                "n_segments": len(fr.segments.n_points),
                 "n_samples": len(fr.sample_segment),
                 "artifact": rel,
                 "timestamp": _finite(getattr(fr, "time", None)),
@@ -367,11 +384,14 @@ def _write_frame(
             }
         ],
     ).scalar_one()
-    state.frames += 1
-    if n_seg == 0:
-        state.prev_seg_ids, state.prev_db_track = np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return
 
+
+def _insert_segments(
+    s: Session, state: _IngestState, fr: Any, frame_id: int, db_track: np.ndarray, sample_index: np.ndarray
+) -> np.ndarray:
+    """Insert a row per segment of the frame; (S,) int64 their ids by local segment id."""
+    seg = fr.segments
+    n_seg = len(seg.n_points)
     cen, cw = np.asarray(seg.centroid, np.float64), np.asarray(seg.centroid_world, np.float64)
     rows = [
         {
@@ -398,13 +418,22 @@ def _write_frame(
     seg_ids = np.zeros(n_seg, np.int64)
     for seg_id, local_id in s.execute(select(Segment.id, Segment.local_id).where(Segment.frame_id == frame_id)).all():
         seg_ids[local_id] = seg_id
-    state.segments += n_seg
+    return seg_ids
 
+
+def _extend_tracks(
+    state: _IngestState, fr: Any, seg_ids: np.ndarray, sample_index: np.ndarray, touched: set[int]
+) -> list[dict[str, Any]]:
+    """Add the frame's segments to their tracks' running statistics; the must-link pair rows from
+    each track's last sampled segment to this frame's (segments without a sample hold none)."""
+    seg = fr.segments
+    keys = np.asarray(seg.track_id, dtype=np.int64)
     pairs = []
     for i in np.flatnonzero(keys > 0):
         acc = state.tracks[int(keys[i])]
         prev_id = acc.last_segment_id
-        if prev_id is not None and bool(seg.valid[i]) and sample_index[i] >= 0:
+        sampled = bool(seg.valid[i]) and sample_index[i] >= 0
+        if prev_id is not None and sampled:
             score = _finite(seg.link_score[i])
             pairs.append(
                 {
@@ -416,7 +445,7 @@ def _write_frame(
                     "kind": "must_link",
                 }
             )
-        if bool(seg.valid[i]) and sample_index[i] >= 0:
+        if sampled:
             acc.last_segment_id = int(seg_ids[i])
             acc.n_samples += 1
         acc.last = int(fr.index)
@@ -424,11 +453,7 @@ def _write_frame(
         acc.n_points += int(seg.n_points[i])
         acc.range_sum += float(seg.range[i])
         touched.add(int(keys[i]))
-    if pairs:
-        s.execute(insert(PairConstraint), pairs)
-        state.constraints += len(pairs)
-    _write_fragments(s, state, fr, seg_ids, db_track, sample_index, stitched)
-    state.prev_seg_ids, state.prev_db_track = seg_ids, db_track
+    return pairs
 
 
 def _write_fragments(

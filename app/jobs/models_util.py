@@ -155,8 +155,7 @@ def ready_sequence(session: Session, sequence_id: int) -> Sequence:
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
-    if seq.status != "ready":
-        raise Conflict(f"sequence {sequence_id} is {seq.status}, not ready: ingest it first")
+    crud.check_ready(sequence_id, seq.status, "ingest it first")
     return seq
 
 

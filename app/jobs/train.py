@@ -3,7 +3,8 @@
 1. Read the labelled samples and must-link pairs (`models_util.load_training_set`): verified pairs
    of accepted tracks (the paper), automatic ones weighted by their association score, or none.
 2. Split the labelled samples 70/30 into train/validation by track (`split_by_group`), so
-   near-identical samples of one track never sit on both sides; or validate on other sequences.
+   near-identical samples of one track never sit on both sides, and leave the pairs that touch a
+   validation track out of training (as the paper experiment does); or validate on other sequences.
 3. Train (`pipeline.training.train`) with the library's defaults (`TrainingConfig`, the config
    of the paper experiment's constraint100) and the job's options; every few steps the progress and, after each epoch, the
    epoch's loss and validation F go into the job row (`message`, and `result.history` while it
@@ -126,13 +127,15 @@ def _read(ctx: JobContext, params: Any) -> _JobData:
     return _JobData(ts, samples_cfg, val_set, user_id)
 
 
-def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
-    """(training data, validation samples or None, indices of the training labels): the
-    validation sequences, else a split by track of the labels, else no validation."""
+def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray, np.ndarray]:
+    """(training data, validation samples or None, indices of the training labels, (P,) bool the
+    pairs trained on): the validation sequences, else a split by track of the labels, else no
+    validation."""
     from pipeline.training import LabelledSamples, TrainingData, split_by_group
 
     data = job.ts.data
     labels, shape = data.labels, data.samples.shape[1:]
+    pair_sel = np.ones(len(data.pairs), bool)
     if job.val_set is not None:
         train_sel = np.arange(len(labels))
         val = LabelledSamples(job.val_set.data.samples[job.val_set.data.labelled], job.val_set.data.labels)
@@ -141,15 +144,19 @@ def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray]:
     elif params.val_fraction > 0:
         train_sel, val_sel = split_by_group(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
         val = LabelledSamples(data.samples[data.labelled[val_sel]], labels[val_sel])
+        # validation tracks stay out of training altogether, as in the paper experiment: a pair
+        # touching one would carry a training label onto it (label closure over a stitch)
+        val_tracks = np.unique(job.ts.label_track_ids[val_sel])
+        pair_sel = ~np.isin(job.ts.track_ids[data.pairs], val_tracks).any(axis=1)
     else:
         train_sel, val = np.arange(len(labels)), None
     train_data = TrainingData.build(
-        data.samples, data.labelled[train_sel], labels[train_sel], data.pairs, data.pair_weights
+        data.samples, data.labelled[train_sel], labels[train_sel], data.pairs[pair_sel], data.pair_weights[pair_sel]
     )
-    return train_data, val, train_sel
+    return train_data, val, train_sel, pair_sel
 
 
-def _counts(job: _JobData, train_sel: np.ndarray, val: Any, num_classes: int) -> dict[str, Any]:
+def _counts(job: _JobData, train_sel: np.ndarray, pair_sel: np.ndarray, val: Any, num_classes: int) -> dict[str, Any]:
     from pipeline.classes import SAMPLE_CLASSES
 
     data = job.ts.data
@@ -157,8 +164,8 @@ def _counts(job: _JobData, train_sel: np.ndarray, val: Any, num_classes: int) ->
     return {
         "labelled_train": int(len(train_sel)),
         "labelled_val": 0 if val is None else len(val),
-        "pairs": int(len(data.pairs)),
-        "pairs_verified": int(job.ts.pair_verified.sum()),
+        "pairs": int(pair_sel.sum()),
+        "pairs_verified": int(job.ts.pair_verified[pair_sel].sum()),
         "labels_per_class": {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(num_classes)},
     }
 
@@ -193,10 +200,10 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
         if done is not None:
             return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
     job = _read(ctx, params)
-    train_data, val, train_sel = _split(job, params)
+    train_data, val, train_sel, pair_sel = _split(job, params)
     model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
     cfg = train_config(params)
-    counts = _counts(job, train_sel, val, model_cfg.num_classes)
+    counts = _counts(job, train_sel, pair_sel, val, model_cfg.num_classes)
     out = model_dir(ctx.settings, "train", ctx.job_id)
     ctx.progress(0.05, f"training on {counts['labelled_train']} labels and {counts['pairs']} pairs")
     result = train(

@@ -170,6 +170,28 @@ def simulate_sequence(
     another part of town; "a+" / "b+" the same with more kinds per class, see
     `research.simulation.style`).
     """
+    _check_arguments(frames, start, crowd, cyclists, style)
+    out = Path(out)
+    _prepare(out)
+    sensor = PRESETS[SENSOR]
+    t0 = time.perf_counter()
+    scene = build_scene(seed, crowd, cyclists, style)
+    t1 = time.perf_counter()
+    tally = _write_frames(out, scene, start, frames, progress)
+    T_world_scene = np.linalg.inv(tally.poses[0])
+    write_poses(out / "poses.txt", T_world_scene[None] @ tally.poses)
+    write_calib_identity(out / "calib.txt")
+    write_times(out / "times.txt", (start + np.arange(frames)) / sensor.frequency_hz)
+    distance = float(
+        scene.ego.s_at((start + frames - 1) / sensor.frequency_hz)
+        - scene.ego.s_at(start / sensor.frequency_hz)
+    )
+    _write_metadata(out, scene, start, frames, distance, T_world_scene, tally.seen)
+    t2 = time.perf_counter()
+    return _summary(out, scene, tally, start, frames, distance, t1 - t0, t2 - t1)
+
+
+def _check_arguments(frames: int, start: int, crowd: float, cyclists: float, style: str) -> None:
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
     for name, v in (("crowd", crowd), ("cyclists", cyclists)):
@@ -181,43 +203,46 @@ def simulate_sequence(
         raise ConfigError(str(exc)) from None
     if start < 0:
         raise ConfigError(f"start must be >= 0, got {start}")
-    out = Path(out)
-    _prepare(out)
-    sensor = PRESETS[SENSOR]
-    t0 = time.perf_counter()
-    scene = build_scene(seed, crowd, cyclists, style)
-    t1 = time.perf_counter()
-    dirs = ray_directions(sensor)
-    poses = np.zeros((frames, 4, 4))
-    n_points = np.zeros(frames, np.int64)
-    class_points = np.zeros(256, np.int64)
-    seen: dict[int, int] = {}
-    stages: dict[str, float] = {}
+
+
+@dataclass
+class _FrameTally:
+    """What `_write_frames` gathers: poses: (F, 4, 4) T_scene_lidar; n_points: (F,) points per
+    frame; class_points: (256,) points per class (ours); seen: instance id -> frames it appears in;
+    stages: seconds per stage, summed over frames."""
+
+    poses: np.ndarray
+    n_points: np.ndarray
+    class_points: np.ndarray = field(default_factory=lambda: np.zeros(256, np.int64))
+    seen: dict[int, int] = field(default_factory=dict)
+    stages: dict[str, float] = field(default_factory=dict)
+
+
+def _write_frames(out: Path, scene: Scene, start: int, frames: int, progress: Progress) -> _FrameTally:
+    """Cast and write OUT/velodyne/NNNNNN.bin and OUT/labels/NNNNNN.label of each frame."""
+    dirs = ray_directions(PRESETS[SENSOR])
+    tally = _FrameTally(np.zeros((frames, 4, 4)), np.zeros(frames, np.int64))
+    stages = tally.stages
     for i in progress.iterate(range(frames), "simulate"):
-        k = start + i
-        pose, ret = simulate_frame(scene, k, dirs, stages)
-        poses[i] = pose
+        pose, ret = simulate_frame(scene, start + i, dirs, stages)
+        tally.poses[i] = pose
         name = frame_name(i)
         tw = time.perf_counter()
         write_bin(out / "velodyne" / f"{name}.bin", ret.points, ret.remission)
         write_label(out / "labels" / f"{name}.label", ret.semantic, ret.instance)
         stages["write"] = stages.get("write", 0.0) + time.perf_counter() - tw
-        n_points[i] = len(ret.points)
-        class_points += np.bincount(to_ours(ret.semantic), minlength=256)
+        tally.n_points[i] = len(ret.points)
+        tally.class_points += np.bincount(to_ours(ret.semantic), minlength=256)
         for iid in np.unique(ret.instance[ret.instance > 0]).tolist():
-            seen[iid] = seen.get(iid, 0) + 1
-    T_world_scene = np.linalg.inv(poses[0])
-    world_poses = T_world_scene[None] @ poses
-    write_poses(out / "poses.txt", world_poses)
-    write_calib_identity(out / "calib.txt")
-    write_times(out / "times.txt", (start + np.arange(frames)) / sensor.frequency_hz)
-    distance = float(
-        scene.ego.s_at((start + frames - 1) / sensor.frequency_hz)
-        - scene.ego.s_at(start / sensor.frequency_hz)
-    )
-    _write_metadata(out, scene, start, frames, distance, T_world_scene, seen)
-    t2 = time.perf_counter()
+            tally.seen[iid] = tally.seen.get(iid, 0) + 1
+    return tally
 
+
+def _summary(
+    out: Path, scene: Scene, tally: _FrameTally, start: int, frames: int, distance: float,
+    scene_seconds: float, seconds: float,
+) -> SimulationSummary:
+    seen, class_points, n_points = tally.seen, tally.class_points, tally.n_points
     class_instances: dict[str, int] = {}
     for iid in seen:
         name = scene.instances[iid].cls
@@ -225,7 +250,7 @@ def simulate_sequence(
     return SimulationSummary(
         out=out,
         sensor=SENSOR,
-        seed=int(seed),
+        seed=int(scene.seed),
         start=int(start),
         frames=int(frames),
         points_mean=float(n_points.mean()),
@@ -237,10 +262,10 @@ def simulate_sequence(
         moving_instances=sum(1 for iid in seen if scene.instances[iid].moving),
         route_length=scene.route.length,
         distance=distance,
-        scene_seconds=t1 - t0,
-        seconds=t2 - t1,
+        scene_seconds=scene_seconds,
+        seconds=seconds,
         dark_cars=sum(1 for iid in seen if scene.instances[iid].dark),
-        extra={f"ms_{k}": 1000.0 * v / frames for k, v in stages.items()},
+        extra={f"ms_{k}": 1000.0 * v / frames for k, v in tally.stages.items()},
     )
 
 

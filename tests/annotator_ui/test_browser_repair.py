@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
+from pipeline.classes import SAMPLE_CLASSES, to_ours
 from tests.annotator_ui.test_browser import ARGS, CANVAS, CHROMIUM
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-BUILDING, VEGETATION, CAR = 50, 70, 10  # SemanticKITTI ids the simulator writes
+CAR = 10  # the SemanticKITTI id the simulator writes
 
 pytestmark = [pytest.mark.browser, pytest.mark.skipif(CHROMIUM is None, reason="chromium is absent")]
 
@@ -94,23 +95,30 @@ def ground_truth(live_api, frames, track_id):
     return np.concatenate(pts), np.concatenate(inst), np.concatenate(sem)
 
 
-def find_wall_with_hedge(live_api, frames):
-    """A pending track holding a wall and a hedge (two simulated objects), the hedge's world
-    points and instance id; the hedge's box holds under 1 % of the wall's points."""
+def find_two_objects(live_api, frames):
+    """A pending track of two simulated objects that a box separates (a hedge against a wall, a
+    trunk under its crown, two cars bumper to bumper): the track, the world points of the smaller
+    object (the one the box cuts off), and the instance and class of each (kept, cut off). The
+    two hold 97 % of the track's points and the cut-off one's box under 1 % of the other's."""
     tracks = api(live_api, "GET", "/tracks", params={"sequence_id": live_api.sequence_id, "status": "pending",
                                                      "limit": 500, "sort": "-n_points"}).json()["items"]
     for t in tracks:
         if t["length"] < 2:
             continue
         pts, inst, sem = ground_truth(live_api, [f for f in frames if t["keep_start"] <= f["index"] <= t["keep_end"]], t["id"])
-        hedge, wall = (sem == VEGETATION) & (inst > 0), (sem == BUILDING) & (inst > 0)
-        if hedge.sum() < 100 or wall.sum() < 1000 or len(np.unique(inst[hedge])) != 1:
+        ids, counts = np.unique(inst[inst > 0], return_counts=True)
+        if len(ids) < 2:
             continue
-        lo, hi = pts[hedge].min(0), pts[hedge].max(0)
-        stray = np.all((pts[wall] >= lo - 0.05) & (pts[wall] <= hi + 0.05), axis=1).mean()
+        big, small = ids[np.argsort(-counts)[:2]]
+        kept, cut = inst == big, inst == small
+        if cut.sum() < 100 or (kept | cut).mean() < 0.97:
+            continue
+        lo, hi = pts[cut].min(0), pts[cut].max(0)
+        stray = np.all((pts[kept] >= lo - 0.05) & (pts[kept] <= hi + 0.05), axis=1).mean()
         if stray < 0.01:
-            return t, pts[hedge], int(inst[hedge][0])
-    pytest.skip("the demo scene has no wall-with-hedge track")
+            classes = [SAMPLE_CLASSES[int(to_ours(sem[m][:1])[0])] for m in (kept, cut)]
+            return t, pts[cut], (int(big), int(small)), classes
+    pytest.skip("the demo scene has no track of two objects that a box separates")
 
 
 def semantickitti(live_api):
@@ -118,11 +126,11 @@ def semantickitti(live_api):
     return {Path(n).stem: np.frombuffer(tar.extractfile(n).read(), np.uint32) for n in tar.getnames() if n.endswith(".label")}
 
 
-def test_browser_split_wall_and_hedge_with_the_box_label_both_export_undo(browser, live_api):
+def test_browser_split_two_objects_with_the_box_label_both_export_undo(browser, live_api):
     from pipeline.classes import SEMANTICKITTI_WRITE_ID
 
     frames = api(live_api, "GET", f"/sequences/{live_api.sequence_id}/frames", params={"limit": 1000}).json()["items"]
-    track, hedge_world, _hedge_inst = find_wall_with_hedge(live_api, frames)
+    track, cut_world, (kept_inst, cut_inst), (kept_class, cut_class) = find_two_objects(live_api, frames)
     tid, n_before = track["id"], track["n_points"]
     viewer, page = open_viewer(browser, live_api)
     try:
@@ -133,9 +141,9 @@ def test_browser_split_wall_and_hedge_with_the_box_label_both_export_undo(browse
         page.get_by_role("tab", name="Repair").click()
         page.get_by_text("Show cut box / plane").click()
         wait(lambda: tab.repair.gizmo is not None, what="the cut box")
-        # where an operator drags the gizmo to: around the hedge (in the shown frame's scene)
+        # where an operator drags the gizmo to: around the smaller object (in the shown frame's scene)
         T = tab.frame_pose()
-        local = (hedge_world - T[:3, 3]) @ T[:3, :3]
+        local = (cut_world - T[:3, 3]) @ T[:3, :3]
         lo, hi = local.min(0) - 0.05, local.max(0) + 0.05
         tab.repair.gizmo.position = tuple((lo + hi) / 2)
         tab.repair.gui_size.value = tuple(hi - lo)
@@ -146,15 +154,15 @@ def test_browser_split_wall_and_hedge_with_the_box_label_both_export_undo(browse
         split = [e for e in api(live_api, "GET", f"/tracks/{tid}/events").json() if e["action"] == "split"][-1]
         new_id = split["detail"]["new_track"]
         new = api(live_api, "GET", f"/tracks/{new_id}").json()
-        # label both parts with the number keys: the wall (shown) is a building, the hedge a bush
-        page.keyboard.press("6")
-        wait(lambda: api(live_api, "GET", f"/tracks/{tid}").json()["label"] == "building", what="the wall's class")
+        # label both parts with the number keys (1 person ... 7 unknown)
+        page.keyboard.press(str(SAMPLE_CLASSES.index(kept_class) + 1))
+        wait(lambda: api(live_api, "GET", f"/tracks/{tid}").json()["label"] == kept_class, what="the kept part's class")
         tab.gui_goto.value = str(new_id)
         page.get_by_role("tab", name="Review").click()
         page.get_by_role("button", name="Open track").click()
-        wait(lambda: tab.session.track_id == new_id, what="the hedge track opened")
-        page.keyboard.press("5")
-        wait(lambda: api(live_api, "GET", f"/tracks/{new_id}").json()["label"] == "bush", what="the hedge's class")
+        wait(lambda: tab.session.track_id == new_id, what="the cut-off track opened")
+        page.keyboard.press(str(SAMPLE_CLASSES.index(cut_class) + 1))
+        wait(lambda: api(live_api, "GET", f"/tracks/{new_id}").json()["label"] == cut_class, what="the cut-off part's class")
 
         labels = semantickitti(live_api)
         got, truth = [], []
@@ -163,14 +171,15 @@ def test_browser_split_wall_and_hedge_with_the_box_label_both_export_undo(browse
                 _, tracks, rows = frame_points(live_api, f)
                 mine = rows[np.isin(tracks, [tid, new_id])]
                 got.append(labels[f["name"]][mine])
-                truth.append(truth_of(live_api, f)[mine] & 0xFFFF)
+                truth.append(truth_of(live_api, f)[mine] >> 16)
         got, truth = np.concatenate(got), np.concatenate(truth)
-        building = SEMANTICKITTI_WRITE_ID["building"] | (track["key"] << 16)
-        bush = SEMANTICKITTI_WRITE_ID["bush"] | (new["key"] << 16)
-        assert np.mean(got[truth == VEGETATION] == bush) >= 0.99
-        assert np.mean(got[truth == BUILDING] == building) >= 0.99
+        # each object's points carry its part's class and instance (the track's key)
+        kept_label = SEMANTICKITTI_WRITE_ID[kept_class] | (track["key"] << 16)
+        cut_label = SEMANTICKITTI_WRITE_ID[cut_class] | (new["key"] << 16)
+        assert np.mean(got[truth == cut_inst] == cut_label) >= 0.99
+        assert np.mean(got[truth == kept_inst] == kept_label) >= 0.99
 
-        for _ in range(3):  # the hedge's class, the wall's class, the split
+        for _ in range(3):  # the two classes, the split
             page.keyboard.press("z")
             time.sleep(0.5)
         wait(lambda: api(live_api, "GET", f"/tracks/{tid}").json()["n_points"] == n_before, what="the undo")

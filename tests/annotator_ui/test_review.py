@@ -3,6 +3,7 @@ by reading the track back through the API."""
 
 from __future__ import annotations
 
+import httpx
 import pytest
 
 from annotator_ui.client import ApiClient, StaleEdit
@@ -180,3 +181,21 @@ def test_review_picked_track_is_leased_so_another_operator_gets_others(live_api)
     b.open(head)  # b may look at it, but is told who holds it
     assert b.track_id == head and b.held_by is not None
     a.close(), b.close(), probe.close()
+
+
+def test_review_closing_a_tab_gives_back_the_leases_of_picked_and_queue_tracks(live_api):
+    a = ReviewSession(ApiClient(live_api.url, live_api.new_operator()))
+    queued = a.next()["id"]
+    pending = httpx.get(f"{live_api.url}/api/v1/tracks", params={"status": "pending", "limit": 50},
+                        headers={"Authorization": f"Bearer {live_api.admin_token}"}, timeout=30).json()["items"]
+    picked = next(t["id"] for t in pending if t["id"] != queued)
+    a.open(picked)
+    assert a.held_by is None
+    b = ApiClient(live_api.url, live_api.new_operator())
+    with pytest.raises(StaleEdit):  # held by a while its tab is open
+        b.lease(picked)
+    a.close()
+    for track_id in (picked, queued):  # free for another operator once the tab is gone
+        assert b.lease(track_id)["id"] == track_id
+        b.release(track_id)
+    b.close()

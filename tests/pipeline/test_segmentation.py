@@ -129,6 +129,34 @@ def test_segmentation_merges_a_small_rough_patch_back_into_its_object():
     assert _dominant(unmerged, patch) != _dominant(unmerged, wall)
 
 
+def _smooth_under_rough(rows: slice, cols: slice) -> tuple[Scan, np.ndarray, np.ndarray]:
+    """A mass of scattered returns (a crown, or a car's glass) at 12 m over rows 2-8, and a
+    smooth piece right under it."""
+    rimg = flat_ground(SENSOR, W)
+    noise = np.random.default_rng(1).normal(0.0, 0.12, (7, 30))
+    rimg[2:9, 100:130] = 12.0 - np.abs(noise)
+    add_box(rimg, rows, cols, 12.0)
+    scan = scan_from_range_image(rimg, SENSOR)
+    cols_of = np.round(np.degrees(np.pi - np.arctan2(scan.points[:, 1], scan.points[:, 0])) - 0.5)
+    rough = (scan.ring >= 2) & (scan.ring < 9) & (cols_of >= 100) & (cols_of < 130)
+    smooth = (scan.ring >= rows.start) & (scan.ring < rows.stop) & (cols_of >= cols.start) & (cols_of < cols.stop)
+    return scan, rough, smooth & (scan.points[:, 2] > -1.8 + 0.25)
+
+
+def test_segmentation_keeps_a_trunk_apart_from_the_crown_above_it():
+    # 3 columns (3 deg) wide and 8 beams (~10 deg) tall: 24 pixels, under merge_pixels
+    scan, crown, trunk = _smooth_under_rough(slice(9, 17), slice(113, 116))
+    _, _, seg = _segment(scan)
+    assert _dominant(seg, trunk) >= 0 and _dominant(seg, trunk) != _dominant(seg, crown)
+
+
+def test_segmentation_merges_a_wide_smooth_piece_into_the_rough_mass_above_it():
+    # 20 deg wide, ~5 deg tall (a car's door under its glass): it goes back to its object
+    scan, glass, door = _smooth_under_rough(slice(9, 13), slice(105, 125))
+    _, _, seg = _segment(scan)
+    assert _dominant(seg, door) == _dominant(seg, glass)
+
+
 def test_segmentation_steps_over_a_nearer_occluder():
     rimg = flat_ground(SENSOR, W)
     add_box(rimg, slice(6, 14), slice(100, 130), 12.0)  # a car ...

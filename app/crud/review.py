@@ -1,0 +1,226 @@
+"""Review actions on a track (accept, discard, label, truncate, undo) and the labels they materialise."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import DateTime, Integer, String, bindparam, delete, func, insert, literal, select
+from sqlalchemy.orm import Session
+
+from app import leases
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
+from app.crud.datasets import require_ready
+from app.crud.tracks import track_events
+from app.crud.users import AuthUser
+from app.models import AnnotationEvent, Label, Segment, Track, utcnow
+
+REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end")
+
+
+def review_state(track: Track) -> dict[str, Any]:
+    """The part of a track that actions change (what events record before and after)."""
+    return {f: getattr(track, f) for f in REVIEW_FIELDS}
+
+
+def initial_review_state(track: Track) -> dict[str, Any]:
+    """The state a track had when ingest created it."""
+    return {"status": "pending", "label": None, "keep_start": track.first_frame, "keep_end": track.last_frame}
+
+
+def rebuild_review_state(session: Session, track: Track) -> dict[str, Any]:
+    """The review state replayed from the event log alone (it must equal `review_state(track)`).
+    A merge widens a track's frame range; its event records the range before (`range_before`),
+    so the replay starts from the range ingest gave the track."""
+    events = track_events(session, track.id)
+    state = initial_review_state(track)
+    for ev in events:
+        if ev.detail and "range_before" in ev.detail:
+            state["keep_start"], state["keep_end"] = ev.detail["range_before"]
+            break
+    for ev in events:
+        if ev.before != state:
+            raise Conflict(f"event log of track {track.id} is inconsistent at event {ev.id}")
+        state = dict(ev.after)
+    return state
+
+
+def apply_action(
+    session: Session,
+    track_id: int,
+    user: AuthUser,
+    action: str,
+    version: int,
+    *,
+    label: str | None = None,
+    start: int | None = None,
+    end: int | None = None,
+    sample_classes: tuple[str, ...] = (),
+    override_lease: bool = False,
+    lease_seconds: float | None = None,
+) -> Track:
+    """Apply one review action if `version` is current; write its event; commit.
+
+    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
+    user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
+    `lease_seconds`.
+    """
+    track = _track_for_review(session, track_id, user, action, version, override_lease, lease_seconds)
+    before = review_state(track)
+    after, reverts = _review_after(session, track, user, action, before, label, start, end, sample_classes)
+    if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
+        _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
+
+    now = utcnow()
+    track.status, track.label = after["status"], after["label"]
+    track.keep_start, track.keep_end = after["keep_start"], after["keep_end"]
+    track.version = version + 1
+    track.updated_at = now
+    track.reviewed_by_id = user.id
+    if after["status"] != "pending":
+        track.lease_user_id, track.lease_expires_at = None, None
+    session.flush()  # the track's UPDATE
+    session.connection().execute(
+        _INSERT_EVENT,
+        {
+            "track_id": track_id, "user_id": user.id, "action": action, "created_at": now,
+            "version_before": version, "version_after": version + 1, "before": before, "after": after,
+            "reverts_event_id": None if reverts is None else reverts.id,
+        },
+    )
+    refresh_labels(session, track, user.id, sample_classes)
+    session.commit()
+    return track
+
+
+def _track_for_review(
+    session: Session, track_id: int, user: AuthUser, action: str, version: int, override_lease: bool,
+    lease_seconds: float | None,
+) -> Track:
+    """The track, locked for update, once the action may go ahead: its sequence is ready, the
+    lease allows it (renewing the caller's own), `version` is current and it is not merged away."""
+    track = session.get(Track, track_id, with_for_update=True)
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    require_ready(session, track.sequence_id, "tracks can be reviewed once it is ready")
+    leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
+    if track.version != version:
+        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    if track.status == "merged" and action != "undo":
+        raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
+    return track
+
+
+def _review_after(
+    session: Session,
+    track: Track,
+    user: AuthUser,
+    action: str,
+    before: dict[str, Any],
+    label: str | None,
+    start: int | None,
+    end: int | None,
+    sample_classes: tuple[str, ...],
+) -> tuple[dict[str, Any], AnnotationEvent | None]:
+    """The review state after `action`, and the event an undo reverts (None for other actions)."""
+    after = dict(before)
+    reverts: AnnotationEvent | None = None
+    if action == "accept":
+        after["status"] = "accepted"
+    elif action == "discard":
+        after["status"] = "discarded"
+    elif action == "label":
+        if label not in sample_classes:
+            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
+        after["label"] = label
+        after["status"] = "accepted"  # labelling a track is accepting it with that class
+    elif action == "truncate":
+        assert start is not None and end is not None
+        if not (track.first_frame <= start <= end <= track.last_frame):
+            raise NotApplicable(
+                f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
+            )
+        after["keep_start"], after["keep_end"] = start, end
+    elif action == "undo":
+        reverts = last_undoable_event(session, track.id, user.id)
+        if reverts is None:
+            raise Conflict(f"nothing to undo: no action of {user.name} on track {track.id} is left to undo")
+        for f in REVIEW_FIELDS:
+            if reverts.before.get(f) != reverts.after.get(f):
+                after[f] = reverts.before.get(f)
+    else:
+        raise Invalid(f"unknown action {action!r}")
+    return after, reverts
+
+
+def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
+    """Set the track's length, samples, points and mean range from its segments in
+    `keep_start..keep_end` (what ingest computes over the whole track). Invalid when none is kept."""
+    length, n_samples, n_points, range_sum = session.execute(
+        select(
+            func.count(),
+            func.coalesce(func.sum(Segment.valid.cast(Integer)), 0),
+            func.coalesce(func.sum(Segment.n_points), 0),
+            func.coalesce(func.sum(Segment.range), 0.0),
+        ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
+    ).one()
+    if length == 0:
+        raise NotApplicable(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
+    track.length, track.n_samples = int(length), int(n_samples)
+    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
+
+
+def last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:
+    """The caller's latest non-undo event on the track that no undo has reverted yet."""
+    reverted = select(AnnotationEvent.reverts_event_id).where(
+        AnnotationEvent.track_id == track_id, AnnotationEvent.reverts_event_id.is_not(None)
+    )
+    return session.scalars(
+        select(AnnotationEvent)
+        .where(
+            AnnotationEvent.track_id == track_id,
+            AnnotationEvent.user_id == user_id,
+            AnnotationEvent.action != "undo",
+            AnnotationEvent.id.not_in(reverted),
+        )
+        .order_by(AnnotationEvent.id.desc())
+        .limit(1)
+    ).first()
+
+
+# built once: an action runs these per call, and building a statement costs more than running it
+_INSERT_EVENT = insert(AnnotationEvent.__table__)
+_DELETE_LABELS = delete(Label.__table__).where(Label.__table__.c.track_id == bindparam("track_id"))
+_INSERT_LABELS = insert(Label.__table__).from_select(
+    ["sequence_id", "segment_id", "track_id", "class_name", "class_index", "source", "user_id", "created_at"],
+    select(
+        Segment.sequence_id,
+        Segment.id,
+        Segment.track_id,
+        bindparam("class_name", type_=String),
+        bindparam("class_index", type_=Integer),
+        literal("track"),
+        bindparam("user_id", type_=Integer),
+        bindparam("created_at", type_=DateTime),
+    ).where(
+        Segment.track_id == bindparam("track_id"),
+        Segment.valid.is_(True),
+        Segment.frame_index.between(bindparam("keep_start"), bindparam("keep_end")),
+    ),
+)
+
+
+def refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
+    """Materialise the labelled samples of a track: its valid segments in the kept range when it is
+    accepted with a class; none otherwise. (Core statements on the session's connection: no
+    Label object is loaded in an action's session, so the ORM has nothing to synchronise.)"""
+    conn = session.connection()
+    conn.execute(_DELETE_LABELS, {"track_id": track.id})
+    if track.status != "accepted" or track.label is None:
+        return
+    conn.execute(
+        _INSERT_LABELS,
+        {
+            "track_id": track.id, "class_name": track.label, "class_index": sample_classes.index(track.label),
+            "user_id": user_id, "created_at": utcnow(), "keep_start": track.keep_start, "keep_end": track.keep_end,
+        },
+    )

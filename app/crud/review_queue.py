@@ -1,0 +1,119 @@
+"""The review queue: leasing the next track to an operator."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import or_, select, update
+from sqlalchemy.orm import Session
+
+from app.core.errors import Conflict, NotFound
+from app.crud.users import AuthUser
+from app.models import Sequence, Track, User, utcnow
+
+
+def _unleased(now: datetime) -> Any:
+    """SQL condition: the track has no lease running at `now` (none, or an expired one)."""
+    return or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now)
+
+
+def lease_next_track(
+    session: Session,
+    user: AuthUser,
+    lease_seconds: float,
+    sequence_id: int | None = None,
+    exclude: tuple[int, ...] = (),
+) -> Track | None:
+    """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
+    unleased (or lease-expired) pending track with the most samples. Tracks in `exclude` are
+    passed over (one user's other viewer tabs hold them, or the operator skipped them). Commits."""
+    now = utcnow()
+    ready = select(Sequence.id).where(Sequence.status == "ready")
+    base = [Track.status == "pending", Track.sequence_id.in_(ready)]
+    if sequence_id is not None:
+        base.append(Track.sequence_id == sequence_id)
+    if exclude:
+        base.append(Track.id.not_in(exclude))
+    own = session.scalars(
+        select(Track)
+        .where(*base, Track.lease_user_id == user.id, Track.lease_expires_at > now)
+        .order_by(Track.id)
+        .limit(1)
+        .with_for_update()
+    ).first()
+    track = own
+    for _ in range(5):
+        if track is not None:
+            break
+        cand = session.scalars(
+            select(Track)
+            .where(*base, _unleased(now))
+            .order_by(Track.n_samples.desc(), Track.id)
+            .limit(1)
+            .with_for_update(skip_locked=True)
+        ).first()
+        if cand is None:
+            session.rollback()
+            return None
+        # Conditional update: only wins if nobody leased it since we read it.
+        res = session.execute(
+            update(Track)
+            .where(
+                Track.id == cand.id,
+                Track.status == "pending",
+                _unleased(now),
+            )
+            .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
+            .execution_options(synchronize_session=False)
+        )
+        if res.rowcount == 1:
+            track = cand
+    if track is None:
+        session.rollback()
+        return None
+    track.lease_user_id = user.id
+    track.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    session.commit()
+    return track
+
+
+def lease_track(session: Session, track_id: int, user: AuthUser, lease_seconds: float) -> Track:
+    """Lease one chosen track to `user` (a track opened out of queue order, or brought back by
+    undo), so that the queue does not hand it to someone else meanwhile. A reviewed track needs no
+    lease and is returned as it is. NotFound for an unknown track; Conflict while another user's
+    lease on it runs. Commits."""
+    now = utcnow()
+    track = session.get(Track, track_id)
+    if track is None:
+        raise NotFound(f"track {track_id} not found")
+    if track.status != "pending":
+        return track
+    res = session.execute(
+        update(Track)
+        .where(
+            Track.id == track_id,
+            or_(Track.lease_user_id == user.id, _unleased(now)),
+        )
+        .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
+        .execution_options(synchronize_session=False)
+    )
+    if res.rowcount != 1:
+        session.rollback()
+        holder = session.get(Track, track_id)
+        name = session.scalar(select(User.name).where(User.id == holder.lease_user_id)) if holder else None
+        until = holder.lease_expires_at.isoformat(timespec="seconds") if holder and holder.lease_expires_at else "?"
+        raise Conflict(f"track {track_id} is being reviewed by {name or 'another operator'} (lease until {until})")
+    session.commit()
+    session.refresh(track)
+    return track
+
+
+def release_lease(session: Session, track_id: int, user: AuthUser) -> None:
+    """Give back the caller's lease on a track (no-op when they hold none). Commits."""
+    session.execute(
+        update(Track)
+        .where(Track.id == track_id, Track.lease_user_id == user.id)
+        .values(lease_user_id=None, lease_expires_at=None)
+    )
+    session.commit()
