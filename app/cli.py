@@ -225,6 +225,22 @@ def experiment_paper(
                f" ({doc['seconds']['total']:.0f} s)")
 
 
+@experiment_app.command("spread")
+@friendly_errors
+def experiment_spread(
+    runs: Annotated[list[Path], typer.Argument(help="Output folders of `tracklabel experiment paper` runs.")],
+    out: Annotated[Path, typer.Option("--out", help="Folder for spread.md/json/png.")] = Path("data/experiments/spread"),
+) -> None:
+    """Each target of the paper experiment as the mean and range over several runs (scene seed,
+    label draw, training seed)."""
+    from research.experiments.spread import markdown, write_spread
+
+    missing = [str(r) for r in runs if not (r / "paper.json").is_file()]
+    if missing:
+        raise typer.BadParameter(f"no paper.json in {', '.join(missing)}")
+    typer.echo(markdown(write_spread(out, list(runs))))
+
+
 @experiment_app.command("finetune")
 @friendly_errors
 def experiment_finetune(

@@ -2,7 +2,7 @@
 
 1. Read the labelled samples and must-link pairs (`models_util.load_training_set`): verified pairs
    of accepted tracks (the paper), automatic ones weighted by their association score, or none.
-2. Split the labelled samples 70/30 into train/validation by track (`split_by_track`), so
+2. Split the labelled samples 70/30 into train/validation by track (`split_by_group`), so
    near-identical samples of one track never sit on both sides, and leave the pairs that touch a
    validation track out of training (as the paper experiment does); or validate on other sequences.
 3. Train (`pipeline.training.train`) with the library's defaults (`TrainingConfig`, the config
@@ -131,7 +131,7 @@ def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray, np.ndarray
     """(training data, validation samples or None, indices of the training labels, (P,) bool the
     pairs trained on): the validation sequences, else a split by track of the labels, else no
     validation."""
-    from pipeline.training import LabelledSamples, TrainingData, split_by_track
+    from pipeline.training import LabelledSamples, TrainingData, split_by_group
 
     data = job.ts.data
     labels, shape = data.labels, data.samples.shape[1:]
@@ -142,7 +142,7 @@ def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray, np.ndarray
         if val.samples.shape[1:] != shape:
             raise Invalid(f"validation samples are {val.samples.shape[1:]}, training samples {shape}")
     elif params.val_fraction > 0:
-        train_sel, val_sel = split_by_track(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
+        train_sel, val_sel = split_by_group(labels, job.ts.label_track_ids, params.val_fraction, params.seed)
         val = LabelledSamples(data.samples[data.labelled[val_sel]], labels[val_sel])
         # validation tracks stay out of training altogether, as in the paper experiment: a pair
         # touching one would carry a training label onto it (label closure over a stitch)

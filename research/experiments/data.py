@@ -20,7 +20,7 @@ its points, and that object's share of them), the fraction of the route travelle
   of tracks), and the confirmed fragment links become constraints too (none for unknown).
 
 Results are cached as one `.npz` per (seed, frames, start, size, config, source code of the
-simulator and perception modules) under `cache`, so
+pipeline and the simulator) under `cache`, so
 experiments re-run in seconds and other experiments (fine-tuning) reuse the same scenes.
 """
 
@@ -29,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -204,22 +204,66 @@ def confirm_stitches(pairs: np.ndarray, label: np.ndarray, gt_object: np.ndarray
     return pairs[ok].astype(np.int64)
 
 
-# Code that shapes the samples: a change to any of these files invalidates cached scenes.
-# the code that shapes a scene's samples (paths from the repository root): a change to any of it
-# makes a new cache entry
-_SOURCES = ("research/simulation", "pipeline/io", "pipeline/sequence.py", "pipeline/range_image.py",
-            "pipeline/ground.py", "pipeline/segmentation.py", "pipeline/samples.py", "pipeline/association.py",
-            "pipeline/processing.py", "pipeline/sensors.py", "pipeline/classes.py", "research/experiments/data.py")
+def _noisy_track_labels(track: np.ndarray, frame: np.ndarray, gt_class: np.ndarray, gt_object: np.ndarray,
+                        gt_purity: np.ndarray, miss_rate: float, mislabel_rate: float,
+                        rng: np.random.Generator, min_purity: float = 0.5) -> np.ndarray:
+    """(M,) int16 labels of the realistic operator (`realistic_review`), -1 = none."""
+    label = np.full(len(track), -1, np.int16)
+    order = np.lexsort((frame, track))
+    clean = (gt_class >= 0) & (gt_class < NUM_SAMPLE_CLASSES) & (gt_purity >= min_purity)
+    starts = np.flatnonzero(np.r_[True, track[order][1:] != track[order][:-1]])
+    for lo, hi in zip(starts, np.r_[starts[1:], len(order)], strict=True):
+        members = order[lo:hi]
+        first = members[0]
+        if not clean[first]:
+            continue  # discarded, as the careful operator does
+        cls = int(gt_class[first])
+        if rng.random() < mislabel_rate:  # a wrong class, any other sample class alike
+            cls = int(rng.choice([k for k in range(NUM_SAMPLE_CLASSES) if k != cls]))
+        n = 1
+        for m in members[1:]:
+            if not (clean[m] and gt_object[m] == gt_object[first]) and rng.random() >= miss_rate:
+                break  # the wrong link seen: truncated here
+            n += 1
+        label[members[:n]] = cls
+    return label
 
 
-def _code_fingerprint() -> str:
+def realistic_review(scene: SceneSamples, miss_rate: float, mislabel_rate: float, seed: int) -> SceneSamples:
+    """The scene as an imperfect operator reviews it (assumed rates, not measured ones): at each
+    sample where the careful operator truncates a track (another object, an impure segment, the
+    ground), this one misses it with probability `miss_rate` and labels on, so the track's later
+    samples of other objects get its class and its links become verified constraints; each
+    accepted track gets a wrong class (uniform over the other sample classes) with probability
+    `mislabel_rate`. Stitches are confirmed as the careful operator does (both tracks kept, one
+    object). The ground truth (gt_*) is unchanged, so evaluation still scores the truth."""
+    rng = np.random.default_rng(seed)
+    label = _noisy_track_labels(scene.track, scene.frame, scene.gt_class, scene.gt_object, scene.gt_purity,
+                                miss_rate, mislabel_rate, rng)
+    pairs = track_pairs(scene.track, scene.frame)
+    keep = (label[pairs[:, 0]] >= 0) & (label[pairs[:, 1]] >= 0) & (label[pairs[:, 0]] != UNKNOWN)
+    # a stitch is confirmed between kept samples of one object whatever classes the tracks were given
+    stitched = confirm_stitches(scene.fragment_pairs, np.where(label >= 0, 0, -1).astype(np.int16), scene.gt_object)
+    stitched = stitched[(label[stitched[:, 0]] != UNKNOWN) & (label[stitched[:, 0]] == label[stitched[:, 1]])]
+    return replace(scene, label=label, verified_pairs=pairs[keep], stitched_pairs=stitched)
+
+
+# the code that makes a scene's samples (paths from the repository root): all of the pipeline and
+# the simulator, so a change anywhere in them (readers, scan, association, samples) makes a new
+# cache entry rather than a stale scene
+SCENE_SOURCES = ("pipeline", "research/simulation", "research/experiments/data.py")
+
+
+def code_fingerprint(sources: tuple[str, ...] = SCENE_SOURCES) -> str:
+    """sha256 of the paths and bytes of every .py file under `sources` (repository-relative
+    files or folders); a missing source raises, so a moved module cannot go unseen."""
     root = Path(__file__).resolve().parents[2]
     h = hashlib.sha256()
-    for name in _SOURCES:
+    for name in sources:
         p = root / name
         files = sorted(p.rglob("*.py")) if p.is_dir() else [p]
         if not files or not all(f.is_file() for f in files):
-            raise FileNotFoundError(f"cache fingerprint: {p} is missing")  # a moved module must not go unseen
+            raise FileNotFoundError(f"cache fingerprint: {p} is missing")
         for f in files:
             h.update(f.relative_to(root).as_posix().encode())
             h.update(f.read_bytes())
@@ -232,7 +276,7 @@ def _cache_key(
 ) -> str:
     # only the sections that shape the samples: a training or model setting keeps the cached scene
     shaping = config.model_dump(mode="json", exclude={"model", "training"})
-    blob = json.dumps([CACHE_VERSION, _code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style],
+    blob = json.dumps([CACHE_VERSION, code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style],
                       sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
@@ -342,3 +386,55 @@ def ground_truth_label(scene: SceneSamples) -> np.ndarray:
     ground / unlabelled majorities."""
     g = scene.gt_class.astype(np.int64)
     return np.where((g >= 0) & (g < NUM_SAMPLE_CLASSES) & (g != GROUND), g, -1)
+
+
+def evaluation_set(scene: SceneSamples) -> tuple[np.ndarray, np.ndarray]:
+    """(indices (E,) int64, classes (E,) int64) of every sample of a scene whose majority is a
+    sample class: a test scene is scored on all of them, impure ones by their majority class, not
+    on the operator's labels (which leave out impure samples and the rest of a truncated track)."""
+    truth = ground_truth_label(scene)
+    idx = np.flatnonzero(truth >= 0).astype(np.int64)
+    return idx, truth[idx]
+
+
+@dataclass(frozen=True)
+class Split:
+    """A scene's labelled samples split by ground-truth object (indices into the scene)."""
+
+    train_labelled: np.ndarray  # (L_t,) labelled samples of training-side objects
+    val_labelled: np.ndarray  # (L_v,) labelled samples of validation-side objects
+    val_objects: np.ndarray  # ground-truth object keys on the validation side
+    val_tracks: np.ndarray  # pipeline tracks that hold validation labels
+    min_labelled: np.ndarray  # the few labels (`per_class` per class, a subset of train_labelled)
+
+
+def split_by_object(
+    scene: SceneSamples, val_fraction: float, seed: int, per_class: int, label_seed: int | None = None
+) -> Split:
+    """Split the operator's labels by ground-truth object (`pipeline.training.split_by_group`):
+    an object seen in several tracks (split, merged, broken) has all of its labelled samples on
+    one side, so validation never scores a view of an object trained on. Then `per_class` random
+    training labels per class (drawn from `label_seed` when set, else from the split's stream)."""
+    from pipeline.training import split_by_group
+
+    rng = np.random.default_rng(seed)
+    lab = scene.labelled
+    tr, va = split_by_group(scene.label[lab], scene.gt_object[lab], val_fraction, rng)
+    train_l, val_l = lab[tr], lab[va]
+    if label_seed is not None:  # another draw of the few labels; same split and evaluation sets
+        rng = np.random.default_rng([seed, label_seed])
+    mins = []
+    for k in range(NUM_SAMPLE_CLASSES):
+        idx = train_l[scene.label[train_l] == k]
+        mins.append(rng.choice(idx, size=min(per_class, len(idx)), replace=False))
+    return Split(train_l, val_l, np.unique(scene.gt_object[val_l]), np.unique(scene.track[val_l]),
+                 np.sort(np.concatenate(mins)).astype(np.int64))
+
+
+def training_side(scene: SceneSamples, split: Split, pairs: np.ndarray) -> np.ndarray:
+    """(P,) bool: pairs that touch neither a validation object nor a validation track, so no
+    constraint (right or wrong) carries a validation object into training."""
+    if len(pairs) == 0:
+        return np.zeros(0, bool)
+    val = np.isin(scene.gt_object[pairs], split.val_objects) | np.isin(scene.track[pairs], split.val_tracks)
+    return ~val.any(axis=1)

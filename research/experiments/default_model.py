@@ -3,7 +3,7 @@
 1. Simulate and review a training route of the varied campus (`research.experiments.data`:
    the real perception pipeline, then the ground-truth-checking operator labels every track and
    accepts its constraints) and a test scene D of another layout and campus style.
-2. Split the operator's labelled tracks 70/30 by track (`pipeline.training.split_by_track`).
+2. Split the operator's labelled tracks 70/30 by track (`pipeline.training.split_by_group`).
 3. Train with the product's training, `pipeline.training.train` with the REST train job's
    `TrainingConfig()` defaults (a quarter of the steps, see `training` below), on the training
    tracks' labels and their verified
@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.model import save_checkpoint
 from pipeline.progress import QUIET, Progress
-from pipeline.training import LabelledSamples, TrainingData, evaluate, split_by_track, train
+from pipeline.training import LabelledSamples, TrainingData, evaluate, split_by_group, train
 from research.experiments.data import SceneSamples, prepare_scene
 from research.experiments.paper import TEST_SEED_OFFSET, verified_constraints
 
@@ -59,7 +59,7 @@ class DefaultModelConfig(BaseModel):
 def _split(scene: SceneSamples, cfg: DefaultModelConfig) -> tuple[TrainingData, LabelledSamples]:
     """Training data (labels + verified constraints of the training tracks) and validation samples."""
     lab = scene.labelled
-    tr, va = split_by_track(scene.label[lab], scene.track[lab], cfg.val_fraction, cfg.seed)
+    tr, va = split_by_group(scene.label[lab], scene.track[lab], cfg.val_fraction, cfg.seed)
     pairs = verified_constraints(scene, unknown=True)
     val_tracks = np.unique(scene.track[lab[va]])
     pairs = pairs[~np.isin(scene.track[pairs], val_tracks).any(axis=1)]

@@ -18,7 +18,7 @@ from pipeline.training import (
     augment_batch,
     learning_rate,
     semi_supervised_loss,
-    split_by_track,
+    split_by_group,
     train,
 )
 
@@ -159,16 +159,16 @@ def test_augment_batch_flips_and_shifts_whole_canvases():
     assert set(lit[:, 2].tolist()) == {1, 2, 3, 5, 6, 7}  # column 2 or its mirror 6, +-1
 
 
-def test_split_by_track_keeps_tracks_whole_and_each_class_fraction():
+def test_split_by_group_keeps_tracks_whole_and_each_class_fraction():
     # class 0: 10 tracks of 3 samples, class 1: 20 tracks of 2, class 2: one track of 4
     tracks = np.concatenate([np.repeat(np.arange(10), 3), np.repeat(np.arange(10, 30), 2), np.full(4, 99)])
     labels = np.repeat([0, 1, 2], [30, 40, 4])
-    tr, va = split_by_track(labels, tracks, 0.3, seed=0)
+    tr, va = split_by_group(labels, tracks, 0.3, seed=0)
     assert sorted(np.concatenate([tr, va]).tolist()) == list(range(len(labels)))
     assert not set(tracks[tr].tolist()) & set(tracks[va].tolist())  # no track on both sides
     assert [len(np.unique(tracks[va][labels[va] == k])) for k in range(3)] == [3, 6, 0]  # a lone track stays in training
-    again = split_by_track(labels, tracks, 0.3, seed=0)
-    assert np.array_equal(again[1], va) and not np.array_equal(split_by_track(labels, tracks, 0.3, seed=1)[1], va)
+    again = split_by_group(labels, tracks, 0.3, seed=0)
+    assert np.array_equal(again[1], va) and not np.array_equal(split_by_group(labels, tracks, 0.3, seed=1)[1], va)
 
 
 def _rec(epoch: int, loss: float, val_f: float) -> EpochRecord:

@@ -8,7 +8,7 @@ from typer.testing import CliRunner
 
 from app.cli import app
 from research.experiments.data import SceneSamples
-from research.experiments.finetune import simulated_answers
+from research.experiments.finetune import choose_strategy, finetune_target, simulated_answers
 
 runner = CliRunner()
 
@@ -48,6 +48,24 @@ def test_simulated_operator_labels_whole_tracks_as_reviewed():
     assert (confirmed, rejected) == (2, 1)
 
 
+def _point(strategy: str, budget: int, mean_f: float, held: float, ref: float) -> dict:
+    return {"strategy": strategy, "budget": budget, "mean_f": mean_f, "held_out_mean_f": held,
+            "held_out_baseline_max_mean_f": ref}
+
+
+def test_strategy_is_chosen_on_the_development_scene_by_held_out_f():
+    dev = [_point("track", 20, 95.0, 70.0, 88.0), _point("diverse", 20, 89.0, 88.5, 88.0),
+           _point("track", 10, 99.0, 99.0, 88.0)]
+    assert choose_strategy(dev, 20) == "diverse"  # not the best F on all samples, nor another budget's
+
+
+def test_finetune_target_compares_held_out_f_with_baseline_max_on_the_same_samples():
+    d = [_point("diverse", 20, 90.5, 83.1, 89.7), _point("track", 20, 70.0, 95.0, 80.0)]
+    t = finetune_target(d, "diverse", 20)  # the chosen strategy's, even where another does better on D
+    assert (t["held_out_mean_f"], t["baseline_max_held_out_mean_f"], t["met"]) == (83.1, 89.7, False)
+    assert t["mean_f_all_of_d"] == 90.5  # above baseline_max on all of D: not what the target reads
+
+
 def test_cli_refuses_bad_arguments(tmp_path):
     for args, msg in (
         (["--set", "strategies=[random]"], "unknown random"),
@@ -67,7 +85,14 @@ def test_cli_experiment_finetune_smoke_writes_tables_and_curves(tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "finetune.json").read_text())
     assert set(doc["pretrained"]) == {"baseline_min", "constraint100", "baseline_max"}
-    assert [(run["strategy"], run["budget"]) for run in doc["runs"]] == [("confident", 2), ("track_diverse", 2)]
+    assert [(run["strategy"], run["budget"]) for run in doc["dev_runs"]] == [("confident", 2), ("track_diverse", 2)]
+    chosen = doc["target"]["strategy"]
+    assert [(run["strategy"], run["budget"]) for run in doc["runs"]] == [(chosen, 2)]  # D scores the chosen one
+    held = doc["runs"][0]
+    assert held["held_out_mean_f"] == doc["target"]["held_out_mean_f"]
+    scored = sum(c["support"] for c in doc["pretrained"]["baseline_max"]["report"]["per_class"].values())
+    assert held["labelled_samples"] > 0
+    assert sum(held["held_out_support"]) == scored - held["labelled_samples"]  # D without what the operator labelled
     assert doc["config"]["finetune_steps_per_epoch"] == 1 and doc["seconds"]["total"] > 0
     assert "constraint100 + fine-tuning" in (out / "finetune.md").read_text()
     for name in ("finetune_f.png", "finetune_curve.png", "finetune_curve.json"):

@@ -117,6 +117,43 @@ def test_paper_split_by_track_and_settings_grow_constraints():
     assert np.array_equal(lab, split.train_labelled) and len(pairs) == 0
 
 
+def test_paper_split_by_object_keeps_every_object_on_one_side():
+    from research.experiments.paper import PaperConfig, setting_data, split_scene
+
+    scene = _toy_scene(n_tracks=84, length=4)
+    scene.gt_object[:] = (scene.track - 1) // 21 * 7 + (scene.track - 1) % 7  # 3 tracks per object, of one class
+    split = split_scene(scene, PaperConfig(labels_per_class=2))
+    train_obj, val_obj = set(scene.gt_object[split.train_labelled]), set(scene.gt_object[split.val_labelled])
+    assert train_obj and val_obj and not train_obj & val_obj  # no object on both sides
+    assert val_obj == set(split.val_objects.tolist())
+    # a split by track would have put an object's tracks on both sides
+    assert len(np.unique(scene.track[split.val_labelled])) == 3 * len(val_obj)
+    # a wrong automatic link from a training object into a validation object is not trained on
+    a = split.train_labelled[0]
+    v = np.flatnonzero(np.isin(scene.gt_object, split.val_objects) & ~np.isin(scene.track, split.val_tracks))
+    v = v[0] if len(v) else split.val_labelled[0]
+    scene = dataclasses.replace(scene, auto_pairs=np.concatenate([scene.auto_pairs, [[a, v]]]),
+                                auto_scores=np.concatenate([scene.auto_scores, [0.9]]).astype(np.float32))
+    _, pairs, _ = setting_data("constraint100_auto", scene, split)
+    assert not np.isin(scene.gt_object[pairs], split.val_objects).any()
+
+
+def test_evaluation_set_scores_every_sample_of_a_sample_class_by_its_majority():
+    from research.experiments.data import evaluation_set
+
+    scene = _toy_scene(n_tracks=14, length=3)
+    gt = scene.gt_class.copy()
+    gt[0], gt[1] = 7, 255  # ground and unlabelled majorities are not scored
+    purity = scene.gt_purity.copy()
+    purity[3] = 0.2  # impure: the operator leaves it out, the evaluation scores its majority class
+    label = scene.label.copy()
+    label[[3, 4, 5]] = -1  # and a truncated tail
+    scene = dataclasses.replace(scene, gt_class=gt, gt_purity=purity, label=label)
+    idx, truth = evaluation_set(scene)
+    assert idx.tolist() == list(range(2, len(scene)))  # every other sample, labelled by the operator or not
+    assert np.array_equal(truth, gt[2:].astype(np.int64))
+
+
 def test_label_seed_redraws_the_few_labels_but_keeps_split_and_default():
     from research.experiments.paper import PaperConfig, split_scene
 
@@ -263,3 +300,22 @@ def test_paper_constraints_of_unknown_tracks_by_default_and_not_in_the_papers_ab
     assert not np.isin(scene.track[ours], split.val_tracks).any()
     assert np.array_equal(verified_constraints(scene, False, stitches=False), scene.verified_pairs)
     assert len(verified_constraints(scene, True)) > len(scene.verified_pairs)  # D's adaptation takes the same set
+
+
+def test_realistic_operator_misses_wrong_links_and_mislabels_tracks_at_the_given_rates():
+    from research.experiments.data import realistic_review
+
+    scene = _toy_scene(n_tracks=40, length=6)
+    obj = scene.gt_object.copy()
+    obj[np.arange(len(scene)) % 6 == 3] += 1000  # every track runs into another object at its 4th sample
+    scene = dataclasses.replace(scene, gt_object=obj)
+    careful, _ = operator_review(scene.track, scene.frame, scene.gt_class, obj, scene.gt_purity)
+    same = realistic_review(scene, 0.0, 0.0, seed=0)
+    assert np.array_equal(same.label, careful) and (same.label >= 0).sum() == 40 * 3
+    blind = realistic_review(scene, 1.0, 0.0, seed=0)  # sees no wrong link: whole tracks labelled
+    assert (blind.label >= 0).all() and np.array_equal(blind.label, scene.gt_class)
+    crossing = blind.gt_object[blind.verified_pairs[:, 0]] != blind.gt_object[blind.verified_pairs[:, 1]]
+    assert crossing.sum() > 0  # its missed links became verified constraints
+    wrong = realistic_review(scene, 0.0, 1.0, seed=0)
+    kept = wrong.label >= 0
+    assert np.array_equal(kept, careful >= 0) and (wrong.label[kept] != scene.gt_class[kept]).all()

@@ -499,23 +499,41 @@ def test_simulation_code_is_in_the_scene_cache_fingerprint(monkeypatch):
     """A change to any simulator module gives the experiments' cached scenes a new key."""
     from research.experiments import data
 
-    before = data._code_fingerprint()
+    before = data.code_fingerprint()
     real_read = Path.read_bytes
     for target in sorted((Path(data.__file__).resolve().parent.parent / "simulation").glob("*.py")):
         monkeypatch.setattr(Path, "read_bytes", lambda self, t=target: real_read(self) + (b"#" if self == t else b""))
-        assert data._code_fingerprint() != before, target.name
+        assert data.code_fingerprint() != before, target.name
     monkeypatch.undo()
-    assert data._code_fingerprint() == before
+    assert data.code_fingerprint() == before
 
 
 def test_perception_code_is_in_the_scene_cache_fingerprint(monkeypatch):
     """The pipeline modules that shape samples count too (they live in another package)."""
     from research.experiments import data
 
-    before = data._code_fingerprint()
+    before = data.code_fingerprint()
     real_read = Path.read_bytes
     root = Path(data.__file__).resolve().parents[2]
-    for target in (root / "pipeline" / "segmentation.py", root / "pipeline" / "processing.py"):
+    # every pipeline module counts, those the old list left out (readers, scan, pipeline) too
+    io_module = sorted((root / "pipeline" / "io").glob("*.py"))[0]
+    for target in (root / "pipeline" / "segmentation.py", root / "pipeline" / "processing.py", io_module,
+                   root / "pipeline" / "scan.py", root / "pipeline" / "pipeline.py"):
         monkeypatch.setattr(Path, "read_bytes", lambda self, t=target: real_read(self) + (b"#" if self == t else b""))
-        assert data._code_fingerprint() != before, target.name
+        assert data.code_fingerprint() != before, target.name
     monkeypatch.undo()
+
+
+def test_finetune_pretrained_models_are_keyed_by_the_training_code(monkeypatch):
+    """A change to the training loop gives the fine-tuning experiment's pretrained models a new key."""
+    from research.experiments import data
+    from research.experiments.finetune import FinetuneExperimentConfig
+
+    cfg = FinetuneExperimentConfig()
+    before = cfg.key()
+    target = Path(data.__file__).resolve().parents[2] / "pipeline" / "training.py"
+    real_read = Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: real_read(self) + (b"#" if self == target else b""))
+    assert cfg.key() != before
+    monkeypatch.undo()
+    assert cfg.key() == before
