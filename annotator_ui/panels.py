@@ -276,8 +276,15 @@ class AnchorsPanel:
         # thread's `with` block, so without this folder they landed under every tab
         self.gui_rows = gui.add_folder("Waiting proposals", expand_by_default=True)
         self._items: list[Any] = []
+        # a refresh runs from the tab's background work and from buttons at the same time; viser
+        # lets one thread at a time into the rows' folder
+        self._lock = threading.Lock()
 
     def refresh(self) -> None:
+        with self._lock:
+            self._refresh()
+
+    def _refresh(self) -> None:
         self.available = self.api.has_route("get", ANCHORS_PATH)
         self.gui_refresh.disabled = not self.available
         if not self.available:
