@@ -10,22 +10,15 @@ from sqlalchemy.orm import Session
 from app.models import Label, PairConstraint, Segment, Stitch, Track
 
 
+def _count_by(session: Session, column: Any, where: list[Any]) -> dict[str, int]:
+    """Rows per value of `column` among those matching `where`."""
+    return {k: int(v) for k, v in session.execute(select(column, func.count()).where(*where).group_by(column)).all()}
+
+
 def progress_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
     """Tracks by status, reviewed tracks, samples labelled per class, constraint counts."""
-    t_where = [] if sequence_id is None else [Track.sequence_id == sequence_id]
-    by_status = {
-        k: int(v)
-        for k, v in session.execute(
-            select(Track.status, func.count()).where(*t_where).group_by(Track.status)
-        ).all()
-    }
-    l_where = [] if sequence_id is None else [Label.sequence_id == sequence_id]
-    per_class = {
-        k: int(v)
-        for k, v in session.execute(
-            select(Label.class_name, func.count()).where(*l_where).group_by(Label.class_name)
-        ).all()
-    }
+    by_status = _count_by(session, Track.status, [] if sequence_id is None else [Track.sequence_id == sequence_id])
+    per_class = _count_by(session, Label.class_name, [] if sequence_id is None else [Label.sequence_id == sequence_id])
     s_where = [Segment.valid.is_(True)] + ([] if sequence_id is None else [Segment.sequence_id == sequence_id])
     samples = session.scalar(select(func.count()).select_from(Segment).where(*s_where)) or 0
     c_where = [] if sequence_id is None else [PairConstraint.sequence_id == sequence_id]
