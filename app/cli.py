@@ -73,12 +73,13 @@ def simulate(
     style: Annotated[str, typer.Option(help="Campus style: a (default) or b (other cars, trees, people: "
                                        "another part of town); a+ and b+ add a long tail of kinds to each "
                                        "class (pickups, groups, scooters, tree guards, kiosks, ...).")] = "a",
+    sensor: Annotated[str, typer.Option(help="Scanner cast: hdl32e (the campus's), hdl64e (KITTI's) or vlp16.")] = "hdl32e",
 ) -> None:
-    """Simulate the synthetic campus scene (HDL-32E, 10 Hz) as a SemanticKITTI sequence."""
+    """Simulate the synthetic campus scene (an HDL-32E at 10 Hz unless --sensor) as a SemanticKITTI sequence."""
     from research.simulation import simulate_sequence
 
     summary = simulate_sequence(out, frames=frames, seed=seed, start=start, progress=TqdmProgress(), crowd=crowd,
-                                 cyclists=cyclists, style=style)
+                                 cyclists=cyclists, style=style, sensor=sensor)
     typer.echo(summary.describe())
 
 

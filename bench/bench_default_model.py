@@ -22,14 +22,14 @@ import numpy as np
 from bench.real_data import REAL, kitti_seq00
 
 
-def _sample_f(seq: Path) -> dict:
+def _sample_f(seq: Path, checkpoint: Path) -> dict:
     from pipeline.classes import SAMPLE_CLASSES
     from pipeline.config import PipelineConfig
-    from pipeline.model import DEFAULT_MODEL, load_checkpoint
+    from pipeline.model import load_checkpoint
     from pipeline.training import LabelledSamples, evaluate
     from research.experiments.data import process_scene
 
-    model, meta = load_checkpoint(DEFAULT_MODEL)
+    model, meta = load_checkpoint(checkpoint)
     config = PipelineConfig().override({"samples": meta.sample_config.model_dump()})
     scene = process_scene(seq, config)
     k = meta.model_config.num_classes
@@ -43,14 +43,17 @@ def _sample_f(seq: Path) -> dict:
             "confusion": d["confusion"]}
 
 
-def run(out_dir: Path, quick: bool) -> dict:
+def score_checkpoint(checkpoint: Path | None = None) -> dict:
+    """Point IoU and sample F of a checkpoint (None: the shipped default) on kitti_seq00 frames
+    0-2; {"skipped": ...} when the real data is absent."""
+    from pipeline.model import DEFAULT_MODEL
     from pipeline.predict import run_predict
 
     with tempfile.TemporaryDirectory() as tmp:
         seq = kitti_seq00(Path(tmp) / "k00", frames=range(3))
         if seq is None:
             return {"skipped": f"{REAL / 'kitti_seq00'} is absent"}
-        summary = run_predict(seq, None, Path(tmp) / "pred", device="cpu")
+        summary = run_predict(seq, checkpoint, Path(tmp) / "pred", device="cpu")
         iou = summary["point_iou"]
         result = {
             "model": summary["model"],
@@ -58,8 +61,15 @@ def run(out_dir: Path, quick: bool) -> dict:
             "point_iou": {"mean_iou": round(100 * iou["mean_iou"], 1),
                           "per_class": {c: None if v is None else round(100 * v, 1) for c, v in iou["iou"].items()}},
             "segments_classified": summary["segments_classified"],
-            "samples": _sample_f(seq),
+            "samples": _sample_f(seq, checkpoint or DEFAULT_MODEL),
         }
+    return result
+
+
+def run(out_dir: Path, quick: bool) -> dict:
+    result = score_checkpoint()
+    if "skipped" in result:
+        return result
     result["headline"] = (f"default model on kitti_seq00 frames 0-2: sample mean F {result['samples']['mean_f']:.1f} "
                           f"({result['samples']['samples']} samples), point mIoU {result['point_iou']['mean_iou']:.1f}")
     out_dir.mkdir(parents=True, exist_ok=True)

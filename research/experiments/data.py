@@ -273,11 +273,12 @@ def code_fingerprint(sources: tuple[str, ...] = SCENE_SOURCES) -> str:
 def _cache_key(
     seed: int, frames: int, start: int, config: PipelineConfig, crowd: float = 1.0, cyclists: float = 1.0,
     style: str = "a",
+    sensor: str = "hdl32e",
 ) -> str:
     # only the sections that shape the samples: a training or model setting keeps the cached scene
     shaping = config.model_dump(mode="json", exclude={"model", "training"})
-    blob = json.dumps([CACHE_VERSION, code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style],
-                      sort_keys=True)
+    blob = json.dumps([CACHE_VERSION, code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style]
+                      + ([] if sensor == "hdl32e" else [sensor]), sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -354,26 +355,47 @@ def prepare_scene(
     crowd: float = 1.0,
     cyclists: float = 1.0,
     style: str = "a",
+    sensor: str = "hdl32e",
 ) -> SceneSamples:
-    """Simulate (seed, frames from `start`, `crowd`, `cyclists`, `style`), process and review a
-    scene; cached under `cache`."""
+    """Simulate (seed, frames from `start`, `crowd`, `cyclists`, `style`, cast with the preset
+    `sensor`), process and review a scene; cached under `cache`."""
     from research.simulation import simulate_sequence
 
     config = (config or PipelineConfig()).override({"samples": {"size": size}})
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
-    crowd_tag = ("" if crowd == cyclists == 1.0 else f"_c{crowd:g}x{cyclists:g}") + ("" if style == "a" else f"_{style}")
-    target = cache / f"scene_s{seed}_f{frames}_o{start}{crowd_tag}_S{size}_{_cache_key(seed, frames, start, config, crowd, cyclists, style)}.npz"
+    crowd_tag = (("" if crowd == cyclists == 1.0 else f"_c{crowd:g}x{cyclists:g}") + ("" if style == "a" else f"_{style}")
+                 + ("" if sensor == "hdl32e" else f"_{sensor}"))
+    key = _cache_key(seed, frames, start, config, crowd, cyclists, style, sensor)
+    target = cache / f"scene_s{seed}_f{frames}_o{start}{crowd_tag}_S{size}_{key}.npz"
     if target.exists():
         return SceneSamples.load(target)
     seq = cache / f"seq_s{seed}_f{frames}_o{start}{crowd_tag}"
     simulate_sequence(seq, frames=frames, seed=seed, start=start, progress=progress, crowd=crowd,
-                      cyclists=cyclists, style=style)
+                      cyclists=cyclists, style=style, sensor=sensor)
     scene = process_scene(seq, config, progress)
     scene.save(target)
     if not keep_sequence:
         shutil.rmtree(seq, ignore_errors=True)
     return scene
+
+
+def concat_scenes(scenes: list[SceneSamples]) -> SceneSamples:
+    """One scene of several (routes cast with other sensors, say): samples appended in order,
+    pair indices shifted with them, frames and tracks renumbered so that no two scenes share one."""
+    if len(scenes) == 1:
+        return scenes[0]
+    index_off = np.cumsum([0] + [len(s) for s in scenes[:-1]])
+    shift = {name: index_off for name in ("verified_pairs", "auto_pairs", "fragment_pairs", "stitched_pairs")}
+    shift["frame"] = np.cumsum([0] + [int(s.frame.max()) + 1 if len(s) else 0 for s in scenes[:-1]])
+    shift["track"] = np.cumsum([0] + [int(s.track.max()) if len(s) else 0 for s in scenes[:-1]])
+    out = {}
+    for f in fields(SceneSamples):
+        parts = [getattr(s, f.name) for s in scenes]
+        if f.name in shift:
+            parts = [p + o for p, o in zip(parts, shift[f.name], strict=True)]
+        out[f.name] = np.concatenate(parts).astype(getattr(scenes[0], f.name).dtype, copy=False)
+    return SceneSamples(**out)
 
 
 def route_part(progress: np.ndarray, bounds: tuple[float, ...] = (0.3, 0.6)) -> np.ndarray:

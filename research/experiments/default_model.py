@@ -1,14 +1,14 @@
 """`tracklabel experiment default-model`: train the model shipped in `pipeline/models/default.pt`.
 
-1. Simulate and review a training route of the varied campus (`research.experiments.data`:
-   the real perception pipeline, then the ground-truth-checking operator labels every track and
-   accepts its constraints) and a test scene D of another layout and campus style.
-2. Split the operator's labelled tracks 70/30 by track (`pipeline.training.split_by_group`).
+1. Simulate and review a training route of the varied campus, cast with each of `sensors`
+   (`research.experiments.data`: the real perception pipeline, then the ground-truth-checking
+   operator labels every track and accepts its constraints), and a test scene D of another
+   layout and campus style, cast with each sensor too.
+2. Split the operator's labels 70/30 by ground-truth object (`pipeline.training.split_by_group`).
 3. Train with the product's training, `pipeline.training.train` with the REST train job's
    `TrainingConfig()` defaults (a quarter of the steps, see `training` below), on the training
-   tracks' labels and their verified
-   constraints (those of unknown tracks too, as the job); model selection on the validation
-   tracks.
+   side's labels and its verified constraints (those of unknown tracks too, as the job); model
+   selection on the validation objects.
 4. Evaluate on D and write the checkpoint (its metrics hold the validation report, D's report
    and this config) and `<out>.json` with the same numbers.
 
@@ -32,7 +32,7 @@ from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.model import save_checkpoint
 from pipeline.progress import QUIET, Progress
 from pipeline.training import LabelledSamples, TrainingData, evaluate, split_by_group, train
-from research.experiments.data import SceneSamples, prepare_scene
+from research.experiments.data import SceneSamples, concat_scenes, prepare_scene
 from research.experiments.paper import TEST_SEED_OFFSET, verified_constraints
 
 
@@ -49,6 +49,10 @@ class DefaultModelConfig(BaseModel):
     cyclists: float = Field(default=3.0, ge=0.1, le=10.0)
     train_style: str = "a+"
     test_style: str = "b+"
+    # the scanners the training route is cast with, one route each (pipeline.sensors.PRESETS);
+    # D is cast with each too. A sample's canvas rows follow the beams, so a model trained on one
+    # beam spacing sees another scanner's samples as new textures
+    sensors: tuple[str, ...] = Field(default=("hdl32e",), min_length=1)
     val_fraction: float = Field(default=0.3, gt=0.0, lt=1.0)
     val_max: int = Field(default=2000, ge=1)  # validation samples for model selection (random subset)
     # the product's defaults but 8 x 50 steps instead of 8 x 200 and one torch thread: the full
@@ -57,12 +61,15 @@ class DefaultModelConfig(BaseModel):
 
 
 def _split(scene: SceneSamples, cfg: DefaultModelConfig) -> tuple[TrainingData, LabelledSamples]:
-    """Training data (labels + verified constraints of the training tracks) and validation samples."""
+    """Training data (labels + verified constraints of the training side) and validation samples,
+    split by ground-truth object: an object seen in several tracks, or by several sensors, has
+    all of its labels on one side, and no pair touching a validation object or track is trained on."""
     lab = scene.labelled
-    tr, va = split_by_group(scene.label[lab], scene.track[lab], cfg.val_fraction, cfg.seed)
+    tr, va = split_by_group(scene.label[lab], scene.gt_object[lab], cfg.val_fraction, cfg.seed)
     pairs = verified_constraints(scene, unknown=True)
-    val_tracks = np.unique(scene.track[lab[va]])
-    pairs = pairs[~np.isin(scene.track[pairs], val_tracks).any(axis=1)]
+    val_tracks, val_objects = np.unique(scene.track[lab[va]]), np.unique(scene.gt_object[lab[va]])
+    touch = np.isin(scene.track[pairs], val_tracks) | np.isin(scene.gt_object[pairs], val_objects)
+    pairs = pairs[~touch.any(axis=1)]
     data = TrainingData.build(scene.samples, lab[tr], scene.label[lab[tr]], pairs)
     rng = np.random.default_rng(cfg.seed)
     va_idx = lab[va] if len(va) <= cfg.val_max else np.sort(rng.choice(lab[va], cfg.val_max, replace=False))
@@ -85,18 +92,25 @@ def build_default_model(
     t0 = time.perf_counter()
     sim = {"crowd": cfg.crowd, "cyclists": cfg.cyclists, "config": PipelineConfig()}
     log(f"preparing the training route (seed {cfg.seed}, {cfg.frames} frames, style {cfg.train_style}) and "
-        f"D (seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames, style {cfg.test_style})")
-    scene = prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress, style=cfg.train_style, **sim)
-    test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
-                         style=cfg.test_style, **sim)
+        f"D (seed {cfg.seed + TEST_SEED_OFFSET}, {cfg.test_frames} frames, style {cfg.test_style}), "
+        f"cast with {', '.join(cfg.sensors)}")
+    scene = concat_scenes([prepare_scene(cache, cfg.seed, cfg.frames, cfg.size, progress=progress,
+                                         style=cfg.train_style, sensor=s, **sim) for s in cfg.sensors])
     data, val = _split(scene, cfg)
+    del scene
     sample_cfg = PipelineConfig().samples.model_copy(update={"size": cfg.size})
     model_cfg = ModelConfig()
     log(f"training on {len(data.labelled)} labels and {len(data.pairs)} verified pairs, selecting on {len(val)}")
     t1 = time.perf_counter()
     res = train(data, cfg.training, model_cfg, sample_cfg, val=val, progress=progress)
-    test_report = evaluate(res.model, LabelledSamples(test.samples[test.labelled],
-                                                      test.label[test.labelled].astype(np.int64)))
+    t2 = time.perf_counter()
+    tests = {}
+    for s in cfg.sensors:
+        test = prepare_scene(cache, cfg.seed + TEST_SEED_OFFSET, cfg.test_frames, cfg.size, progress=progress,
+                             style=cfg.test_style, sensor=s, **sim)
+        tests[s] = evaluate(res.model, LabelledSamples(test.samples[test.labelled],
+                                                       test.label[test.labelled].astype(np.int64)))
+    test_report = tests[cfg.sensors[0]]
     summary: dict[str, Any] = {
         "command": "tracklabel experiment default-model",
         "config": cfg.model_dump(mode="json"),
@@ -105,8 +119,10 @@ def build_default_model(
         "val_mean_f": round(res.val_report.mean_f, 2) if res.val_report is not None else None,
         "test_d_mean_f": round(test_report.mean_f, 2),
         "test_d_f": {k: v["f"] for k, v in test_report.to_dict()["per_class"].items()},
+        "test_d_mean_f_by_sensor": {s: round(r.mean_f, 2) for s, r in tests.items()},
         "selected_epoch": res.selected_epoch,
-        "seconds": {"data": round(t1 - t0, 1), "training": round(time.perf_counter() - t1, 1)},
+        "seconds": {"data": round(t1 - t0, 1), "training": round(t2 - t1, 1),
+                    "test": round(time.perf_counter() - t2, 1)},
     }
     metrics = json.loads(json.dumps(res.metrics, default=float)) | {"kind": "default", "default_model": summary,
                                                                      "test_d": test_report.to_dict()}

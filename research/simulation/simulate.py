@@ -40,7 +40,7 @@ from research.simulation.returns import BEAM_BIAS, Returns, make_returns
 from research.simulation.scene import SENSOR_HEIGHT, Scene, build_scene
 from research.simulation.style import get_style
 
-SENSOR = "hdl32e"
+SENSOR = "hdl32e"  # the campus's own scanner; `simulate_sequence(sensor=...)` casts another preset
 GENERATOR = "tracklabel simulate"
 
 
@@ -161,6 +161,7 @@ def simulate_sequence(
     crowd: float = 1.0,
     cyclists: float = 1.0,
     style: str = "a",
+    sensor: str = SENSOR,
 ) -> SimulationSummary:
     """Simulate frames start .. start + frames - 1 of the campus scene of `seed` into `out`.
 
@@ -169,29 +170,35 @@ def simulate_sequence(
     style: the campus style, the distributions objects are drawn from ("a" = default; "b" =
     another part of town; "a+" / "b+" the same with more kinds per class, see
     `research.simulation.style`).
+    sensor: the preset cast (`pipeline.sensors.PRESETS`): the campus's HDL-32E by default, or
+    e.g. "hdl64e" to train for KITTI's scanner (the canvases of a sample follow the beams).
     """
-    _check_arguments(frames, start, crowd, cyclists, style)
+    _check_arguments(frames, start, crowd, cyclists, style, sensor)
     out = Path(out)
     _prepare(out)
-    sensor = PRESETS[SENSOR]
+    model = PRESETS[sensor]
     t0 = time.perf_counter()
     scene = build_scene(seed, crowd, cyclists, style)
     t1 = time.perf_counter()
-    tally = _write_frames(out, scene, start, frames, progress)
+    tally = _write_frames(out, scene, start, frames, model, progress)
     T_world_scene = np.linalg.inv(tally.poses[0])
     write_poses(out / "poses.txt", T_world_scene[None] @ tally.poses)
     write_calib_identity(out / "calib.txt")
-    write_times(out / "times.txt", (start + np.arange(frames)) / sensor.frequency_hz)
+    write_times(out / "times.txt", (start + np.arange(frames)) / model.frequency_hz)
     distance = float(
-        scene.ego.s_at((start + frames - 1) / sensor.frequency_hz)
-        - scene.ego.s_at(start / sensor.frequency_hz)
+        scene.ego.s_at((start + frames - 1) / model.frequency_hz)
+        - scene.ego.s_at(start / model.frequency_hz)
     )
-    _write_metadata(out, scene, start, frames, distance, T_world_scene, tally.seen)
+    _write_metadata(out, scene, start, frames, distance, T_world_scene, tally.seen, model)
     t2 = time.perf_counter()
-    return _summary(out, scene, tally, start, frames, distance, t1 - t0, t2 - t1)
+    return _summary(out, scene, tally, model.name, start, frames, distance, t1 - t0, t2 - t1)
 
 
-def _check_arguments(frames: int, start: int, crowd: float, cyclists: float, style: str) -> None:
+def _check_arguments(frames: int, start: int, crowd: float, cyclists: float, style: str, sensor: str) -> None:
+    if sensor not in PRESETS:
+        raise ConfigError(f"sensor must be one of {', '.join(PRESETS)}, got {sensor!r}")
+    if PRESETS[sensor].n_rings > len(BEAM_BIAS):
+        raise ConfigError(f"sensor {sensor}: the simulator casts at most {len(BEAM_BIAS)} beams")
     if frames < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
     for name, v in (("crowd", crowd), ("cyclists", cyclists)):
@@ -218,13 +225,14 @@ class _FrameTally:
     stages: dict[str, float] = field(default_factory=dict)
 
 
-def _write_frames(out: Path, scene: Scene, start: int, frames: int, progress: Progress) -> _FrameTally:
+def _write_frames(out: Path, scene: Scene, start: int, frames: int, sensor: SensorModel,
+                  progress: Progress) -> _FrameTally:
     """Cast and write OUT/velodyne/NNNNNN.bin and OUT/labels/NNNNNN.label of each frame."""
-    dirs = ray_directions(PRESETS[SENSOR])
+    dirs = ray_directions(sensor)
     tally = _FrameTally(np.zeros((frames, 4, 4)), np.zeros(frames, np.int64))
     stages = tally.stages
     for i in progress.iterate(range(frames), "simulate"):
-        pose, ret = simulate_frame(scene, start + i, dirs, stages)
+        pose, ret = simulate_frame(scene, start + i, dirs, stages, sensor)
         tally.poses[i] = pose
         name = frame_name(i)
         tw = time.perf_counter()
@@ -239,7 +247,7 @@ def _write_frames(out: Path, scene: Scene, start: int, frames: int, progress: Pr
 
 
 def _summary(
-    out: Path, scene: Scene, tally: _FrameTally, start: int, frames: int, distance: float,
+    out: Path, scene: Scene, tally: _FrameTally, sensor: str, start: int, frames: int, distance: float,
     scene_seconds: float, seconds: float,
 ) -> SimulationSummary:
     seen, class_points, n_points = tally.seen, tally.class_points, tally.n_points
@@ -249,7 +257,7 @@ def _summary(
         class_instances[name] = class_instances.get(name, 0) + 1
     return SimulationSummary(
         out=out,
-        sensor=SENSOR,
+        sensor=sensor,
         seed=int(scene.seed),
         start=int(start),
         frames=int(frames),
@@ -277,6 +285,7 @@ def _write_metadata(
     distance: float,
     T_world_scene: np.ndarray,
     seen: dict[int, int],
+    sensor: SensorModel,
 ) -> None:
     instances = {}
     for iid, info in scene.instances.items():
@@ -296,8 +305,8 @@ def _write_metadata(
     meta = {
         "generator": GENERATOR,
         "version": __version__,
-        "sensor": SENSOR,
-        "sensor_model": PRESETS[SENSOR].to_dict(),
+        "sensor": sensor.name,
+        "sensor_model": sensor.to_dict(),
         "sensor_height_m": SENSOR_HEIGHT,
         "seed": int(scene.seed),
         "crowd": scene.crowd,
@@ -305,7 +314,7 @@ def _write_metadata(
         "style": scene.style,
         "start": int(start),
         "frames": int(frames),
-        "frame_rate_hz": PRESETS[SENSOR].frequency_hz,
+        "frame_rate_hz": sensor.frequency_hz,
         "route_length_m": round(scene.route.length, 3),
         "distance_m": round(distance, 3),
         "scan_order": "beam by beam from the top beam, each beam in azimuth column order",

@@ -319,3 +319,30 @@ def test_realistic_operator_misses_wrong_links_and_mislabels_tracks_at_the_given
     wrong = realistic_review(scene, 0.0, 1.0, seed=0)
     kept = wrong.label >= 0
     assert np.array_equal(kept, careful >= 0) and (wrong.label[kept] != scene.gt_class[kept]).all()
+
+
+def test_concat_scenes_shifts_pairs_frames_and_tracks():
+    from research.experiments.data import concat_scenes
+
+    a, b = _toy_scene(n_tracks=10, length=3), _toy_scene(n_tracks=6, length=4)
+    both = concat_scenes([a, b])
+    assert len(both) == len(a) + len(b) and both.frame.dtype == a.frame.dtype
+    n = len(a)
+    assert np.array_equal(both.verified_pairs[len(a.verified_pairs):], b.verified_pairs + n)
+    assert np.array_equal(both.samples[n:], b.samples)
+    # each pair still joins two samples of one track, and no track or frame is shared by the scenes
+    assert (both.track[both.verified_pairs[:, 0]] == both.track[both.verified_pairs[:, 1]]).all()
+    assert not set(both.track[:n]) & set(both.track[n:]) and both.frame[n:].min() > both.frame[:n].max()
+    assert concat_scenes([a]) is a
+
+
+def test_default_model_split_keeps_each_object_and_its_pairs_on_one_side():
+    from research.experiments.default_model import DefaultModelConfig, _split
+
+    scene = _toy_scene(n_tracks=84, length=4)
+    scene.gt_object[:] = (scene.track - 1) // 21 * 7 + (scene.track - 1) % 7  # 3 tracks per object
+    data, val = _split(scene, DefaultModelConfig(val_max=10_000))
+    train_obj = set(scene.gt_object[data.labelled].tolist())
+    val_idx = np.flatnonzero(np.isin(scene.gt_object, sorted(set(scene.gt_object.tolist()) - train_obj)))
+    assert train_obj and len(val) == len(val_idx) > 0  # every label of the other objects validates
+    assert not np.isin(scene.gt_object[data.pairs], scene.gt_object[val_idx]).any()  # no pair reaches them

@@ -314,6 +314,22 @@ def test_simulate_sequence_unknown_style_is_a_config_error(tmp_path: Path):
         simulate_sequence(tmp_path / "x", frames=1, seed=0, style="z")
 
 
+def test_simulate_casts_another_sensor_that_the_pipeline_then_reads(tmp_path: Path):
+    from pipeline.errors import ConfigError
+    from pipeline.sequence import open_sequence
+
+    out = simulate_sequence(tmp_path / "k", frames=1, seed=SEED, sensor="hdl64e")
+    assert out.sensor == "hdl64e" and _meta(tmp_path / "k")["sensor_model"]["elevations_deg"] == list(
+        PRESETS["hdl64e"].elevations_deg)
+    opened = open_sequence(tmp_path / "k")
+    assert opened.sensor.name == "hdl64e" and opened.sensor.n_rings == 64
+    scan = opened.source.frame(0)
+    beams = np.unique(scan.ring)
+    assert len(beams) > 50 and beams.max() == 63  # every block of the 64 beams returns points
+    with pytest.raises(ConfigError, match="sensor"):
+        simulate_sequence(tmp_path / "x", frames=1, seed=0, sensor="hdl128")
+
+
 def test_simulate_refuses_a_foreign_sequence_folder(tmp_path: Path):
     (tmp_path / "velodyne").mkdir()
     (tmp_path / "velodyne/000000.bin").write_bytes(b"\0" * 16)
