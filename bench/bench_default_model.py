@@ -75,3 +75,32 @@ def run(out_dir: Path, quick: bool) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "default_model_detail.json").write_text(json.dumps(result, indent=1))
     return result
+
+
+def compare(checkpoints: dict[str, Path | None], out_dir: Path) -> dict:
+    """Score several checkpoints on the real frames: OUT/default_model_compare.json and a PNG of
+    per-class sample F (classes without support left out)."""
+    from pipeline.classes import SAMPLE_CLASSES
+    from pipeline.plots import plot_f_bars
+
+    scores = {name: score_checkpoint(ck) for name, ck in checkpoints.items()}
+    if any("skipped" in s for s in scores.values()):
+        return next(s for s in scores.values() if "skipped" in s)
+    present = [c for c in SAMPLE_CLASSES if next(iter(scores.values()))["samples"]["per_class"][c]["support"]]
+    f = [[np.nan if (v := s["samples"]["per_class"][c]["f"]) is None else v for c in present]
+         for s in scores.values()]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plot_f_bars(np.array(f, dtype=np.float64), list(scores), present, out_dir / "default_model_compare.png",
+                title="Sample F on SemanticKITTI 00, frames 0-2")
+    (out_dir / "default_model_compare.json").write_text(json.dumps(scores, indent=1))
+    return scores
+
+
+if __name__ == "__main__":
+    import sys
+
+    # python -m bench.bench_default_model OUT_DIR NAME=CKPT ... (CKPT "default": the shipped model)
+    pairs = dict(a.split("=", 1) for a in sys.argv[2:])
+    res = compare({k: None if v == "default" else Path(v) for k, v in pairs.items()}, Path(sys.argv[1]))
+    for name, s in res.items():
+        print(name, s["samples"]["mean_f"], s["point_iou"]["mean_iou"])
