@@ -441,7 +441,11 @@ def split_by_object(
 
     rng = np.random.default_rng(seed)
     lab = scene.labelled
-    tr, va = split_by_group(scene.label[lab], scene.gt_object[lab], val_fraction, rng)
+    # stratified by the objects' true classes: an object of several tracks, one of them given a
+    # wrong class by a realistic operator, would otherwise count as several classes and go to
+    # validation (at 5 % mislabelled tracks, 74 % of the labels did); for the careful operator the
+    # labels are the true classes, so its split is unchanged
+    tr, va = split_by_group(scene.gt_class[lab], scene.gt_object[lab], val_fraction, rng)
     train_l, val_l = lab[tr], lab[va]
     if label_seed is not None:  # another draw of the few labels; same split and evaluation sets
         rng = np.random.default_rng([seed, label_seed])

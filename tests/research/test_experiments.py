@@ -346,3 +346,15 @@ def test_default_model_split_keeps_each_object_and_its_pairs_on_one_side():
     val_idx = np.flatnonzero(np.isin(scene.gt_object, sorted(set(scene.gt_object.tolist()) - train_obj)))
     assert train_obj and len(val) == len(val_idx) > 0  # every label of the other objects validates
     assert not np.isin(scene.gt_object[data.pairs], scene.gt_object[val_idx]).any()  # no pair reaches them
+
+
+def test_split_by_object_ignores_a_realistic_operators_wrong_classes():
+    from research.experiments.data import realistic_review, split_by_object
+
+    scene = _toy_scene(n_tracks=840, length=4)
+    scene.gt_object[:] = (scene.track - 1) // 21 * 7 + (scene.track - 1) % 7  # 3 tracks per object, one class
+    careful = split_by_object(scene, 0.3, seed=0, per_class=2)
+    noisy = split_by_object(realistic_review(scene, 0.0, 0.3, seed=0), 0.3, seed=0, per_class=2)
+    # the same objects on each side: a track given a wrong class does not send its object to validation
+    assert np.array_equal(noisy.val_objects, careful.val_objects)
+    assert 0.25 < len(noisy.val_labelled) / (len(noisy.val_labelled) + len(noisy.train_labelled)) < 0.35
