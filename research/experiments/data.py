@@ -277,8 +277,8 @@ def _cache_key(
 ) -> str:
     # only the sections that shape the samples: a training or model setting keeps the cached scene
     shaping = config.model_dump(mode="json", exclude={"model", "training"})
-    blob = json.dumps([CACHE_VERSION, code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists), style]
-                      + ([] if sensor == "hdl32e" else [sensor]), sort_keys=True)
+    blob = json.dumps([CACHE_VERSION, code_fingerprint(), seed, frames, start, shaping, float(crowd), float(cyclists),
+                       style, sensor], sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 

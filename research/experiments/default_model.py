@@ -4,7 +4,8 @@
    (`research.experiments.data`: the real perception pipeline, then the ground-truth-checking
    operator labels every track and accepts its constraints), and a test scene D of another
    layout and campus style, cast with each sensor too.
-2. Split the operator's labels 70/30 by ground-truth object (`pipeline.training.split_by_group`).
+2. Split the operator's labels 70/30 by ground-truth object (`research.experiments.data.split_by_object`,
+   as the paper experiment).
 3. Train with the product's training, `pipeline.training.train` with the REST train job's
    `TrainingConfig()` defaults (a quarter of the steps, see `training` below), on the training
    side's labels and its verified constraints (those of unknown tracks too, as the job); model
@@ -31,8 +32,14 @@ from pydantic import BaseModel, ConfigDict, Field
 from pipeline.config import ModelConfig, PipelineConfig, TrainingConfig
 from pipeline.model import save_checkpoint
 from pipeline.progress import QUIET, Progress
-from pipeline.training import LabelledSamples, TrainingData, evaluate, split_by_group, train
-from research.experiments.data import SceneSamples, concat_scenes, prepare_scene
+from pipeline.training import LabelledSamples, TrainingData, evaluate, train
+from research.experiments.data import (
+    SceneSamples,
+    concat_scenes,
+    prepare_scene,
+    split_by_object,
+    training_side,
+)
 from research.experiments.paper import TEST_SEED_OFFSET, verified_constraints
 
 
@@ -51,8 +58,8 @@ class DefaultModelConfig(BaseModel):
     test_style: str = "b+"
     # the scanners the training route is cast with, one route each (pipeline.sensors.PRESETS);
     # D is cast with each too. A sample's canvas rows follow the beams, so a model trained on one
-    # beam spacing sees another scanner's samples as new textures
-    # beam spacing: KITTI's HDL-64E and the campus's HDL-32E (docs/default_model.md)
+    # beam spacing sees another scanner's samples as new textures: KITTI's HDL-64E and the
+    # campus's HDL-32E (docs/default_model.md)
     sensors: tuple[str, ...] = Field(default=("hdl64e", "hdl32e"), min_length=1)
     val_fraction: float = Field(default=0.3, gt=0.0, lt=1.0)
     val_max: int = Field(default=2000, ge=1)  # validation samples for model selection (random subset)
@@ -66,15 +73,13 @@ def _split(scene: SceneSamples, cfg: DefaultModelConfig) -> tuple[TrainingData, 
     """Training data (labels + verified constraints of the training side) and validation samples,
     split by ground-truth object: an object seen in several tracks, or by several sensors, has
     all of its labels on one side, and no pair touching a validation object or track is trained on."""
-    lab = scene.labelled
-    tr, va = split_by_group(scene.label[lab], scene.gt_object[lab], cfg.val_fraction, cfg.seed)
+    split = split_by_object(scene, cfg.val_fraction, cfg.seed, per_class=0)
     pairs = verified_constraints(scene, unknown=True)
-    val_tracks, val_objects = np.unique(scene.track[lab[va]]), np.unique(scene.gt_object[lab[va]])
-    touch = np.isin(scene.track[pairs], val_tracks) | np.isin(scene.gt_object[pairs], val_objects)
-    pairs = pairs[~touch.any(axis=1)]
-    data = TrainingData.build(scene.samples, lab[tr], scene.label[lab[tr]], pairs)
+    pairs = pairs[training_side(scene, split, pairs)]
+    tr, va = split.train_labelled, split.val_labelled
+    data = TrainingData.build(scene.samples, tr, scene.label[tr], pairs)
     rng = np.random.default_rng(cfg.seed)
-    va_idx = lab[va] if len(va) <= cfg.val_max else np.sort(rng.choice(lab[va], cfg.val_max, replace=False))
+    va_idx = va if len(va) <= cfg.val_max else np.sort(rng.choice(va, cfg.val_max, replace=False))
     return data, LabelledSamples(scene.samples[va_idx], scene.label[va_idx].astype(np.int64))
 
 
