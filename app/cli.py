@@ -226,6 +226,26 @@ def experiment_paper(
                f" ({doc['seconds']['total']:.0f} s)")
 
 
+@experiment_app.command("levers")
+@friendly_errors
+def experiment_levers(
+    out: Annotated[Path, typer.Option("--out", help="Folder for levers.md/json/png.")] = Path("data/experiments/levers"),
+    config: ConfigNames = None,
+    set_: ConfigSets = None,
+    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
+) -> None:
+    """Why constraint100 trails baseline_max: each lever (a change of its training) scored on the
+    validation objects, and which components of the must-link graph carry the wrong pull
+    (fields: research/experiments/levers.py LeversConfig, e.g. --set paper.seed=7301)."""
+    from research.configs import load_experiment_config
+    from research.experiments.levers import LeversConfig, run_levers
+
+    cfg = load_experiment_config(LeversConfig, config or (), set_ or ())
+    doc = run_levers(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
+    typer.echo((out / "levers.md").read_text())
+    typer.echo(f"written: {out / 'levers.md'}, {out / 'levers.json'}, {out / 'levers.png'} ({doc['seconds']:.0f} s)")
+
+
 @experiment_app.command("spread")
 @friendly_errors
 def experiment_spread(

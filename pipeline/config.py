@@ -147,6 +147,14 @@ class TrainingConfig(_Section):
     # component: each annotation weighs as without constraints) or "sample" (each labelled sample
     # alike, so an annotation weighs as much as its component is large; an ablation)
     closure_draw: str = Field(default="annotation", pattern="^(sample|annotation)$")
+    # the constraint term: "paper" 1 - sum_k P_k(x_i) P_k(x_j), which is the squared difference
+    # 1/2 |P_i - P_j|^2 plus the pair's mean Gini impurity (it also sharpens both sides towards
+    # whatever class they lean to); "squared" the difference alone (the Pi-model's consistency)
+    constraint_loss: str = Field(default="paper", pattern="^(paper|squared)$")
+    # how each step's pairs are drawn: "pair" uniformly over the pairs (a component weighs as many
+    # pairs as it has: long static tracks dominate), "component" a component of the must-link
+    # graph uniformly, then one of its pairs
+    pair_draw: str = Field(default="pair", pattern="^(pair|component)$")
     eval_batch: int = Field(default=256, ge=1)
     threads: int = Field(default=0, ge=0, le=256)  # torch CPU threads while training, 0 = torch's default
     device: str = "auto"  # auto | cpu | cuda

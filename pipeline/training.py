@@ -69,6 +69,7 @@ __all__ = [
     "LabelledSamples",
     "LossParts",
     "closure_labels",
+    "must_link_components",
     "TrainingData",
     "TrainProgress",
     "TrainResult",
@@ -175,12 +176,14 @@ def semi_supervised_loss(
     gamma: float,
     pair_weights: torch.Tensor | None = None,
     balance_weight: float = 0.0,
+    constraint_loss: str = "paper",
 ) -> LossParts:
     """The paper's L = L_l + L_c, plus the optional class-balance term.
 
     logits_labelled: (m, K) of the labelled samples, labels (m,) int64; m may be 0.
     logits_i, logits_j: (n, K) of the two sides of the n pairs; n may be 0.
     pair_weights: (n,) w_n, None = all 1 (the paper).
+    constraint_loss: "paper" (1 - P_i . P_j) or "squared" (1/2 |P_i - P_j|^2, `TrainingConfig`).
     """
     m, n = len(logits_labelled), len(logits_i)
     if m == 0 and n == 0:
@@ -191,7 +194,10 @@ def semi_supervised_loss(
     if n:
         p_i = torch.softmax(logits_i, dim=1)  # (n, K)
         p_j = torch.softmax(logits_j, dim=1)  # (n, K)
-        disagree = 1.0 - (p_i * p_j).sum(dim=1)  # (n,) P(y_i != y_j)
+        if constraint_loss == "squared":
+            disagree = 0.5 * (p_i - p_j).square().sum(dim=1)  # (n,)
+        else:
+            disagree = 1.0 - (p_i * p_j).sum(dim=1)  # (n,) P(y_i != y_j)
         if pair_weights is not None:
             disagree = disagree * pair_weights
         l_c = gamma * disagree.sum() / n
@@ -342,7 +348,7 @@ class _BalancedCycler:
         return out
 
 
-def _components(pairs: np.ndarray, num_samples: int) -> tuple[int, np.ndarray]:
+def must_link_components(pairs: np.ndarray, num_samples: int) -> tuple[int, np.ndarray]:
     """(number of components, (num_samples,) component id) of the must-link graph."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -357,7 +363,7 @@ def _closure(
 ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """closure_labels' result plus (L',) a group id per output sample: its component, or a group
     of its own for a labelled sample of a disagreeing component (which spreads to nothing)."""
-    n_comp, comp = _components(pairs, num_samples)
+    n_comp, comp = must_link_components(pairs, num_samples)
     lab_comp = comp[labelled]
     lo = np.full(n_comp, np.iinfo(np.int64).max)
     hi = np.full(n_comp, -1)
@@ -417,6 +423,23 @@ class _AnnotationDraw:
         return self.order[self.start[a] + self.rng.integers(0, self.size[a])]  # (k,) closure positions
 
 
+class _ComponentDraw:
+    """Pairs drawn per component (`pair_draw="component"`): each draw picks a component of the
+    must-link graph uniformly, then one of the pairs inside it uniformly."""
+
+    def __init__(self, pairs: np.ndarray, num_samples: int, rng: np.random.Generator) -> None:
+        self.rng = rng
+        _, comp = must_link_components(pairs, num_samples)
+        pair_comp = comp[pairs[:, 0]]  # (P,)
+        self.order = np.argsort(pair_comp, kind="stable")  # pairs grouped by component
+        _, self.start, self.size = np.unique(pair_comp[self.order], return_index=True, return_counts=True)
+        self.cycle = _Cycler(len(self.start), rng)
+
+    def take(self, k: int) -> np.ndarray:
+        c = self.cycle.take(k)  # (k,) components
+        return self.order[self.start[c] + self.rng.integers(0, self.size[c])]  # (k,) pair indices
+
+
 class _TrackPartners:
     """Must-link is an equivalence: every sample of a track (a connected component of the pair
     graph) has the same class. `draw(left)` gives each left sample a random other member of its
@@ -425,7 +448,7 @@ class _TrackPartners:
 
     def __init__(self, pairs: np.ndarray, num_samples: int, rng: np.random.Generator) -> None:
         self.rng = rng
-        _, comp = _components(pairs, num_samples)
+        _, comp = must_link_components(pairs, num_samples)
         self.order = np.argsort(comp, kind="stable")  # (M,) samples grouped by component
         sorted_comp = comp[self.order]
         self.start = np.searchsorted(sorted_comp, comp)  # (M,) first position of each sample's component
@@ -564,7 +587,10 @@ class _BatchDraw:
             self.labels = _AnnotationDraw(annotations[0], annotations[1], annotations[2], config.balanced_labels, rng)
         elif m:
             self.labels = _BalancedCycler(data.labels, rng) if config.balanced_labels else _Cycler(num_l, rng)
-        self.pairs = _Cycler(num_p, rng) if n else None
+        self.pairs: _Cycler | _ComponentDraw | None = None
+        if n:
+            self.pairs = _ComponentDraw(data.pairs, len(data.samples), rng) if config.pair_draw == "component" \
+                else _Cycler(num_p, rng)
         self.partners = _TrackPartners(data.pairs, len(data.samples), rng) if n and config.transitive_pairs else None
 
     def draw(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -599,7 +625,8 @@ class _Stepper:
         pw = self.weights[torch.from_numpy(pi).to(self.device)] if self.use_weights else None  # (n,)
         parts = semi_supervised_loss(logits[:m], self.labels[torch.from_numpy(li).to(self.device)],
                                      logits[m : m + len(pi)], logits[m + len(pi) :], gamma=cfg.gamma,
-                                     pair_weights=pw, balance_weight=cfg.balance_weight)
+                                     pair_weights=pw, balance_weight=cfg.balance_weight,
+                                     constraint_loss=cfg.constraint_loss)
         if not torch.isfinite(parts.total):
             raise ConfigError(f"training diverged (loss {float(parts.total)}) at step {global_step}; lower training.lr")
         if cfg.lr_schedule != "constant":

@@ -136,7 +136,8 @@ class FinetuneExperimentConfig(BaseModel):
         if scene is not None:
             data["scene"] = scene.summary()
         # the code that trains them: a change to the training loop, model or split makes new models
-        data["code"] = code_fingerprint(("pipeline", "research/experiments/data.py", "research/experiments/finetune.py"))
+        data["code"] = code_fingerprint(("pipeline", "research/experiments/data.py", "research/experiments/finetune.py"),
+                                        skip=frozenset())
         blob = json.dumps(data, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:10]
 

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import yaml
 from typer.testing import CliRunner
 
 from app.cli import app
+from research.configs import CONFIG_DIR
 
 runner = CliRunner()
 
@@ -111,3 +114,22 @@ def test_cli_experiment_paper_config_file_overrides_apply_in_order(tmp_path):
     cfg = load_experiment_config(PaperConfig, ["paper-full", str(own)], ["steps=10", "training.threads=1"])
     assert (cfg.frames, cfg.labels_per_class, cfg.steps) == (300, 350, 10)  # full, then mine, then --set
     assert (cfg.training.lr, cfg.training.threads, cfg.training.batch_labelled) == (0.002, 1, 58)
+
+
+def test_cli_experiment_levers_scores_each_lever_on_validation_and_measures_the_pull(tmp_path):
+    out = tmp_path / "levers"
+    smoke = yaml.safe_load((CONFIG_DIR / "paper-smoke.yaml").read_text())
+    cfg = tmp_path / "levers.yaml"
+    cfg.write_text(yaml.safe_dump({"paper": smoke | {"settings": ["baseline_min"], "adapt": []},
+                                   "levers": ["constraint100", "squared_difference", "score_weighted"]}))
+    r = runner.invoke(app, ["experiment", "levers", "--out", str(out), "--config", str(cfg)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "levers.json").read_text())
+    assert list(doc["validation"]) == ["baseline_min", "baseline_max", "constraint100", "squared_difference",
+                                       "score_weighted"]
+    assert "test" not in json.dumps(doc["validation"])  # chosen on validation, never on D
+    pull = doc["pull"]
+    assert 0 < pull["unlabelled_component_pairs"] <= pull["pairs"]
+    for table in pull["tables"].values():  # every drawn pair counted once per model
+        assert np.asarray(table).sum() == pull["unlabelled_component_pairs"]
+    assert "## The pull" in (out / "levers.md").read_text() and (out / "levers.png").stat().st_size > 1000

@@ -94,6 +94,20 @@ def test_loss_pair_weights_scale_each_pair_term():
     assert parts.constraint.item() == pytest.approx((0.5 + 0.5 * 0.375) / 2, abs=1e-12)
 
 
+def test_loss_squared_difference_is_the_papers_term_less_the_gini_impurity():
+    ln = math.log
+    logits_i = torch.tensor([[0.0, ln(3)], [0.0, ln(3)]], dtype=torch.float64)  # (1/4, 3/4) twice
+    logits_j = torch.tensor([[0.0, 0.0], [0.0, ln(3)]], dtype=torch.float64)  # (1/2, 1/2), (1/4, 3/4)
+    empty = torch.zeros((0, 2), dtype=torch.float64)
+    no_labels = torch.zeros(0, dtype=torch.long)
+    sq = semi_supervised_loss(empty, no_labels, logits_i, logits_j, 1.0, constraint_loss="squared")
+    # 1/2 |P_i - P_j|^2: 1/2 (1/16 + 1/16) and 0; a pair that agrees costs nothing however unsure
+    assert sq.constraint.item() == pytest.approx((1 / 16 + 0.0) / 2, abs=1e-12)
+    paper = semi_supervised_loss(empty, no_labels, logits_i, logits_j, 1.0)
+    gini = ((1 - 10 / 16) + (1 - 1 / 2)) / 2 / 2 + (1 - 10 / 16) / 2  # mean over pairs of both sides' mean
+    assert paper.constraint.item() == pytest.approx(sq.constraint.item() + gini, abs=1e-12)
+
+
 def test_loss_labels_only_is_cross_entropy():
     logits = torch.tensor([[2.0, 0.0, -1.0]])
     empty = torch.zeros((0, 3))
@@ -345,6 +359,27 @@ def test_track_partners_draw_any_other_member_of_the_track():
         got = set(right[left == a].tolist())
         assert got == {0, 1, 2, 3} - {a}  # every other member, the far end included, never itself
     assert set(right[left == 5].tolist()) == {6} and set(right[left == 6].tolist()) == {5}
+
+
+def test_component_draws_weigh_each_component_alike():
+    from pipeline.training import _ComponentDraw
+
+    # component {0..9}: 9 pairs; component {20, 21}: 1 pair
+    pairs = np.array([[i, i + 1] for i in range(9)] + [[20, 21]])
+    draw = _ComponentDraw(pairs, 30, np.random.default_rng(0))
+    got = draw.take(4000)
+    assert abs(np.mean(got == 9) - 0.5) < 0.03  # the lone pair of the small component: half the draws
+    assert set(np.unique(got[got != 9]).tolist()) == set(range(9))  # the big one's pairs alike
+
+
+def test_train_with_component_draws_and_squared_difference_runs(blob_data):
+    x, y, _ = blob_data
+    labelled = np.flatnonzero(np.arange(len(y)) % 10 == 0)
+    data = TrainingData.build(x, labelled, y[labelled], same_class_pairs(y, 0))
+    cfg = _cfg(epochs=2, steps_per_epoch=3, batch_labelled=8, transitive_pairs=True, pair_draw="component",
+               constraint_loss="squared")
+    res = train(data, cfg, TINY, SAMPLES)
+    assert len(res.history) == 2 and all(math.isfinite(r.loss) and r.loss_constraint >= 0 for r in res.history)
 
 
 def test_train_with_transitive_pairs_and_cosine_lr_runs(blob_data):

@@ -358,3 +358,14 @@ def test_split_by_object_ignores_a_realistic_operators_wrong_classes():
     # the same objects on each side: a track given a wrong class does not send its object to validation
     assert np.array_equal(noisy.val_objects, careful.val_objects)
     assert 0.25 < len(noisy.val_labelled) / (len(noisy.val_labelled) + len(noisy.train_labelled)) < 0.35
+
+
+def test_verified_pair_scores_take_each_links_association_score():
+    from research.experiments.levers import verified_pair_scores
+
+    scene = _toy_scene(n_tracks=2, length=3)
+    scene = dataclasses.replace(scene, link_score=np.array([np.nan, 0.8, 0.6, np.nan, 0.9, 0.7], np.float32)[
+        : len(scene)], fragment_pairs=np.array([[4, 1]]), fragment_scores=np.array([0.4], np.float32))
+    pairs = np.array([[0, 1], [1, 2], [4, 1], [5, 3]])
+    # a track link: the later sample's link score; a stitch: its shared-point share; unknown: 1
+    assert np.allclose(verified_pair_scores(scene, pairs), [0.8, 0.6, 0.4, 1.0])

@@ -540,6 +540,38 @@ def test_perception_code_is_in_the_scene_cache_fingerprint(monkeypatch):
     monkeypatch.undo()
 
 
+def test_training_code_keeps_the_cached_scenes(monkeypatch):
+    """A change to a module that only consumes samples (the training) leaves the scene key alone."""
+    from research.experiments import data
+
+    before = data.code_fingerprint()
+    root = Path(data.__file__).resolve().parents[2]
+    real_read = Path.read_bytes
+    for name in sorted(data.SAMPLE_CONSUMERS):
+        target = root / name
+        assert target.is_file(), name
+        monkeypatch.setattr(Path, "read_bytes", lambda self, t=target: real_read(self) + (b"#" if self == t else b""))
+        assert data.code_fingerprint() == before, name
+    monkeypatch.undo()
+
+
+def test_no_scene_making_module_imports_a_sample_consumer():
+    """The modules that make a scene's samples (simulator, readers, perception, the operator's
+    review) never import the modules the scene fingerprint skips, so skipping them is safe."""
+    import subprocess
+    import sys
+
+    from research.experiments import data
+
+    root = Path(data.__file__).resolve().parents[2]
+    consumers = sorted(n.removesuffix(".py").replace("/", ".") for n in data.SAMPLE_CONSUMERS)
+    code = ("import sys, research.experiments.data, research.simulation, pipeline.processing, pipeline.sequence, "
+            "pipeline.pipeline, pipeline.io\n"
+            f"print([m for m in {consumers!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
+
+
 def test_finetune_pretrained_models_are_keyed_by_the_training_code(monkeypatch):
     """A change to the training loop gives the fine-tuning experiment's pretrained models a new key."""
     from research.experiments import data
