@@ -138,6 +138,9 @@ class TrainingConfig(_Section):
     weighted_pairs: bool = True  # scale each pair's L_c term by its weight (association score)
     augment: bool = True  # random horizontal flip and small shifts of the canvases
     augment_shift: float = Field(default=0.0625, ge=0.0, lt=0.5)  # max shift as a fraction of the canvas side
+    # with augment: the share of canvases that lose one random rectangle (a tenth to half the side
+    # each way; random erasing): a view with a part missing, as occlusion and over-segmentation cut them
+    augment_erase: float = Field(default=0.0, ge=0.0, le=1.0)
     balanced_labels: bool = True  # draw each batch's labels class-uniformly (rare classes as often as common ones)
     transitive_pairs: bool = True  # must-link is transitive: pair a drawn sample with any sample of its track
     # must-link closure: every sample a pair chain joins to a labelled sample is trained on that

@@ -69,6 +69,7 @@ __all__ = [
     "LabelledSamples",
     "LossParts",
     "closure_labels",
+    "erase_rectangles",
     "must_link_components",
     "TrainingData",
     "TrainProgress",
@@ -208,12 +209,15 @@ def semi_supervised_loss(
     return LossParts(l_l + l_c + l_b, l_l, l_c, l_b)
 
 
-def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator) -> torch.Tensor:
-    """Random horizontal flip and integer shifts (zero fill) of each canvas in (B, C, S, S)."""
+def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator, erase: float = 0.0) -> torch.Tensor:
+    """Random horizontal flip and integer shifts (zero fill) of each canvas in (B, C, S, S); with
+    `erase` > 0, that share of the canvases also loses one random rectangle (`erase_rectangles`)."""
     b, _, s, _ = x.shape
     dev = x.device
     flip = torch.rand(b, generator=generator) < 0.5
     x = torch.where(flip.to(dev)[:, None, None, None], x.flip(3), x)
+    if erase > 0:
+        x = erase_rectangles(x, erase, generator)
     if max_shift <= 0:
         return x
     shifts = torch.randint(-max_shift, max_shift + 1, (2, b), generator=generator).to(dev)  # (2, B)
@@ -224,6 +228,19 @@ def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator) -
     bi = torch.arange(b, device=dev)[:, None, None]  # (B, 1, 1)
     out = padded.permute(0, 2, 3, 1)[bi, rows[:, :, None], cols[:, None, :]]  # (B, S, S, C)
     return out.permute(0, 3, 1, 2)  # (B, C, S, S), stored NHWC: the network's channels_last, no copy
+
+
+def erase_rectangles(x: torch.Tensor, share: float, generator: torch.Generator) -> torch.Tensor:
+    """(B, C, S, S) with `share` of the canvases zeroed inside one random rectangle each, its
+    sides a tenth to half of the canvas side (random erasing)."""
+    b, _, s, _ = x.shape
+    hit = torch.rand(b, generator=generator) < share  # (B,)
+    size = (torch.rand(2, b, generator=generator) * 0.4 + 0.1) * s  # (2, B) rectangle height, width
+    start = torch.rand(2, b, generator=generator) * (s - size)  # (2, B) top, left
+    idx = torch.arange(s, dtype=torch.float32)  # (S,)
+    inside = [(idx[None, :] >= start[k][:, None]) & (idx[None, :] < (start[k] + size[k])[:, None]) for k in (0, 1)]
+    mask = inside[0][:, :, None] & inside[1][:, None, :] & hit[:, None, None]  # (B, S, S)
+    return x.masked_fill(mask.to(x.device)[:, None], 0.0)
 
 
 @dataclass(frozen=True)
@@ -620,7 +637,7 @@ class _Stepper:
         m, cfg = len(li), self.config
         x = to_input(self.samples[torch.from_numpy(idx).to(self.device)])  # (m + 2n, C, S, S)
         if cfg.augment:
-            x = augment_batch(x, self.max_shift, self.gen)
+            x = augment_batch(x, self.max_shift, self.gen, cfg.augment_erase)
         logits = self.model(x)  # (m + 2n, K)
         pw = self.weights[torch.from_numpy(pi).to(self.device)] if self.use_weights else None  # (n,)
         parts = semi_supervised_loss(logits[:m], self.labels[torch.from_numpy(li).to(self.device)],

@@ -447,3 +447,19 @@ def test_train_with_closure_drawn_per_annotation_runs(blob_data):
     assert len(res.history) == 2 and all(r.loss_labelled > 0 for r in res.history)
     with pytest.raises(ValueError):
         _cfg(closure_draw="track")
+
+
+def test_erase_rectangles_zero_one_rectangle_in_the_given_share_of_canvases():
+    from pipeline.training import erase_rectangles
+
+    x = torch.ones(400, 2, 32, 32)
+    out = erase_rectangles(x, 0.5, torch.Generator().manual_seed(0))
+    zero = out == 0  # (B, C, S, S)
+    hit = zero.flatten(1).any(1)
+    assert 0.4 < hit.float().mean().item() < 0.6
+    assert torch.equal(zero[:, 0], zero[:, 1])  # every channel of a pixel alike
+    for m in zero[hit, 0][:20]:  # one axis-aligned rectangle, a tenth to half the side each way
+        rows, cols = m.any(1).nonzero().flatten(), m.any(0).nonzero().flatten()
+        assert m.sum() == len(rows) * len(cols)
+        assert 3 <= len(rows) <= 17 and 3 <= len(cols) <= 17
+    assert torch.equal(out[~hit], x[~hit])
