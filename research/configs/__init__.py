@@ -58,7 +58,9 @@ def _assignment(item: str) -> dict[str, Any]:
 def load_experiment_config(cls: type[T], names: Sequence[str] = (), sets: Sequence[str] = ()) -> T:
     """`cls` with the named configs (a name in research/configs, or a .yaml path) and the
     KEY=VALUE overrides applied in order; a bad field is a ConfigError naming it."""
-    data: dict[str, Any] = {}
+    # onto the class's own defaults, so that a nested override keeps the other fields of a nested
+    # default that differs from its type's (DefaultModelConfig.training's step budget, say)
+    data: dict[str, Any] = cls().model_dump()
     for name in names:
         data = merge_nested(data, _read(name))
     for item in sets:

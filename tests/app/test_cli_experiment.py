@@ -116,6 +116,16 @@ def test_cli_experiment_paper_config_file_overrides_apply_in_order(tmp_path):
     assert (cfg.training.lr, cfg.training.threads, cfg.training.batch_labelled) == (0.002, 1, 58)
 
 
+def test_a_nested_override_keeps_the_rest_of_a_non_default_nested_default():
+    from research.configs import load_experiment_config
+    from research.experiments.default_model import DefaultModelConfig
+
+    # the shipped model trains 8 x 50 steps on one thread; another training seed must not undo that
+    cfg = load_experiment_config(DefaultModelConfig, [], ["training.seed=1"])
+    assert (cfg.training.seed, cfg.training.steps_per_epoch, cfg.training.threads) == (1, 50, 1)
+    assert load_experiment_config(DefaultModelConfig) == DefaultModelConfig()
+
+
 def test_cli_experiment_levers_scores_each_lever_on_validation_and_measures_the_pull(tmp_path):
     out = tmp_path / "levers"
     smoke = yaml.safe_load((CONFIG_DIR / "paper-smoke.yaml").read_text())
