@@ -146,6 +146,7 @@ def test_shipped_default_model_is_small_and_trained_with_the_product_defaults():
     assert meta.training_config == DefaultModelConfig().training
     changed = {k for k in TrainingConfig.model_fields if getattr(meta.training_config, k) != getattr(TrainingConfig(), k)}
     assert changed == {"steps_per_epoch", "threads"}
-    assert meta.metrics["default_model"]["config"]["sensors"] == list(DefaultModelConfig().sensors)
+    # trained with today's defaults: a changed default without a retrained model fails here
+    assert meta.metrics["default_model"]["config"] == DefaultModelConfig().model_dump(mode="json")
     assert meta.metrics["default_model"]["command"] == "tracklabel experiment default-model"
     assert json.loads(DEFAULT_MODEL.with_suffix(".json").read_text()) == meta.metrics["default_model"]
