@@ -235,6 +235,10 @@ class BulkPreview(BaseModel):
     confidence_min: float | None
     confidence_mean: float | None
     largest_track_ids: list[int]
+    held_out_precision: float | None = Field(description=(
+        "Of the reviewed tracks the model in the loop predicted as this class at this confidence with the track "
+        "left out of its fit, the share that was right (None before any run or when none was)."))
+    held_out_tracks: int = Field(description="How many reviewed tracks that share is over.")
 
 
 class BulkActionPublic(_Public):

@@ -19,7 +19,7 @@ from app.core.errors import Conflict, Invalid, NotFound
 from app.crud.datasets import require_ready
 from app.crud.review import REVIEW_FIELDS, refresh_labels, review_state, stored_state
 from app.crud.users import AuthUser
-from app.models import AnnotationEvent, BulkAction, Track, utcnow
+from app.models import AnnotationEvent, BulkAction, Job, Track, utcnow
 
 PREVIEW_TRACKS = 20  # the largest candidates a preview lists for the operator to look at
 
@@ -60,9 +60,29 @@ def bulk_preview(session: Session, sequence_id: int, class_name: str, min_confid
     largest = session.scalars(
         select(sub.c.id).order_by(sub.c.n_points.desc(), sub.c.id).limit(PREVIEW_TRACKS)
     ).all()
+    precision, support = held_out_precision(session, sequence_id, class_name, min_confidence)
     return {"sequence_id": sequence_id, "class_name": class_name, "min_confidence": min_confidence,
             "tracks": int(n), "points": int(points), "confidence_min": None if low is None else float(low),
-            "confidence_mean": None if mean is None else float(mean), "largest_track_ids": [int(i) for i in largest]}
+            "confidence_mean": None if mean is None else float(mean), "largest_track_ids": [int(i) for i in largest],
+            "held_out_precision": precision, "held_out_tracks": support}
+
+
+def held_out_precision(session: Session, sequence_id: int, class_name: str, min_confidence: float) -> tuple[float | None, int]:
+    """How often a reviewed track the newest model-in-the-loop run predicted as `class_name` at
+    `min_confidence` or more was right with the track left out of the fit (app/jobs/assist.py),
+    and how many such tracks there were; (None, 0) before any run."""
+    for params, result in session.execute(
+        select(Job.params, Job.result).where(Job.type == "assist", Job.status == "succeeded").order_by(Job.id.desc())
+    ):
+        if int(params.get("sequence_id", 0)) != sequence_id:
+            continue
+        held = (result or {}).get("held_out")
+        if not held:
+            return None, 0
+        picked = [t == class_name for t, p, c in zip(held["truth"], held["predicted"], held["confidence"], strict=True)
+                  if p == class_name and c >= min_confidence]
+        return (round(sum(picked) / len(picked), 4) if picked else None), len(picked)
+    return None, 0
 
 
 def bulk_accept(session: Session, sequence_id: int, user: AuthUser, class_name: str, min_confidence: float,

@@ -38,7 +38,6 @@ from app.schemas import JsonModel
 
 # the review actions that bring the model something new (bulk accepts are its own predictions)
 REVIEW_ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
-BULK_THRESHOLDS = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99)
 
 
 class AssistParams(JsonModel):
@@ -111,15 +110,13 @@ def _kept_group(data: dict[str, Any]) -> tuple[np.ndarray, list[Any]]:
     return group, tracks
 
 
-def _held_out_table(held: Any, classes: tuple[str, ...]) -> dict[str, Any]:
-    """Per class and bulk threshold: the held-out precision and its support."""
+def _held_out_record(held: Any, classes: tuple[str, ...]) -> dict[str, list[Any]] | None:
+    """The reviewed tracks' held-out predictions as JSON (crud.bulk_preview reads the precision
+    at any threshold from it)."""
     if held is None:
-        return {}
-    table: dict[str, Any] = {}
-    for k, name in enumerate(classes):
-        rows = {f"{t:g}": held.precision(k, t) for t in BULK_THRESHOLDS}
-        table[name] = {t: {"precision": None if p is None else round(p, 4), "tracks": n} for t, (p, n) in rows.items()}
-    return table
+        return None
+    return {"truth": [classes[i] for i in held.truth], "predicted": [classes[i] for i in held.predicted],
+            "confidence": [round(float(c), 4) for c in held.confidence]}
 
 
 def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...]) -> int:
@@ -158,7 +155,7 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "samples": len(seg_ids), "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
-            "held_out": _held_out_table(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
+            "held_out": _held_out_record(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
 
 
 def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int, int]:
