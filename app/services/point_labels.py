@@ -75,7 +75,9 @@ def _pose(pose: list[float] | None) -> np.ndarray | None:
 
 
 def point_label_plan(session: Session, sequence: Sequence, options: ExportOptions) -> PointLabelPlan:
-    """Read the frames and the tracks whose classes the points take (see `ExportOptions`)."""
+    """Read the frames and the tracks whose classes the points take (see `ExportOptions`): the
+    accepted tracks' decisions, and the pending tracks' predictions. A discarded track (a wrong
+    association) passes its points on to the nearest decided points, not to its prediction."""
     frames = [(int(i), str(n), str(a), _pose(p)) for i, n, a, p in session.execute(
         select(Frame.index, Frame.name, Frame.artifact, Frame.pose).where(Frame.sequence_id == sequence.id)
         .order_by(Frame.index)).all()]
@@ -92,7 +94,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
             source = SOURCE["bulk"] if r.label_source == "bulk" else SOURCE["reviewed"]
             conf = float(r.predicted_confidence or 1.0) if source == SOURCE["bulk"] else 1.0
             decided.append(TrackRow(int(r.id), int(r.key), index[r.label], source, conf, int(r.keep_start), int(r.keep_end)))
-        elif r.predicted_class is not None and not options.reviewed_only:
+        elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
     return PointLabelPlan(sequence.name, frames, decided, predicted, options)
