@@ -194,6 +194,7 @@ class LabelSummary:
                      for i, s in enumerate(SOURCES) if s != "none"}
         hist = {s: self.confidence[i].tolist() for i, s in enumerate(SOURCES) if s != "none" and self.confidence[i].any()}
         return {
+            "sources": list(SOURCES),
             "frames": self.frames,
             "points": int(self.by_source_class.sum()) + self.no_point,
             "labelled_by_source": by_source,
