@@ -67,7 +67,7 @@ class Run:
     """One benchmark run over a registered, ingested sequence."""
 
     def __init__(self, svc_url: str, tokens: dict[str, str], seq_path: Path, truth: SequenceTruth, policy: Policy) -> None:
-        self.client = httpx.Client(base_url=svc_url)
+        self.client = httpx.Client(base_url=svc_url, timeout=600)
         self.admin, op, reviewer = (Api(self.client, tokens[k]) for k in ("admin", "operator", "reviewer"))
         t0 = time.monotonic()
         self.sequence_id = self.admin.register(seq_path)

@@ -102,7 +102,7 @@ class Api:
         self.headers = {"Authorization": f"Bearer {token}"}
 
     def _call(self, method: str, path: str, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
-        r = self.client.request(method, path, headers=self.headers, timeout=600, **kw)
+        r = self.client.request(method, path, headers=self.headers, **kw)
         if r.status_code not in ok:
             raise RuntimeError(f"{method} {path}: {r.status_code} {r.text[:500]}")
         return r

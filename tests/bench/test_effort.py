@@ -15,7 +15,6 @@ from bench.effort.service import Api
 from bench.effort.truth import TruthStore
 from pipeline.classes import GROUND
 
-pytest_plugins = ["tests.app.conftest"]
 
 
 def _truth(api: Api, frames) -> dict[str, np.ndarray]:
