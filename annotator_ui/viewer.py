@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 import viser
 
+from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import COLOUR_MODES, ColourMode, fade, legend_html, point_colours
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.geometry import pick_point, polyline_segments, pose_matrix, world_to_lidar
-from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.repair_panel import RepairPanel
 from annotator_ui.review import NoChange, QueueCoordinator, ReviewSession

@@ -16,7 +16,6 @@ from bench.effort.truth import TruthStore
 from pipeline.classes import GROUND
 
 
-
 def _truth(api: Api, frames) -> dict[str, np.ndarray]:
     """Track key o + 1 (object o) is class o % 3 (person, car, cyclist); other points are ground."""
     out = {}
