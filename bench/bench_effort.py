@@ -37,6 +37,8 @@ from bench.real_data import REAL
 
 LABEL_SETS = ("paper",)  # the label sets the service knows (pipeline/classes.py)
 CLIPS = {"kitti_seq00": (0, 9), "kitti_seq01": None, "kitti_seq02": None}
+RADII = (0.0, 0.2, 0.3, 0.5)  # the final state is also exported with these (radius, ground radius)
+GROUND_RADII = (0.0, 0.1, 0.2, 0.3)
 
 
 def checkpoints(budget: int) -> list[int]:
@@ -109,6 +111,17 @@ class Run:
         if self.curve[-1]["actions"] != op.counts.actions:
             self.checkpoint()
 
+    def variants(self) -> list[dict[str, Any]]:
+        """The final state exported with other propagation radii: how far labels should travel."""
+        rows = []
+        for radius in RADII:
+            for ground_radius in GROUND_RADII:
+                export = self.admin.export(self.sequence_id, include_ground=True, radius=radius, ground_radius=ground_radius)
+                s = score_export(export, self.truth)
+                rows.append({"radius": radius, "ground_radius": ground_radius, "non_ground_right": s["non_ground_right"],
+                             "ground_right": s["ground_right"]})
+        return rows
+
     def assist_seconds(self) -> list[float]:
         jobs = self.admin.get("/jobs", params={"type": "assist", "status": "succeeded", "limit": 1000})
         return [float(j["result"]["seconds"]) for j in jobs if j.get("result")]
@@ -121,7 +134,7 @@ class Run:
                 "policy": asdict(ops.policy), "curve": self.curve,
                 "bulk_error_measured": bulk_error(self.admin, self.sequence_id, ops.frames, self.truth),
                 "bulk_error_audited": stats["audit"]["bulk"], "operations_in_the_log": stats["operations"],
-                "assist_runs_seconds": self.assist_seconds()}
+                "assist_runs_seconds": self.assist_seconds(), "export_variants": self.variants()}
 
 
 def _write_export(tar_bytes: bytes, dest: Path) -> None:

@@ -13,7 +13,7 @@ learns their true classes, through a `TruthStore`), and decides as a careful per
 Every `bulk_every` edits it looks at the model's predictions: for each class whose bulk accept at
 `bulk_confidence` the preview says was right on at least `bulk_precision` of the held-out reviewed
 tracks (over at least `bulk_support` of them), it accepts them all in one action; a reviewer then
-audits `audit_per_bulk` of them. The operator works at a person's pace: it waits for the model in
+audits `audit_per_bulk` of them, and the bulk is undone when the audit corrected any. The operator works at a person's pace: it waits for the model in
 the loop to finish a run before it takes the next track.
 
 Counting: every REST call that changes labels is an edit; every track inspected in an audit is
@@ -45,7 +45,7 @@ class Policy:
     bulk_confidence: float = 0.9
     bulk_precision: float = 0.98
     bulk_support: int = 10
-    audit_per_bulk: int = 3
+    audit_per_bulk: int = 5
     wait_for_model: bool = True
 
 
@@ -59,6 +59,7 @@ class Counts:
     discards: int = 0
     bulk_accepts: int = 0
     bulk_tracks: int = 0
+    bulk_undos: int = 0
     queue_empty: bool = False
 
     @property
@@ -200,11 +201,15 @@ class Operator:
                               {"class_name": name, "min_confidence": pol.bulk_confidence, "expected_tracks": p["tracks"]})
             self.counts.bulk_accepts += 1
             self.counts.bulk_tracks += int(bulk["n_tracks"])
-            self.audit(pol.audit_per_bulk, seed=int(bulk["id"]))
+            if self.audit(pol.audit_per_bulk, seed=int(bulk["id"])):
+                self._edit(f"/bulk-actions/{bulk['id']}/undo", {})  # the audit found a wrong class: not trusted
+                self.counts.bulk_undos += 1
 
-    def audit(self, n: int, seed: int) -> None:
+    def audit(self, n: int, seed: int) -> int:
         """The reviewer inspects `n` bulk-accepted tracks drawn at random: agrees; corrects the class
-        to the one most of the track's points have; or discards a track of ground."""
+        to the one most of the track's points have; or discards a track of ground. Returns the
+        corrections."""
+        before = self.counts.audit_corrections
         audits = self.reviewer.post("/audits/sample", {"n": n, "sequence_id": self.sequence_id, "seed": seed,
                                                        "source": "bulk"}, ok=(201,))
         for a in audits:
@@ -221,3 +226,4 @@ class Operator:
                 self.reviewer.post(f"/audits/{a['id']}/correct", {"label": SAMPLE_CLASSES[major]})
                 self.counts.audit_corrections += 1
             self.counts.audits += 1
+        return self.counts.audit_corrections - before

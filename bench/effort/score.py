@@ -72,6 +72,7 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
             break
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
     wrong_tracks = wrong_track_points = points = disagree = labelled = ground_tracks = 0
+    by_size: dict[str, list[int]] = {"<100": [0, 0], "100-1000": [0, 0], ">1000": [0, 0]}  # (tracks, wrong)
     for t in tracks:
         cls = POINT_CLASSES.index(t["label"])
         seen = [truth.all[f.name][payloads[f.id] == t["id"]] for f in frames if t["keep_start"] <= f.index <= t["keep_end"]]
@@ -80,6 +81,9 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
         major = int(np.bincount(c).argmax()) if len(c) else GROUND
         wrong_tracks += major != cls
         ground_tracks += major == GROUND
+        size = "<100" if t["n_points"] < 100 else "100-1000" if t["n_points"] <= 1000 else ">1000"
+        by_size[size][0] += 1
+        by_size[size][1] += int(major != cls)
         wrong_track_points += len(c) if major != cls else 0
         points += len(c)
         disagree += int((c != cls).sum())
@@ -88,4 +92,4 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
             "track_error": round(wrong_tracks / len(tracks), 4) if tracks else None,
             "point_weighted_track_error": round(wrong_track_points / points, 4) if points else None,
             "point_disagreement": round(disagree / labelled, 4) if labelled else None,
-            "ground_tracks": ground_tracks}
+            "ground_tracks": ground_tracks, "tracks_and_wrong_by_points": by_size}
