@@ -230,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--actions", type=int, default=2000, help="the action budget (the run also ends with the queue)")
     ap.add_argument("--frames", type=_frames, default=None, help="A-B: only frames A..B of the sequence")
     ap.add_argument("--label-set", default="paper", help="the label set (only paper until label sets are data)")
+    ap.add_argument("--queue", choices=("priority", "size"), default="priority", help="the review queue's order")
     args = ap.parse_args(argv)
     if args.label_set not in LABEL_SETS:
         print(f"--label-set: unknown label set {args.label_set!r}; known: {', '.join(LABEL_SETS)}", file=sys.stderr)
@@ -237,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.seq / "labels").is_dir():
         print(f"{args.seq}: no labels/ folder to score against", file=sys.stderr)
         return 2
-    res = run_sequence(args.seq, args.out, args.actions, args.frames)
+    res = run_sequence(args.seq, args.out, args.actions, args.frames, Policy(queue=args.queue))
     last = res["curve"][-1]
     print(f"{last['actions']} actions: non-ground right {last['non_ground_right']}, ground right {last['ground_right']}")
     return 0

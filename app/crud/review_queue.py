@@ -22,6 +22,9 @@ def queue_priority(n_points: int, confidence: float | None) -> float:
     return float(n_points) * (1.0 - float(confidence)) if confidence is not None else float(n_points)
 
 
+QUEUE_ORDERS = {"priority": Track.priority, "size": Track.n_points}
+
+
 def _unleased(now: datetime) -> Any:
     """SQL condition: the track has no lease running at `now` (none, or an expired one)."""
     return or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now)
@@ -33,9 +36,11 @@ def lease_next_track(
     lease_seconds: float,
     sequence_id: int | None = None,
     exclude: tuple[int, ...] = (),
+    order: str = "priority",
 ) -> Track | None:
     """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
-    unleased (or lease-expired) pending track of the highest `queue_priority`. Tracks in `exclude` are
+    unleased (or lease-expired) pending track of the highest `queue_priority` (`order` "size": the
+    one with the most points). Tracks in `exclude` are
     passed over (one user's other viewer tabs hold them, or the operator skipped them). Commits."""
     now = utcnow()
     ready = select(Sequence.id).where(Sequence.status == "ready")
@@ -58,7 +63,7 @@ def lease_next_track(
         cand = session.scalars(
             select(Track)
             .where(*base, _unleased(now))
-            .order_by(Track.priority.desc(), Track.id)
+            .order_by(QUEUE_ORDERS[order].desc(), Track.id)
             .limit(1)
             .with_for_update(skip_locked=True)
         ).first()

@@ -47,6 +47,7 @@ class Policy:
     bulk_support: int = 10
     audit_per_bulk: int = 5
     wait_for_model: bool = True
+    queue: str = "priority"  # the review queue's order (POST /review/next?order=)
 
 
 @dataclass
@@ -137,7 +138,8 @@ class Operator:
         """Review the track the queue offers; False when the queue is empty."""
         if self.policy.wait_for_model:
             self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
-        track = self.op.post("/review/next", params={"sequence_id": self.sequence_id}, ok=(200, 204))
+        track = self.op.post("/review/next", params={"sequence_id": self.sequence_id, "order": self.policy.queue},
+                             ok=(200, 204))
         if track is None:
             self.counts.queue_empty = True
             return False

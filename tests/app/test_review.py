@@ -97,3 +97,16 @@ def test_review_lease_of_a_reviewed_track_is_not_needed(client, factory):
     client.post(f"/api/v1/tracks/{t['id']}/accept", json={"version": t["version"]}, headers=a.headers)
     r = client.post(f"/api/v1/review/{t['id']}/lease", headers=b.headers)
     assert r.status_code == 200 and r.json()["status"] == "accepted"
+
+
+def test_review_queue_serves_priority_first_or_size_first(client, factory, db):
+    from app.models import Track
+
+    seq = factory.ingested_sequence(n_objects=3)
+    ids = factory.track_ids(seq)
+    with db.write() as s:  # the smallest track has the highest priority (the model is unsure of it)
+        for tid, prio, n in zip(ids, (1.0, 5.0, 3.0), (300, 100, 200), strict=True):
+            s.execute(update(Track).where(Track.id == tid).values(priority=prio, n_points=n))
+        s.commit()
+    assert _next(client, factory.user()).json()["id"] == ids[1]
+    assert _next(client, factory.user(), order="size").json()["id"] == ids[0]

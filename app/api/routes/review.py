@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response, status
 from pydantic import Field
@@ -24,6 +24,9 @@ def next_track(
         list[Annotated[int, Field(ge=1, le=MAX_BIG_ID)]] | None,
         Query(max_length=1000, description="Track ids to pass over (held by the caller's other viewer tabs, or skipped)."),
     ] = None,
+    order: Annotated[Literal["priority", "size"], Query(description=(
+        "priority: the points a review is expected to correct first (the model's uncertain large tracks); "
+        "size: the largest tracks first."))] = "priority",
 ) -> TrackPublic | Response:
     """Lease the next unreviewed track to the caller for `review_lease_seconds`.
 
@@ -31,7 +34,7 @@ def next_track(
     returned again (unless it is in `exclude`); an expired lease frees the track. 204 when nothing is left.
     """
     track = crud.lease_next_track(
-        session, user, settings.review_lease_seconds, sequence_id, tuple(sorted(set(exclude or ())))
+        session, user, settings.review_lease_seconds, sequence_id, tuple(sorted(set(exclude or ()))), order
     )
     if track is None:
         return Response(status_code=status.HTTP_204_NO_CONTENT)
