@@ -30,15 +30,15 @@ from typing import Any
 import httpx
 
 from bench.effort.operator import MODEL_SETTLE_S, WORKER_POLL_S, Counts, Operator, Policy
-from bench.effort.score import bulk_error, score_export
+from bench.effort.score import bulk_error, prediction_calibration, score_export
 from bench.effort.service import Api, LocalService
 from bench.effort.truth import SequenceTruth, TruthStore
 from bench.real_data import REAL
 
 LABEL_SETS = ("paper",)  # the label sets the service knows (pipeline/classes.py)
 CLIPS = {"kitti_seq00": (0, 9), "kitti_seq01": None, "kitti_seq02": None}
-RADII = (0.0, 0.2, 0.3, 0.5)  # the final state is also exported with these (radius, ground radius)
-GROUND_RADII = (0.0, 0.1, 0.2, 0.3)
+RADII = (0.3, 0.5, 1.0)  # the final state is also exported with these (radius, ground radius)
+GROUND_RADII = (0.1, 0.2, 0.3)
 
 
 def checkpoints(budget: int) -> list[int]:
@@ -133,6 +133,7 @@ class Run:
         return {"sequence_id": self.sequence_id, "ingest_seconds": round(self.ingest_s, 1),
                 "policy": asdict(ops.policy), "curve": self.curve,
                 "bulk_error_measured": bulk_error(self.admin, self.sequence_id, ops.frames, self.truth),
+                "pending_predictions": prediction_calibration(self.admin, self.sequence_id, ops.frames, self.truth),
                 "bulk_error_audited": stats["audit"]["bulk"], "operations_in_the_log": stats["operations"],
                 "assist_runs_seconds": self.assist_seconds(), "export_variants": self.variants()}
 

@@ -57,27 +57,57 @@ def score_export(export: Export, truth: SequenceTruth) -> dict[str, Any]:
     }
 
 
+def _all_tracks(admin: Api, sequence_id: int, status: str) -> list[dict[str, Any]]:
+    tracks, offset = [], 0
+    while True:
+        page = admin.get("/tracks", params={"sequence_id": sequence_id, "status": status, "limit": 500, "offset": offset})
+        tracks += page["items"]
+        offset += 500
+        if offset >= page["total"]:
+            return tracks
+
+
+def _track_truth(t: dict[str, Any], frames: list[FrameInfo], payloads: dict[int, np.ndarray],
+                 truth: SequenceTruth) -> np.ndarray:
+    """The true classes of a track's labelled points in its kept frames."""
+    seen = [truth.all[f.name][payloads[f.id] == t["id"]] for f in frames if t["keep_start"] <= f.index <= t["keep_end"]]
+    c = np.concatenate(seen) if seen else np.zeros(0, np.uint8)
+    return c[c != UNLABELLED]
+
+
+CONFIDENCE_EDGES = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99, 1.01)
+
+
+def prediction_calibration(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: SequenceTruth) -> dict[str, Any]:
+    """How often the pending tracks' predicted classes are their true majority class, per
+    confidence bin: tracks, right tracks, points, points of right tracks."""
+    payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
+    rows = np.zeros((len(CONFIDENCE_EDGES) - 1, 4), np.int64)
+    for t in _all_tracks(admin, sequence_id, "pending"):
+        conf, cls = t.get("predicted_confidence"), t.get("predicted_class")
+        c = _track_truth(t, frames, payloads, truth)
+        if conf is None or cls is None or not len(c) or conf < CONFIDENCE_EDGES[0]:
+            continue
+        b = int(np.searchsorted(CONFIDENCE_EDGES, conf, side="right")) - 1
+        right = cls in POINT_CLASSES and int(np.bincount(c).argmax()) == POINT_CLASSES.index(cls)
+        right = right or (cls == "no_object" and int(np.bincount(c).argmax()) == GROUND)
+        rows[b] += (1, int(right), len(c), len(c) * int(right))
+    return {f"{lo:g}-{hi:g}": {"tracks": int(r[0]), "right": int(r[1]), "points": int(r[2]), "points_right": int(r[3])}
+            for lo, hi, r in zip(CONFIDENCE_EDGES[:-1], CONFIDENCE_EDGES[1:], rows, strict=True)}
+
+
 def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: SequenceTruth) -> dict[str, Any]:
     """The error of the bulk-accepted tracks against the truth: a track is wrong when most of its
     labelled points are of another class (ground included: such a track is no object); shares of
     tracks and of their points, the wrong tracks that are ground, and the share of their labelled
     points whose class differs from the track's."""
-    tracks, offset = [], 0
-    while True:
-        page = admin.get("/tracks", params={"sequence_id": sequence_id, "status": "accepted", "limit": 500,
-                                            "offset": offset})
-        tracks += [t for t in page["items"] if t.get("label_source") == "bulk"]
-        offset += 500
-        if offset >= page["total"]:
-            break
+    tracks = [t for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"]
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
     wrong_tracks = wrong_track_points = points = disagree = labelled = ground_tracks = 0
     by_size: dict[str, list[int]] = {"<100": [0, 0], "100-1000": [0, 0], ">1000": [0, 0]}  # (tracks, wrong)
     for t in tracks:
         cls = POINT_CLASSES.index(t["label"])
-        seen = [truth.all[f.name][payloads[f.id] == t["id"]] for f in frames if t["keep_start"] <= f.index <= t["keep_end"]]
-        c = np.concatenate(seen) if seen else np.zeros(0, np.uint8)
-        c = c[c != UNLABELLED]
+        c = _track_truth(t, frames, payloads, truth)
         major = int(np.bincount(c).argmax()) if len(c) else GROUND
         wrong_tracks += major != cls
         ground_tracks += major == GROUND
