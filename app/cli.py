@@ -189,8 +189,12 @@ def predict(
         f"{summary['frames']} frames, {sum(seg.values())} segments classified "
         f"({', '.join(f'{k} {v}' for k, v in seg.items() if v)}), {summary['frames_per_second']} frames/s -> {out}"
     )
+    scored = summary.get("frames_scored", 0)
     if "point_iou" in summary:
-        typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f}")
+        typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f} "
+                   f"(the {scored} of {summary['frames']} frames that have labels)")
+    else:
+        typer.echo("no frame has labels: nothing scored")
 
 
 # ----------------------------------------------------------------------------- experiments
