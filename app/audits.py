@@ -9,6 +9,7 @@ operator and per class goes into `/exports/stats`.
 
 from __future__ import annotations
 
+import math
 import random
 from typing import Any
 
@@ -21,18 +22,22 @@ from app.crud import AuthUser
 from app.models import Audit, Track, User, utcnow
 
 
-def sample_audits(session: Session, user: AuthUser, n: int, sequence_id: int | None, seed: int) -> list[Audit]:
-    """Queue up to `n` accepted, never-audited tracks (of one sequence or all). Commits."""
+def sample_audits(session: Session, user: AuthUser, n: int, sequence_id: int | None, seed: int,
+                  source: str | None = None) -> list[Audit]:
+    """Queue up to `n` accepted, never-audited tracks (of one sequence or all; only those whose
+    class came from `source` when given, e.g. `bulk`). Commits."""
     audited = select(Audit.track_id)
     where = [Track.status == "accepted", Track.id.not_in(audited)]
     if sequence_id is not None:
         where.append(Track.sequence_id == sequence_id)
+    if source is not None:
+        where.append(Track.label_source == source)
     candidates = list(session.scalars(select(Track.id).where(*where).order_by(Track.id)).all())
     picked = sorted(random.Random(seed).sample(candidates, min(n, len(candidates))))
     audits = []
     for track in session.scalars(select(Track).where(Track.id.in_(picked)).order_by(Track.id)):
         audits.append(Audit(sequence_id=track.sequence_id, track_id=track.id, operator_id=track.reviewed_by_id,
-                            label=track.label, status="queued", sampled_by_id=user.id))
+                            label=track.label, status="queued", sampled_by_id=user.id, source=track.label_source))
     session.add_all(audits)
     session.commit()
     return audits
@@ -88,4 +93,43 @@ def audit_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
         return {str(k): {"audited": int(n), "agreed": int(a or 0), "agreement": round(int(a or 0) / int(n), 4)}
                 for k, n, a in rows}
 
-    return {"queued": int(queued), "per_operator": table(rows_op), "per_class": table(rows_cls)}
+    return {"queued": int(queued), "per_operator": table(rows_op), "per_class": table(rows_cls),
+            "bulk": bulk_error(session, sequence_id)}
+
+
+def wilson_interval(errors: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a proportion `errors / n` ((0, 1) when n is 0): honest
+    at 0 or n errors, where the normal interval collapses to a point."""
+    if n == 0:
+        return 0.0, 1.0
+    p = errors / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def bulk_error(session: Session, sequence_id: int | None) -> dict[str, Any]:
+    """The measured error of bulk-accepted classes: per class, the share of audited bulk tracks
+    the auditor corrected, with its 95 % Wilson interval; overall, the same over every audited
+    bulk track (audits draw uniformly among the bulk-accepted tracks, so the pooled share
+    estimates the error of the tracks accepted in bulk)."""
+    where = [Audit.status != "queued", Audit.source == "bulk"]
+    if sequence_id is not None:
+        where.append(Audit.sequence_id == sequence_id)
+    corrected = func.sum((Audit.status == "corrected").cast(Integer))
+    rows = session.execute(select(Audit.label, func.count(), corrected).where(*where).group_by(Audit.label)).all()
+    t_where = [Track.status == "accepted", Track.label_source == "bulk"]
+    if sequence_id is not None:
+        t_where.append(Track.sequence_id == sequence_id)
+    accepted = {str(k): int(v) for k, v in
+                session.execute(select(Track.label, func.count()).where(*t_where).group_by(Track.label)).all()}
+
+    def rate(wrong: int, n: int) -> dict[str, Any]:
+        lo, hi = wilson_interval(wrong, n)
+        return {"audited": n, "corrected": wrong, "error": round(wrong / n, 4) if n else None,
+                "ci95": [round(lo, 4), round(hi, 4)]}
+
+    per_class = {str(c): rate(int(w or 0), int(n)) | {"bulk_tracks": accepted.get(str(c), 0)} for c, n, w in rows}
+    overall = rate(sum(v["corrected"] for v in per_class.values()), sum(v["audited"] for v in per_class.values()))
+    return {"bulk_tracks": sum(accepted.values()), "bulk_tracks_per_class": accepted, "per_class": per_class,
+            "overall": overall}

@@ -1,5 +1,6 @@
 """Exports: constraint pairs and labelled samples (JSON lines or `.npz` with the sample arrays),
-and per-frame SemanticKITTI `.label` files streamed as a tar archive.
+and per-frame SemanticKITTI `.label` files streamed as a tar archive (a class for every point, with its
+source: app/services/point_labels.py).
 
 Track ids are written as SemanticKITTI instance ids (16 bits). When a sequence's track ids exceed
 65,535, frames are cut into chunks whose labelled tracks are renumbered densely from 1, and
@@ -14,7 +15,6 @@ import math
 import tarfile
 from collections import defaultdict
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,7 +23,8 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import ArtifactStore
-from app.models import Frame, Segment, Sequence
+from app.models import Frame, Segment
+from app.services.point_labels import FrameLabels, LabelSummary, PointLabelPlan, TrackRow, iter_frame_labels
 
 MAX_INSTANCE = 0xFFFF
 _IN_CHUNK = 5000
@@ -159,57 +160,22 @@ def labels_npz(session: Session, artifacts: ArtifactStore, rows: list[dict[str, 
     )
 
 
-@dataclass(frozen=True)
-class _LabelledTrack:
-    db_id: int
-    key: int
-    semantic: int
-    keep_start: int
-    keep_end: int
-
-
-@dataclass(frozen=True)
-class SemanticKittiPlan:
-    """Everything the archive needs, read from the database before streaming starts."""
-
-    sequence_name: str
-    frames: list[tuple[int, str, str]]  # (index, name, artifact)
-    tracks: list[_LabelledTrack]
-    include_ground: bool
-
-
-def semantickitti_plan(session: Session, sequence: Sequence, include_ground: bool) -> SemanticKittiPlan:
-    from pipeline.classes import CLASS_INDEX, to_semantickitti
-
-    frames = [
-        (int(i), str(n), str(a))
-        for i, n, a in session.execute(
-            select(Frame.index, Frame.name, Frame.artifact).where(Frame.sequence_id == sequence.id).order_by(Frame.index)
-        ).all()
-    ]
-    tracks = [
-        _LabelledTrack(
-            int(r.id), int(r.key), int(to_semantickitti(np.array([CLASS_INDEX[r.label]]))[0]), int(r.keep_start), int(r.keep_end)
-        )
-        for r in crud.track_label_rows(session, sequence.id)
-    ]
-    return SemanticKittiPlan(sequence.name, frames, tracks, include_ground)
-
-
-def _instances(plan: SemanticKittiPlan) -> tuple[dict[int, dict[int, int]], list[dict[str, Any]] | None]:
-    """Per frame index: db track id -> instance id; plus the chunk map when ids need chunking."""
-    per_frame: dict[int, list[_LabelledTrack]] = defaultdict(list)
-    for t in plan.tracks:
+def _instances(plan: PointLabelPlan) -> tuple[dict[int, dict[int, int]], list[dict[str, Any]] | None]:
+    """Per frame index: db track id -> instance id of the tracks whose points take their class
+    (decided or predicted); plus the chunk map when keys need chunking."""
+    tracks = [*plan.decided, *plan.predicted]
+    per_frame: dict[int, list[TrackRow]] = defaultdict(list)
+    for t in tracks:
         for f in range(t.keep_start, t.keep_end + 1):
             per_frame[f].append(t)
-    if not plan.tracks or max(t.key for t in plan.tracks) <= MAX_INSTANCE:
+    if not tracks or max(t.key for t in tracks) <= MAX_INSTANCE:
         return {f: {t.db_id: t.key for t in ts} for f, ts in per_frame.items()}, None
     out: dict[int, dict[int, int]] = {}
     chunks: list[dict[str, Any]] = []
     local: dict[int, int] = {}
     first: int | None = None
     prev = -1
-    for index, _name, _art in plan.frames:
+    for index, *_ in plan.frames:
         keys = {t.key for t in per_frame.get(index, [])}
         if len(local) + len(keys - local.keys()) > MAX_INSTANCE and local:
             chunks.append({"chunk": len(chunks), "frames": [first, prev], "instances": {v: k for k, v in local.items()}})
@@ -254,38 +220,40 @@ def _spread(values: np.ndarray, input_rows: np.ndarray) -> np.ndarray:
     return out
 
 
-def semantickitti_tar(plan: SemanticKittiPlan, artifacts: ArtifactStore) -> Iterator[bytes]:
-    """Stream `sequences/<name>/labels/<frame>.label` (uint32: semantic | instance << 16) per frame,
-    one label per row of the frame's scan file (0 for rows that are no point: NaN, inf, no return)."""
-    from pipeline.classes import SEMANTICKITTI_WRITE_ID
+def _label_words(fl: FrameLabels, instances: dict[int, int]) -> np.ndarray:
+    """(N,) uint32 SemanticKITTI words of one frame's points: class | instance << 16, the instance
+    being the point's own track's where it took that track's class."""
+    from pipeline.classes import to_semantickitti
 
+    words = to_semantickitti(fl.labels.class_).astype(np.uint32)
+    if instances:
+        ids = np.array(sorted(instances), np.int64)
+        pos = np.minimum(np.searchsorted(ids, fl.track), len(ids) - 1)
+        hit = (ids[pos] == fl.track) & fl.from_track
+        ins = np.array([instances[i] for i in ids], np.uint32)
+        words[hit] |= ins[pos[hit]] << 16
+    return words
+
+
+def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterator[bytes]:
+    """Stream `sequences/<name>/labels/<frame>.label` (uint32: semantic | instance << 16) per frame,
+    one label per row of the frame's scan file (0 for rows that are no point: NaN, inf, no return),
+    then `summary.json`: the points per label source and class, confidence histograms, and why
+    points stayed unlabelled (app/services/point_labels.py)."""
     instances, chunk_map = _instances(plan)
-    sem_of = {t.db_id: t.semantic for t in plan.tracks}
-    ground_id = SEMANTICKITTI_WRITE_ID["ground"]
+    summary = LabelSummary()
     sink = _Sink()
     tar = tarfile.open(fileobj=sink, mode="w|")
     prefix = f"sequences/{plan.sequence_name}"
-    for index, name, art in plan.frames:
-        a = artifacts.read_arrays(art, ("track", "ground", "input_rows"))
-        track = a["track"]
-        label = np.zeros(len(track), np.uint32)
-        if plan.include_ground:
-            label[a["ground"]] = ground_id
-        inst = instances.get(index, {})
-        if inst:
-            ids = np.array(sorted(inst), np.int64)
-            pos = np.searchsorted(ids, track)
-            pos = np.minimum(pos, len(ids) - 1)
-            hit = (ids[pos] == track) & (track > 0)
-            sem = np.array([sem_of[i] for i in ids], np.uint32)
-            ins = np.array([inst[i] for i in ids], np.uint32)
-            label[hit] = sem[pos[hit]] | (ins[pos[hit]] << 16)
-        rows = a.get("input_rows")
-        if rows is not None:
-            label = _spread(label, rows)
-        _add(tar, f"{prefix}/labels/{name}.label", label.tobytes())
+    for fl in iter_frame_labels(plan, artifacts):
+        summary.add(fl)
+        words = _label_words(fl, instances.get(fl.index, {}))
+        if fl.input_rows is not None:
+            words = _spread(words, fl.input_rows)
+        _add(tar, f"{prefix}/labels/{fl.name}.label", words.tobytes())
         yield sink.drain()
     if chunk_map is not None:
         _add(tar, f"{prefix}/chunk_map.json", json.dumps({"chunks": chunk_map}, indent=1).encode())
+    _add(tar, f"{prefix}/summary.json", json.dumps(summary.to_dict(plan.options), indent=1).encode())
     tar.close()
     yield sink.drain()

@@ -42,7 +42,11 @@ ROLES = ("operator", "reviewer", "admin")  # reviewer: audits accepted tracks (m
 TRACK_STATUSES = ("pending", "accepted", "discarded", "merged")
 SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
-ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
+# bulk_accept: one of the tracks a bulk accept labelled (app/crud/bulk.py; its `BulkAction` row is the
+# operation, the per-track events make undo and replay work as for any action)
+ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge", "bulk_accept")
+# where an accepted track's class came from: an operator's own review, or a bulk accept of predictions
+LABEL_SOURCES = ("review", "bulk")
 ANCHOR_LEVELS = ("sample", "track")
 ANCHOR_ACTIONS = ("confirm", "correct", "reject")
 
@@ -142,7 +146,10 @@ class Track(Base):
     __table_args__ = (
         UniqueConstraint("sequence_id", "key"),
         CheckConstraint(_in("status", TRACK_STATUSES), name="status"),
+        CheckConstraint(_in("label_source", LABEL_SOURCES), name="label_source"),
         Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
+        # the review queue's order (app/crud/review_queue.py): most expected gain first, ties by id
+        Index("ix_tracks_queue_priority", "sequence_id", "status", "priority", "id"),
         Index("ix_tracks_status_n_samples", "status", "n_samples"),
         Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
         # predicted class + confidence, then every sort key of GET /tracks but updated_at (which each
@@ -172,6 +179,10 @@ class Track(Base):
     label: Mapped[str | None] = mapped_column(String(16), index=True)
     predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted(_sorts)
     predicted_confidence: Mapped[float | None] = mapped_column(Float)
+    # migration 0010: the review queue serves the highest first: the points the track's review is
+    # expected to correct (n_points x (1 - predicted confidence)), n_points before any prediction
+    priority: Mapped[float] = mapped_column(Float, default=0.0, server_default="0")
+    label_source: Mapped[str | None] = mapped_column(String(16))  # LABEL_SOURCES; None unless accepted with a class
     version: Mapped[int] = mapped_column(Integer, default=1)
     updated_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
@@ -261,7 +272,7 @@ class Label(Base):
     track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
     class_name: Mapped[str] = mapped_column(String(16))
     class_index: Mapped[int] = mapped_column(Integer)
-    source: Mapped[str] = mapped_column(String(16), default="track")
+    source: Mapped[str] = mapped_column(String(16), default="review")  # LABEL_SOURCES (migration 0010; "track" before)
     user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
@@ -411,3 +422,26 @@ class Audit(Base):
     auditor_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     answer_label: Mapped[str | None] = mapped_column(String(16))
     decided_at: Mapped[datetime | None] = mapped_column(DateTime)
+    # migration 0010: the label's source when sampled (LABEL_SOURCES), so bulk accepts are audited apart
+    source: Mapped[str | None] = mapped_column(String(16))
+
+
+class BulkAction(Base):
+    """One bulk accept: every pending track of a sequence predicted as `class_name` with a
+    confidence of at least `min_confidence` accepted with that class in one operator action
+    (app/crud/bulk.py). Each track also gets a `bulk_accept` event naming this row in its
+    detail; `undone_at` is set when the whole bulk is undone."""
+
+    __tablename__ = "bulk_actions"
+    __table_args__ = (Index("ix_bulk_actions_sequence_id_id", "sequence_id", "id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    class_name: Mapped[str] = mapped_column(String(16))
+    min_confidence: Mapped[float] = mapped_column(Float)
+    n_tracks: Mapped[int] = mapped_column(Integer)
+    n_points: Mapped[int] = mapped_column(BigInteger)
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    undone_at: Mapped[datetime | None] = mapped_column(DateTime)
+    undone_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))

@@ -47,6 +47,7 @@ GEOMETRY_ACTIONS = ("split", "merge")
 SEGMENT_FIELDS = ("track_id", "n_points", "cx", "cy", "cz", "wx", "wy", "wz", "range", "valid", "link_score", "sample_index")
 TRACK_FIELDS = (
     "status", "label", "first_frame", "last_frame", "keep_start", "keep_end", "length", "n_samples", "n_points", "mean_range",
+    "priority", "label_source",
 )
 
 
@@ -147,6 +148,7 @@ def _restat(session: Session, track: Track, ranges_from_segments: bool) -> None:
     ).one()
     track.length, track.n_samples, track.mean_range = int(length), int(n_samples), float(mean_range or 0.0)
     track.n_points = int(session.scalar(select(func.coalesce(func.sum(Segment.n_points), 0)).where(Segment.track_id == track.id)))
+    track.priority = crud.queue_priority(track.n_points, track.predicted_confidence)
 
 
 def _event(
@@ -437,7 +439,7 @@ def merge_tracks(
     frames = _retrack_frames(session, ctx, b.id, a.id)
     session.execute(Segment.__table__.update().where(Segment.__table__.c.track_id == b.id).values(track_id=a.id))
     if (a.status, a.label) != (b.status, b.label):
-        a.status, a.label = "pending", None
+        a.status, a.label, a.label_source = "pending", None, None
     a.first_frame, a.last_frame = min(a.first_frame, b.first_frame), max(a.last_frame, b.last_frame)
     a.keep_start, a.keep_end = min(a.keep_start, b.keep_start), max(a.keep_end, b.keep_end)
     b.status, b.length, b.n_samples, b.n_points = "merged", 0, 0, 0

@@ -18,6 +18,7 @@ TrackStatus = Literal["pending", "accepted", "discarded", "merged"]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
 ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
+LabelSource = Literal["review", "bulk"]
 assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 
 
@@ -209,9 +210,48 @@ class TrackPublic(_Public):
     label: str | None
     predicted_class: str | None
     predicted_confidence: float | None
+    label_source: LabelSource | None = Field(
+        default=None, description="Where an accepted class came from: an operator's review, or a bulk accept.")
+    priority: float = Field(default=0.0, description="Queue order, highest first: points the review is expected to correct.")
     version: int
     updated_at: UtcDateTime
     lease_expires_at: UtcDateTime | None = None
+
+
+class BulkAcceptAction(_Request):
+    class_name: ClassName = Field(description="Accept the pending tracks predicted as this class ...")
+    min_confidence: float = Field(ge=0.0, le=1.0, allow_inf_nan=False, description="... with at least this confidence.")
+    expected_tracks: int | None = Field(
+        default=None, ge=0, le=2**31 - 1,
+        description="The count the preview showed; another count now (the predictions changed) -> 409.")
+
+
+class BulkPreview(BaseModel):
+    sequence_id: int
+    class_name: str
+    min_confidence: float
+    tracks: int
+    points: int
+    confidence_min: float | None
+    confidence_mean: float | None
+    largest_track_ids: list[int]
+    held_out_precision: float | None = Field(description=(
+        "Of the reviewed tracks the model in the loop predicted as this class at this confidence with the track "
+        "left out of its fit, the share that was right (None before any run or when none was)."))
+    held_out_tracks: int = Field(description="How many reviewed tracks that share is over.")
+
+
+class BulkActionPublic(_Public):
+    id: int
+    sequence_id: int
+    user_id: int | None
+    class_name: str
+    min_confidence: float
+    n_tracks: int
+    n_points: int
+    created_at: UtcDateTime
+    undone_at: UtcDateTime | None
+    undone_by_id: int | None
 
 
 class TrackList(BaseModel):
@@ -402,10 +442,29 @@ class AgreementRow(BaseModel):
     agreement: float = Field(description="agreed / audited")
 
 
+class ErrorRate(BaseModel):
+    audited: int
+    corrected: int
+    error: float | None = Field(description="corrected / audited (None when nothing was audited).")
+    ci95: tuple[float, float] = Field(description="95 % Wilson interval of the error.")
+
+
+class ClassErrorRate(ErrorRate):
+    bulk_tracks: int = Field(description="Tracks of the class accepted in bulk (audited or not).")
+
+
+class BulkErrorStats(BaseModel):
+    bulk_tracks: int = Field(description="Tracks accepted in bulk and still accepted.")
+    bulk_tracks_per_class: dict[str, int]
+    per_class: dict[str, ClassErrorRate] = Field(description="Audited bulk-accepted tracks by their bulk class.")
+    overall: ErrorRate = Field(description="Over every audited bulk track: the error of bulk-accepted classes.")
+
+
 class AuditStats(BaseModel):
     queued: int
     per_operator: dict[str, AgreementRow] = Field(description="By the name of the operator who accepted the track.")
     per_class: dict[str, AgreementRow] = Field(description="By the class the operator gave.")
+    bulk: BulkErrorStats
 
 
 class ProgressStats(BaseModel):
@@ -417,6 +476,10 @@ class ProgressStats(BaseModel):
     samples_labelled_per_class: dict[str, int]
     constraints_automatic: int
     constraints_verified: int
+    tracks_accepted_by_source: dict[str, int] = Field(description="Accepted tracks by where the class came from.")
+    samples_labelled_per_source: dict[str, int]
+    bulk_actions: int = Field(description="Bulk accepts (undone ones included).")
+    operations: int | None = Field(description="Label-changing operations on the sequence (None over all sequences).")
     audit: AuditStats
 
 
@@ -533,6 +596,8 @@ class AuditSample(_Request):
     n: int = Field(ge=1, le=10_000, description="Accepted, never-audited tracks to queue (fewer when fewer exist).")
     sequence_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description="One sequence; all when omitted.")
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    source: LabelSource | None = Field(default=None, description="Only tracks whose class came from this source "
+                                       "(`bulk`: bulk-accepted predictions); any when omitted.")
 
 
 class AuditCorrect(_Request):
@@ -551,3 +616,4 @@ class AuditPublic(_Public):
     auditor_id: int | None
     answer_label: str | None = Field(description="The auditor's class (the operator's when agreed).")
     decided_at: UtcDateTime | None
+    source: LabelSource | None = Field(default=None, description="The label's source when sampled.")

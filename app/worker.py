@@ -215,12 +215,22 @@ class Worker:
         if path is not None:
             path.touch()
 
+    def schedule(self) -> list[int]:
+        """Queue the jobs the service starts by itself: the model-in-the-loop runs of sequences
+        that reviews have moved on (app/jobs/assist.py). Returns the new jobs' ids."""
+        if "assist" not in self.types:
+            return []
+        from app.jobs import assist
+
+        return assist.schedule(self.db, self.settings)
+
     def run_forever(self) -> None:
         """Poll for jobs until `stop_event` is set."""
         log.info("worker %s: job types %s", self.worker_id, ", ".join(self.types))
         while not self.stop_event.is_set():
             self.touch_alive()
             try:
+                self.schedule()
                 ran = self.run_once()
             except Exception:  # noqa: BLE001 - e.g. the database restarting; poll again
                 log.exception("worker %s: claim failed", self.worker_id)

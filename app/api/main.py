@@ -15,6 +15,7 @@ from app.api.query_check import strict_query
 from app.api.routes import (
     anchors,
     audits,
+    bulk,
     datasets,
     exports,
     frames,
@@ -74,6 +75,7 @@ def declare_errors(router: APIRouter) -> None:
 
 
 api_router = APIRouter(dependencies=[Depends(strict_query)])
-for module in (health, users, datasets, frames, tracks, repair, review, exports, jobs, models, anchors, stitches, audits):
+for module in (health, users, datasets, frames, tracks, repair, review, bulk, exports, jobs, models, anchors, stitches,
+               audits):
     declare_errors(module.router)  # before including: an included router's routes are not listed
     api_router.include_router(module.router)

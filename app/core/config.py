@@ -55,6 +55,9 @@ class Settings(BaseSettings):
 
     # Review queue: how long `next` reserves a track for its operator.
     review_lease_seconds: float = Field(default=300.0, gt=0)
+    # The model in the review loop (app/jobs/assist.py): the worker classifies a sequence's tracks
+    # when it becomes ready, then again after every `assist_every` review events; 0 = off.
+    assist_every: int = Field(default=5, ge=0, le=100_000)
 
     # Viewer frame payloads kept in memory (LRU).
     frame_cache_mb: int = Field(default=256, ge=0)

@@ -7,6 +7,7 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 
 from __future__ import annotations
 
+from app.crud.bulk import bulk_accept, bulk_preview, list_bulk_actions, operation_count, undo_bulk
 from app.crud.bulk_load import BULK_TABLES, analyze_tables, clear_sequence_rows, vacuum_after_bulk_load
 from app.crud.datasets import (
     check_ready,
@@ -27,7 +28,7 @@ from app.crud.review import (
     refresh_labels,
     review_state,
 )
-from app.crud.review_queue import lease_next_track, lease_track, release_lease
+from app.crud.review_queue import lease_next_track, lease_track, queue_priority, release_lease
 from app.crud.statistics import (
     constraints_query,
     labels_query,
@@ -48,6 +49,11 @@ from app.crud.users import (
 )
 
 __all__ = [
+    "bulk_accept",
+    "bulk_preview",
+    "list_bulk_actions",
+    "operation_count",
+    "undo_bulk",
     "AuthUser",
     "create_user",
     "create_token",
@@ -81,6 +87,7 @@ __all__ = [
     "lease_next_track",
     "lease_track",
     "release_lease",
+    "queue_priority",
     "clear_sequence_rows",
     "analyze_tables",
     "vacuum_after_bulk_load",

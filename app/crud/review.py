@@ -4,17 +4,18 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import DateTime, Integer, String, bindparam, delete, func, insert, literal, select
+from sqlalchemy import DateTime, Integer, String, bindparam, delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from app import leases
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud.datasets import require_ready
+from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, Label, Segment, Track, utcnow
 
-REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end")
+REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end", "label_source")
 
 
 def review_state(track: Track) -> dict[str, Any]:
@@ -24,7 +25,17 @@ def review_state(track: Track) -> dict[str, Any]:
 
 def initial_review_state(track: Track) -> dict[str, Any]:
     """The state a track had when ingest created it."""
-    return {"status": "pending", "label": None, "keep_start": track.first_frame, "keep_end": track.last_frame}
+    return {"status": "pending", "label": None, "keep_start": track.first_frame, "keep_end": track.last_frame,
+            "label_source": None}
+
+
+def stored_state(recorded: dict[str, Any]) -> dict[str, Any]:
+    """A review state as an event recorded it. Events written before label sources existed lack
+    `label_source`: a class accepted then was an operator's own review."""
+    state = {f: recorded.get(f) for f in REVIEW_FIELDS}
+    if "label_source" not in recorded and state["status"] == "accepted" and state["label"] is not None:
+        state["label_source"] = "review"
+    return state
 
 
 def rebuild_review_state(session: Session, track: Track) -> dict[str, Any]:
@@ -38,9 +49,9 @@ def rebuild_review_state(session: Session, track: Track) -> dict[str, Any]:
             state["keep_start"], state["keep_end"] = ev.detail["range_before"]
             break
     for ev in events:
-        if ev.before != state:
+        if stored_state(ev.before) != state:
             raise Conflict(f"event log of track {track.id} is inconsistent at event {ev.id}")
-        state = dict(ev.after)
+        state = stored_state(ev.after)
     return state
 
 
@@ -71,8 +82,8 @@ def apply_action(
         _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
     now = utcnow()
-    track.status, track.label = after["status"], after["label"]
-    track.keep_start, track.keep_end = after["keep_start"], after["keep_end"]
+    for f in REVIEW_FIELDS:
+        setattr(track, f, after[f])
     track.version = version + 1
     track.updated_at = now
     track.reviewed_by_id = user.id
@@ -126,13 +137,16 @@ def _review_after(
     reverts: AnnotationEvent | None = None
     if action == "accept":
         after["status"] = "accepted"
+        after["label_source"] = None if after["label"] is None else "review"
     elif action == "discard":
         after["status"] = "discarded"
+        after["label_source"] = None
     elif action == "label":
         if label not in sample_classes:
             raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
         after["label"] = label
         after["status"] = "accepted"  # labelling a track is accepting it with that class
+        after["label_source"] = "review"
     elif action == "truncate":
         assert start is not None and end is not None
         if not (track.first_frame <= start <= end <= track.last_frame):
@@ -144,9 +158,10 @@ def _review_after(
         reverts = last_undoable_event(session, track.id, user.id)
         if reverts is None:
             raise Conflict(f"nothing to undo: no action of {user.name} on track {track.id} is left to undo")
+        was, became = stored_state(reverts.before), stored_state(reverts.after)
         for f in REVIEW_FIELDS:
-            if reverts.before.get(f) != reverts.after.get(f):
-                after[f] = reverts.before.get(f)
+            if was[f] != became[f]:
+                after[f] = was[f]
     else:
         raise Invalid(f"unknown action {action!r}")
     return after, reverts
@@ -167,6 +182,7 @@ def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_en
         raise NotApplicable(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
     track.length, track.n_samples = int(length), int(n_samples)
     track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
+    track.priority = queue_priority(track.n_points, track.predicted_confidence)
 
 
 def last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:
@@ -198,7 +214,7 @@ _INSERT_LABELS = insert(Label.__table__).from_select(
         Segment.track_id,
         bindparam("class_name", type_=String),
         bindparam("class_index", type_=Integer),
-        literal("track"),
+        bindparam("source", type_=String),
         bindparam("user_id", type_=Integer),
         bindparam("created_at", type_=DateTime),
     ).where(
@@ -221,6 +237,7 @@ def refresh_labels(session: Session, track: Track, user_id: int, sample_classes:
         _INSERT_LABELS,
         {
             "track_id": track.id, "class_name": track.label, "class_index": sample_classes.index(track.label),
+            "source": track.label_source or "review",
             "user_id": user_id, "created_at": utcnow(), "keep_start": track.keep_start, "keep_end": track.keep_end,
         },
     )

@@ -13,6 +13,15 @@ from app.crud.users import AuthUser
 from app.models import Sequence, Track, User, utcnow
 
 
+def queue_priority(n_points: int, confidence: float | None) -> float:
+    """A pending track's place in the queue (highest first): the points its review is expected to
+    correct, i.e. all of them before the model has predicted it, else the share the model may have
+    wrong (1 - its confidence). Large tracks the model is unsure of come first: reviewing them
+    labels the most points the export would otherwise get wrong, and teaches the model where it
+    errs (docs/effort.md measures the orders)."""
+    return float(n_points) * (1.0 - float(confidence)) if confidence is not None else float(n_points)
+
+
 def _unleased(now: datetime) -> Any:
     """SQL condition: the track has no lease running at `now` (none, or an expired one)."""
     return or_(Track.lease_expires_at.is_(None), Track.lease_expires_at < now)
@@ -26,7 +35,7 @@ def lease_next_track(
     exclude: tuple[int, ...] = (),
 ) -> Track | None:
     """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
-    unleased (or lease-expired) pending track with the most samples. Tracks in `exclude` are
+    unleased (or lease-expired) pending track of the highest `queue_priority`. Tracks in `exclude` are
     passed over (one user's other viewer tabs hold them, or the operator skipped them). Commits."""
     now = utcnow()
     ready = select(Sequence.id).where(Sequence.status == "ready")
@@ -49,7 +58,7 @@ def lease_next_track(
         cand = session.scalars(
             select(Track)
             .where(*base, _unleased(now))
-            .order_by(Track.n_samples.desc(), Track.id)
+            .order_by(Track.priority.desc(), Track.id)
             .limit(1)
             .with_for_update(skip_locked=True)
         ).first()

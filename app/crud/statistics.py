@@ -7,7 +7,8 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.models import Label, PairConstraint, Segment, Stitch, Track
+from app.crud.bulk import operation_count
+from app.models import BulkAction, Label, PairConstraint, Segment, Stitch, Track
 
 
 def _count_by(session: Session, column: Any, where: list[Any]) -> dict[str, int]:
@@ -16,9 +17,16 @@ def _count_by(session: Session, column: Any, where: list[Any]) -> dict[str, int]
 
 
 def progress_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
-    """Tracks by status, reviewed tracks, samples labelled per class, constraint counts."""
-    by_status = _count_by(session, Track.status, [] if sequence_id is None else [Track.sequence_id == sequence_id])
-    per_class = _count_by(session, Label.class_name, [] if sequence_id is None else [Label.sequence_id == sequence_id])
+    """Tracks by status, reviewed tracks, samples labelled per class, constraint counts; accepted
+    tracks and labelled samples by label source, bulk accepts and (per sequence) operations."""
+    t_where = [] if sequence_id is None else [Track.sequence_id == sequence_id]
+    by_status = _count_by(session, Track.status, t_where)
+    by_source = _count_by(session, Track.label_source, [*t_where, Track.status == "accepted", Track.label_source.is_not(None)])
+    l_where = [] if sequence_id is None else [Label.sequence_id == sequence_id]
+    per_class = _count_by(session, Label.class_name, l_where)
+    per_source = _count_by(session, Label.source, l_where)
+    b_where = [] if sequence_id is None else [BulkAction.sequence_id == sequence_id]
+    bulks = session.scalar(select(func.count()).select_from(BulkAction).where(*b_where)) or 0
     s_where = [Segment.valid.is_(True)] + ([] if sequence_id is None else [Segment.sequence_id == sequence_id])
     samples = session.scalar(select(func.count()).select_from(Segment).where(*s_where)) or 0
     c_where = [] if sequence_id is None else [PairConstraint.sequence_id == sequence_id]
@@ -35,6 +43,10 @@ def progress_stats(session: Session, sequence_id: int | None) -> dict[str, Any]:
         "samples_labelled_per_class": per_class,
         "constraints_automatic": int(automatic),
         "constraints_verified": int(verified),
+        "tracks_accepted_by_source": by_source,
+        "samples_labelled_per_source": per_source,
+        "bulk_actions": int(bulks),
+        "operations": None if sequence_id is None else operation_count(session, sequence_id),
     }
 
 

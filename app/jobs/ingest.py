@@ -262,6 +262,7 @@ def _write_batch(ctx: JobContext, state: _IngestState, frames: list[Any]) -> Non
                         "length": state.tracks[k].length,
                         "n_samples": state.tracks[k].n_samples,
                         "n_points": state.tracks[k].n_points,
+                        "priority": crud.queue_priority(state.tracks[k].n_points, None),
                         "mean_range": state.tracks[k].range_sum / max(state.tracks[k].length, 1),
                     }
                     for k in sorted(touched)

@@ -86,10 +86,9 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
                 Segment.sequence_id == seq.id, Segment.sample_index.is_not(None)
             )
         ).all()
-        tracks = {
-            int(t.id): (int(t.keep_start), int(t.keep_end))
-            for t in s.execute(select(Track.id, Track.keep_start, Track.keep_end).where(Track.sequence_id == seq.id))
-        }
+        tracks, points = {}, {}
+        for t in s.execute(select(Track.id, Track.keep_start, Track.keep_end, Track.n_points).where(Track.sequence_id == seq.id)):
+            tracks[int(t.id)], points[int(t.id)] = (int(t.keep_start), int(t.keep_end)), int(t.n_points)
         labels = {int(r.segment_id): int(r.class_index) for r in s.execute(crud.labels_query(seq.id)).all()}
         model_id, model_path = chosen.id, chosen.path
         model, meta = _load_model(chosen)
@@ -121,10 +120,12 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
         if track_id in sums:
             mean = sums[track_id] / counts[track_id]
             c = int(mean.argmax())
-            updates.append({"id": track_id, "predicted_class": classes[c], "predicted_confidence": float(mean[c])})
+            updates.append({"id": track_id, "predicted_class": classes[c], "predicted_confidence": float(mean[c]),
+                            "priority": crud.queue_priority(points[track_id], float(mean[c]))})
             per_class[classes[c]] += 1
         else:
-            updates.append({"id": track_id, "predicted_class": None, "predicted_confidence": None})
+            updates.append({"id": track_id, "predicted_class": None, "predicted_confidence": None,
+                            "priority": crud.queue_priority(points[track_id], None)})
     with ctx.db.write() as s:
         for i in range(0, len(updates), 5000):
             s.execute(update(Track), updates[i : i + 5000])

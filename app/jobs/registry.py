@@ -20,7 +20,10 @@ if TYPE_CHECKING:
 
     from app.jobs.context import JobContext
 
-BUILTIN_MODULES: tuple[str, ...] = ("app.jobs.ingest", "app.jobs.selftest", "app.jobs.train", "app.jobs.predict", "app.jobs.anchors", "app.jobs.finetune")
+BUILTIN_MODULES: tuple[str, ...] = (
+    "app.jobs.ingest", "app.jobs.selftest", "app.jobs.train", "app.jobs.predict", "app.jobs.anchors", "app.jobs.finetune",
+    "app.jobs.assist",
+)
 
 
 @dataclass(frozen=True)

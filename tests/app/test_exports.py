@@ -6,7 +6,7 @@ import tarfile
 
 import numpy as np
 
-from app.exports import MAX_INSTANCE, SemanticKittiPlan, _instances, _LabelledTrack
+from app.exports import MAX_INSTANCE, _instances
 
 
 def _act(client, caller, track_id, action, version, **body):
@@ -67,19 +67,61 @@ def test_exports_semantickitti_writes_class_and_instance(client, factory):
     op = factory.user()
     ids = factory.track_ids(seq)
     _act(client, op, ids[0], "label", 1, label="car")
-    r = client.get(f"/api/v1/exports/semantickitti/{seq}", headers=op.headers)
+    r = client.get(f"/api/v1/exports/semantickitti/{seq}", params={"reviewed_only": True}, headers=op.headers)
     tar = tarfile.open(fileobj=io.BytesIO(r.content))
     names = sorted(tar.getnames())
-    assert names == [f"sequences/seq/labels/{i:06d}.label" for i in range(3)]
+    assert names == [f"sequences/seq/labels/{i:06d}.label" for i in range(3)] + ["sequences/seq/summary.json"]
     label = np.frombuffer(tar.extractfile(names[0]).read(), np.uint32)
     # frame 0: object 0 = the first 20 points (segment 0), track key 1
     assert set(label[:20].tolist()) == {SEMANTICKITTI_WRITE_ID["car"] | (1 << 16)}
     assert set(label[20:].tolist()) == {0}
+    summary = json.loads(tar.extractfile(names[-1]).read())
+    assert summary["labelled_by_source"]["reviewed"] == 60 and summary["labelled_by_source"]["predicted"] == 0
+
+
+def _tar_labels(client, caller, seq, **params):
+    r = client.get(f"/api/v1/exports/semantickitti/{seq}", params=params, headers=caller.headers)
+    assert r.status_code == 200, r.text
+    tar = tarfile.open(fileobj=io.BytesIO(r.content))
+    frames = [np.frombuffer(tar.extractfile(n).read(), np.uint32) for n in sorted(tar.getnames()) if n.endswith(".label")]
+    return frames, json.loads(tar.extractfile("sequences/seq/summary.json").read())
+
+
+def test_exports_semantickitti_labels_every_point_it_can_and_counts_sources(client, factory, db):
+    from sqlalchemy import update
+
+    from app.models import Track
+    from pipeline.classes import SEMANTICKITTI_WRITE_ID
+
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    ids = factory.track_ids(seq)
+    _act(client, op, ids[0], "label", 1, label="car")
+    with db.write() as s:
+        s.execute(update(Track).where(Track.id == ids[1]).values(predicted_class="bush", predicted_confidence=0.7))
+        s.commit()
+    frames, summary = _tar_labels(client, op, seq, include_ground=True, radius=0.0, ground_radius=0.0)
+    # frame 1: object 0 (20 points), object 1 (20), the invalid segment (4), 30 ground points
+    f1 = frames[1]
+    assert set(f1[:20] & 0xFFFF) == {SEMANTICKITTI_WRITE_ID["car"]}
+    assert set(f1[20:40] & 0xFFFF) == {SEMANTICKITTI_WRITE_ID["bush"]} and set(f1[20:40] >> 16) == {2}
+    assert set(f1[44:] & 0xFFFF) == {SEMANTICKITTI_WRITE_ID["ground"]}
+    by = summary["labelled_by_source"]
+    assert by["reviewed"] == 60 and by["predicted"] == 40 and by["ground"] == 90
+    assert summary["unlabelled"]["points_no_source_reached"] == 12  # the invalid segments, with no radius
+    assert summary["confidence_histogram"]["per_source"]["predicted"][7] == 40
+    frames, summary = _tar_labels(client, op, seq, radius=5.0)  # most invalid-segment points now reach one
+    assert summary["unlabelled"]["points_no_source_reached"] < 12
+    assert summary["labelled_by_source"]["propagated"] + summary["labelled_by_source"]["predicted"] > 40
+    assert summary["unlabelled"]["ground_not_asked_for"] == 90
 
 
 def test_exports_semantickitti_chunks_track_ids_past_16_bits():
-    big = [_LabelledTrack(db_id=i + 1, key=MAX_INSTANCE + 10 + i, semantic=10, keep_start=0, keep_end=1) for i in range(3)]
-    plan = SemanticKittiPlan("s", [(0, "000000", ""), (1, "000001", "")], big, False)
+    from app.services.point_labels import ExportOptions, PointLabelPlan, TrackRow
+
+    big = [TrackRow(db_id=i + 1, key=MAX_INSTANCE + 10 + i, class_index=1, source=1, confidence=1.0, keep_start=0,
+                    keep_end=1) for i in range(3)]
+    plan = PointLabelPlan("s", [(0, "000000", "", None), (1, "000001", "", None)], big, [], ExportOptions())
     per_frame, chunks = _instances(plan)
     assert chunks is not None and per_frame[0] == {1: 1, 2: 2, 3: 3}
     assert chunks[0]["instances"] == {1: MAX_INSTANCE + 10, 2: MAX_INSTANCE + 11, 3: MAX_INSTANCE + 12}

@@ -180,7 +180,8 @@ def test_tracks_state_rebuilds_from_events(client, factory, db):
     with db.read() as s:
         t = s.get(Track, ids[0])
         assert crud.rebuild_review_state(s, t) == crud.review_state(t)
-        assert crud.review_state(t) == {"status": "accepted", "label": "bush", "keep_start": 1, "keep_end": 4}
+        assert crud.review_state(t) == {"status": "accepted", "label": "bush", "keep_start": 1, "keep_end": 4,
+                                        "label_source": "review"}
 
 
 def test_tracks_action_on_unknown_track_is_404(client, factory):

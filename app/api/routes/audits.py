@@ -20,8 +20,11 @@ router = APIRouter(tags=["audits"])
 
 @router.post("/audits/sample", status_code=status.HTTP_201_CREATED)
 def sample(body: AuditSample, user: AuditorUser, session: WriteSessionDep) -> list[AuditPublic]:
-    """Queue `n` accepted tracks that were never audited, drawn at random with `seed` (admin or reviewer)."""
-    return [AuditPublic.model_validate(a) for a in audits.sample_audits(session, user, body.n, body.sequence_id, body.seed)]
+    """Queue `n` accepted tracks that were never audited, drawn at random with `seed` (admin or
+    reviewer); with `source` only tracks whose class came from it (`bulk`: the measured error of
+    bulk accepts per class, with its confidence interval, is in `/exports/stats` under `audits.bulk`)."""
+    picked = audits.sample_audits(session, user, body.n, body.sequence_id, body.seed, body.source)
+    return [AuditPublic.model_validate(a) for a in picked]
 
 
 @router.get("/audits")

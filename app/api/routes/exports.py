@@ -10,6 +10,8 @@ from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
 from app.core.errors import NotFound
 from app.models import Sequence
 from app.schemas import ProgressStats
+from app.services.point_labels import ExportOptions, point_label_plan
+from pipeline.propagation import Rules
 
 router = APIRouter(prefix="/exports", tags=["exports"])
 
@@ -71,14 +73,23 @@ def export_semantickitti(
     session: SessionDep,
     artifacts: ArtifactsDep,
     include_ground: bool = False,
+    reviewed_only: bool = False,
+    radius: Annotated[float, Query(ge=0.0, le=5.0, description="Metres labels travel to points no review reached.")] = Rules.radius,
+    ground_radius: Annotated[float, Query(ge=0.0, le=5.0, description="The same, to points the ground estimate took.")]
+    = Rules.ground_radius,
 ) -> StreamingResponse:
-    """Per-frame SemanticKITTI `.label` files as a streamed tar: class from the track label,
-    instance = track id (chunked with `chunk_map.json` past 65,535 tracks). Points of tracks that
-    are not accepted with a class are 0 (unlabelled); `include_ground` writes the automatic ground."""
+    """Per-frame SemanticKITTI `.label` files as a streamed tar, a class for every point that any
+    source reaches: its track's reviewed or bulk-accepted class, else the nearest decided point
+    within `radius` (in the world frame, this or nearby frames), else its track's predicted class
+    or its frame's nearest labelled point; instance = track key (chunked with `chunk_map.json`
+    past 65,535). `include_ground` writes the ground class on the remaining ground points;
+    `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts the points per
+    source and class, with confidences, and the points left without a class."""
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
-    plan = exports.semantickitti_plan(session, seq, include_ground)
+    options = ExportOptions(include_ground, reviewed_only, Rules(radius=radius, ground_radius=ground_radius))
+    plan = point_label_plan(session, seq, options)
     session.close()
     return StreamingResponse(
         exports.semantickitti_tar(plan, artifacts),

@@ -65,6 +65,7 @@ def list_jobs(
     user: CurrentUser,
     session: SessionDep,
     status: JobStatus | None = None,
+    type: Annotated[str | None, Query(min_length=1, max_length=32, description="Only jobs of this type.")] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
     offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
 ) -> list[JobPublic]:
@@ -72,6 +73,8 @@ def list_jobs(
     q = select(Job).order_by(Job.id.desc()).limit(limit).offset(offset)
     if status is not None:
         q = q.where(Job.status == status)
+    if type is not None:
+        q = q.where(Job.type == type)
     if not user.is_admin:
         q = q.where(Job.created_by_id == user.id)
     return [job_public(j, user) for j in session.scalars(q).all()]

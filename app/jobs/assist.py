@@ -1,0 +1,226 @@
+"""`assist`: the model in the review loop. It classifies every track of a sequence from the
+operator's reviews so far, and orders the review queue by what a review would correct.
+
+1. Read the sequence's samples, their segments' size, range and height, and the classes of the
+   samples of tracks an operator reviewed (bulk-accepted classes are the model's own guesses and
+   are not trained on).
+2. Score every sample with the base CNN: the newest model trained on this sequence, else the
+   shipped default model (its embedding and class probabilities).
+3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
+4. Per track, the mean probability of its kept samples gives its predicted class and confidence,
+   and its queue priority (`crud.queue_priority`); the reviewed tracks' held-out predictions give
+   the precision a bulk accept's preview shows (`result.held_out`).
+
+The worker queues it by itself (`schedule`): once when a sequence becomes ready, then each time
+`assist_every` more review events have come in. One runs at a time per sequence; reviews that
+arrive meanwhile start the next run when it ends, so a run is never restarted for every action.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from pydantic import ConfigDict, Field
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from app import crud
+from app.core.config import Settings
+from app.core.db import Database
+from app.jobs.context import JobContext
+from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
+from app.jobs.policy import ADMIN_PRIORITY
+from app.jobs.registry import JobType, register
+from app.models import AnnotationEvent, Frame, Job, Label, ModelVersion, Segment, Sequence, Track
+from app.schemas import JsonModel
+
+# the review actions that bring the model something new (bulk accepts are its own predictions)
+REVIEW_ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
+
+
+class AssistParams(JsonModel):
+    model_config = ConfigDict(extra="forbid")
+    sequence_id: int = Field(ge=1, le=2**31 - 1)
+    model_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description=(
+        "The base CNN; None = the newest model trained on this sequence, else the shipped default."))
+    after_event: int = Field(default=0, ge=0, le=2**62, description="The newest review event the run includes.")
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+
+
+def _trained_on(mv: ModelVersion, sequence_id: int) -> bool:
+    params = (mv.config or {}).get("params") or {}
+    return sequence_id in (params.get("sequence_ids") or []) or params.get("sequence_id") == sequence_id
+
+
+def base_model(session: Session, sequence_id: int, model_id: int | None) -> ChosenModel:
+    """The CNN whose view of the samples the head reads (see AssistParams.model_id)."""
+    if model_id is not None:
+        return choose_model(session, model_id)
+    for mv in session.scalars(select(ModelVersion).order_by(ModelVersion.id.desc())):
+        if _trained_on(mv, sequence_id):
+            return ChosenModel(mv.id, mv.path)
+    from pipeline.model import default_model_path
+
+    return ChosenModel(None, str(default_model_path()))
+
+
+def _read(session: Session, sequence_id: int) -> dict[str, Any]:
+    """The sequence's samples (frame order), tracks and reviewed labels."""
+    seq = ready_sequence(session, sequence_id)
+    artifact = dict(session.execute(select(Frame.id, Frame.artifact).where(Frame.sequence_id == seq.id)).all())
+    segs = session.execute(
+        select(Segment.id, Segment.frame_id, Segment.frame_index, Segment.sample_index, Segment.track_id,
+               Segment.n_points, Segment.range, Segment.cz)
+        .where(Segment.sequence_id == seq.id, Segment.sample_index.is_not(None))
+        .order_by(Segment.frame_index, Segment.sample_index)
+    ).all()
+    tracks = session.execute(
+        select(Track.id, Track.keep_start, Track.keep_end, Track.n_points, Track.status).where(Track.sequence_id == seq.id)
+    ).all()
+    reviewed = dict(session.execute(
+        select(Label.segment_id, Label.class_index).where(Label.sequence_id == seq.id, Label.source == "review")
+    ).all())
+    return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed}
+
+
+def _features(ctx: JobContext, data: dict[str, Any], chosen: ChosenModel, batch: int) -> Any:
+    from pipeline.assist import SampleFeatures, segment_stats
+    from pipeline.model import load_checkpoint
+
+    model, meta = load_checkpoint(chosen.path, "auto")
+    segs = data["segs"]
+    refs = [(data["artifact"][int(r.frame_id)], int(r.sample_index)) for r in segs]
+    scores = score_stored_samples(ctx.artifacts, refs, model, chosen.name, batch, features=True)
+    stats = segment_stats(np.array([r.n_points for r in segs]), np.array([r.range for r in segs]),
+                          np.array([r.cz for r in segs]))
+    return SampleFeatures(scores.features, scores.probs, stats), meta.classes
+
+
+def _kept_group(data: dict[str, Any]) -> tuple[np.ndarray, list[Any]]:
+    """Per sample the position of its track in `tracks` when the sample is in the kept range, else -1."""
+    tracks = data["tracks"]
+    pos = {int(t.id): i for i, t in enumerate(tracks)}
+    group = np.full(len(data["segs"]), -1, np.int64)
+    for j, r in enumerate(data["segs"]):
+        i = pos.get(int(r.track_id or 0))
+        if i is not None and tracks[i].keep_start <= r.frame_index <= tracks[i].keep_end:
+            group[j] = i
+    return group, tracks
+
+
+def _held_out_record(held: Any, classes: tuple[str, ...]) -> dict[str, list[Any]] | None:
+    """The reviewed tracks' held-out predictions as JSON (crud.bulk_preview reads the precision
+    at any threshold from it)."""
+    if held is None:
+        return None
+    return {"truth": [classes[i] for i in held.truth], "predicted": [classes[i] for i in held.predicted],
+            "confidence": [round(float(c), 4) for c in held.confidence]}
+
+
+def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...]) -> int:
+    rows = []
+    for i, t in enumerate(tracks):
+        has = counts[i] > 0
+        conf = float(mean[i].max()) if has else None
+        rows.append({"id": int(t.id), "predicted_class": classes[int(mean[i].argmax())] if has else None,
+                     "predicted_confidence": conf, "priority": crud.queue_priority(int(t.n_points), conf)})
+    with ctx.db.write() as s:
+        for i in range(0, len(rows), 5000):
+            s.execute(update(Track), rows[i : i + 5000])
+        s.commit()
+    return int((counts > 0).sum())
+
+
+def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
+    from pipeline.assist import assist_probs, held_out_tracks, track_means
+
+    t0 = time.perf_counter()
+    with ctx.db.read() as s:
+        data = _read(s, params.sequence_id)
+        chosen = base_model(s, params.sequence_id, params.model_id)
+    ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
+    features, classes = _features(ctx, data, chosen, 512)
+    ctx.progress(0.6, "fitting the head on the reviews")
+    seg_ids = np.array([int(r.id) for r in data["segs"]], np.int64)
+    labelled = np.flatnonzero(np.isin(seg_ids, np.fromiter(data["reviewed"], np.int64, len(data["reviewed"]))))
+    labels = np.array([data["reviewed"][int(seg_ids[j])] for j in labelled], np.int64)
+    probs = assist_probs(features, labelled, labels, params.seed)
+    group, tracks = _kept_group(data)
+    mean, counts = track_means(probs, group, len(tracks))
+    held = held_out_tracks(features, labelled, labels, group[labelled], params.seed)
+    predicted = _write(ctx, tracks, mean, counts, tuple(classes))
+    ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
+    return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
+            "after_event": params.after_event, "samples": len(seg_ids), "reviewed_samples": int(len(labelled)),
+            "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
+            "held_out": _held_out_record(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int, int]:
+    """(count, newest id) of the sequence's review events after event id `after`."""
+    n, newest = session.execute(
+        select(func.count(), func.coalesce(func.max(AnnotationEvent.id), 0))
+        .join(Track, Track.id == AnnotationEvent.track_id)
+        .where(Track.sequence_id == sequence_id, AnnotationEvent.action.in_(REVIEW_ACTIONS), AnnotationEvent.id > after)
+    ).one()
+    return int(n), max(int(newest), after)
+
+
+def _runs(session: Session) -> dict[int, tuple[bool, int]]:
+    """Per sequence: whether an assist run is queued or running, and the newest review event a
+    run has taken in (a failed run's too, so a failing run waits for more reviews before the next)."""
+    out: dict[int, tuple[bool, int]] = {}
+    rows = session.execute(select(Job.status, Job.params).where(Job.type == "assist")).all()
+    for status, p in rows:
+        seq = int(p.get("sequence_id", 0))
+        active, last = out.get(seq, (False, -1))
+        out[seq] = (active or status in ("queued", "running"), max(last, int(p.get("after_event", 0))))
+    return out
+
+
+def _due(session: Session, sequence_id: int, run: tuple[bool, int] | None, every: int) -> int | None:
+    """The newest review event id when the sequence needs an assist run now, else None."""
+    if run is not None and run[0]:
+        return None  # one at a time: reviews arriving meanwhile are taken by the next run
+    n, newest = _review_events(session, sequence_id, 0 if run is None else run[1])
+    return newest if run is None or n >= every else None
+
+
+def schedule(db: Database, settings: Settings) -> list[int]:
+    """Queue an assist run for every ready sequence that is due (module docstring); returns the
+    new jobs' ids. Off when `settings.assist_every` is 0."""
+    if settings.assist_every <= 0:
+        return []
+    with db.read() as s:
+        runs = _runs(s)
+        ready = s.scalars(select(Sequence.id).where(Sequence.status == "ready").order_by(Sequence.id)).all()
+        due = {int(q): a for q in ready if (a := _due(s, int(q), runs.get(int(q)), settings.assist_every)) is not None}
+    if not due:
+        return []
+    with db.write() as s:
+        if any(_runs(s).get(q, (False, 0))[0] for q in due):
+            return []  # another worker queued one meanwhile; the next poll looks again
+        jobs = [crud.create_job(s, "assist", AssistParams(sequence_id=q, after_event=a).model_dump(), None,
+                                priority=ADMIN_PRIORITY) for q, a in due.items()]
+        s.commit()
+        return [j.id for j in jobs]
+
+
+def prepare_assist(session: Session, params: AssistParams) -> None:
+    ready_sequence(session, params.sequence_id)
+
+
+register(
+    JobType(
+        name="assist",
+        params=AssistParams,
+        handler=run_assist,
+        admin_only=True,
+        description="The model in the review loop: classify every track from the reviews so far and order the "
+        "review queue (queued by the worker itself as reviews come in).",
+        prepare=prepare_assist,
+        max_run_seconds=1800.0,
+    )
+)

@@ -1,0 +1,215 @@
+"""A simulated operator (and reviewer) working through the REST API as a person at the viewer.
+
+It takes the track the queue offers, looks at its points in the kept frames (and only then
+learns their true classes, through a `TruthStore`), and decides as a careful person would:
+
+- one class holds at least `pure` of the labelled points: label the track with it (a track of
+  ground, or of nothing labelled, is discarded: it is no object);
+- else a box around the largest other class's points would move at least `split_gain` points
+  to their right class: split them off with that box (world frame, every kept frame) and label
+  both parts;
+- else label the majority.
+
+Every `bulk_every` edits it looks at the model's predictions: for each class whose bulk accept at
+`bulk_confidence` the preview says was right on at least `bulk_precision` of the held-out reviewed
+tracks (over at least `bulk_support` of them), it accepts them all in one action; a reviewer then
+audits `audit_per_bulk` of them. The operator works at a person's pace: it waits for the model in
+the loop to finish a run before it takes the next track.
+
+Counting: every REST call that changes labels is an edit; every track inspected in an audit is
+an audit; actions = edits + audits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.effort.service import Api, FrameInfo
+from bench.effort.truth import TruthStore
+from pipeline.classes import GROUND, SAMPLE_CLASSES, UNLABELLED
+
+
+@dataclass(frozen=True)
+class Policy:
+    pure: float = 0.9
+    split_gain: int = 200  # points a split must move to their right class (and 10 % of the track's)
+    bulk_every: int = 10
+    bulk_confidence: float = 0.9
+    bulk_precision: float = 0.98
+    bulk_support: int = 10
+    audit_per_bulk: int = 3
+    wait_for_model: bool = True
+
+
+@dataclass
+class Counts:
+    edits: int = 0
+    audits: int = 0
+    audit_corrections: int = 0
+    reviews: int = 0
+    splits: int = 0
+    discards: int = 0
+    bulk_accepts: int = 0
+    bulk_tracks: int = 0
+    queue_empty: bool = False
+
+    @property
+    def actions(self) -> int:
+        return self.edits + self.audits
+
+
+@dataclass(frozen=True)
+class Shown:
+    """A track on the screen: per frame name its point indices and world coordinates."""
+
+    points: dict[str, np.ndarray]
+    world: dict[str, np.ndarray]
+
+
+@dataclass
+class Operator:
+    op: Api
+    reviewer: Api
+    admin: Api
+    sequence_id: int
+    frames: list[FrameInfo]
+    store: TruthStore
+    policy: Policy = field(default_factory=Policy)
+    counts: Counts = field(default_factory=Counts)
+    _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ looking
+    def _payload(self, frame: FrameInfo) -> dict[str, np.ndarray]:
+        if frame.id not in self._payloads:
+            self._payloads[frame.id] = self.op.payload(frame.id)
+        return self._payloads[frame.id]
+
+    def show(self, track: dict[str, Any]) -> Shown:
+        """Draw the track's points in its kept frames (the store learns what was shown)."""
+        self.store.forget()
+        points, world = {}, {}
+        for f in self.frames:
+            if not track["keep_start"] <= f.index <= track["keep_end"]:
+                continue
+            p = self._payload(f)
+            idx = np.flatnonzero(p["track"] == track["id"])
+            if len(idx):
+                self.store.show(f.name, idx, item=int(track["id"]))
+                points[f.name] = idx
+                T = f.T_world_lidar
+                world[f.name] = p["points"][idx].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        return Shown(points, world)
+
+    def look(self, shown: Shown) -> tuple[np.ndarray, np.ndarray]:
+        """The true classes and world coordinates of the shown points (concatenated)."""
+        names = list(shown.points)
+        if not names:
+            return np.zeros(0, np.uint8), np.zeros((0, 3))
+        classes = np.concatenate([self.store.read(n, shown.points[n]) for n in names])
+        return classes, np.concatenate([shown.world[n] for n in names])
+
+    # ------------------------------------------------------------------ acting
+    def _edit(self, path: str, body: dict[str, Any]) -> Any:
+        out = self.op.post(path, body)
+        self.counts.edits += 1
+        if path.endswith("/split"):
+            self._payloads.clear()  # the split rewrote its frames
+        return out
+
+    def _decide(self, track: dict[str, Any], cls: int) -> None:
+        """Label the track with `cls`, or discard it when `cls` is no object class."""
+        if cls in (GROUND, UNLABELLED):
+            self._edit(f"/tracks/{track['id']}/discard", {"version": track["version"]})
+            self.counts.discards += 1
+        else:
+            self._edit(f"/tracks/{track['id']}/label", {"version": track["version"], "label": SAMPLE_CLASSES[cls]})
+
+    def review_next(self) -> bool:
+        """Review the track the queue offers; False when the queue is empty."""
+        if self.policy.wait_for_model:
+            self.admin.wait_jobs_idle("assist")
+        track = self.op.post("/review/next", params={"sequence_id": self.sequence_id}, ok=(200, 204))
+        if track is None:
+            self.counts.queue_empty = True
+            return False
+        classes, world = self.look(self.show(track))
+        labelled = classes != UNLABELLED
+        if not labelled.any():
+            self._decide(track, UNLABELLED)
+        else:
+            counts = np.bincount(classes[labelled], minlength=GROUND + 1)
+            major = int(counts.argmax())
+            box = None if counts[major] >= self.policy.pure * labelled.sum() else self._split_box(classes, world, major)
+            if box is None:
+                self._decide(track, major)
+            else:
+                self._split(track, box, major)
+        self.counts.reviews += 1
+        return True
+
+    def _split_box(self, classes: np.ndarray, world: np.ndarray, major: int) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """(centre, size, class) of the world box that moves the most points of the largest
+        other class to their own track, when the move is worth a split."""
+        labelled = classes != UNLABELLED
+        counts = np.bincount(classes[labelled], minlength=GROUND + 1)
+        counts[major] = 0
+        other = int(counts.argmax())
+        mine = world[classes == other]
+        best: tuple[int, np.ndarray, np.ndarray] | None = None
+        for trim in (0.0, 2.0, 5.0, 10.0):
+            lo, hi = np.percentile(mine, trim, axis=0) - 0.02, np.percentile(mine, 100 - trim, axis=0) + 0.02
+            inside = np.all((world >= lo) & (world <= hi), axis=1)
+            gain = int((inside & (classes == other)).sum() - (inside & (classes == major)).sum())
+            if best is None or gain > best[0]:
+                best = (gain, lo, hi)
+        assert best is not None
+        gain, lo, hi = best
+        if gain < max(self.policy.split_gain, 0.1 * labelled.sum()):
+            return None
+        return (lo + hi) / 2, hi - lo, other
+
+    def _split(self, track: dict[str, Any], box: tuple[np.ndarray, np.ndarray, int], major: int) -> None:
+        centre, size, other = box
+        region = {"kind": "box", "center": [float(v) for v in centre], "size": [float(max(v, 0.05)) for v in size]}
+        res = self._edit(f"/tracks/{track['id']}/split", {"version": track["version"], "region": region})
+        self.counts.splits += 1
+        self._decide(res["new_track"], other)
+        self._decide(res["track"], major)
+
+    # ------------------------------------------------------------------ bulk and audit
+    def bulk_round(self) -> None:
+        """Accept, class by class, the predictions the preview vouches for; audit each bulk."""
+        pol = self.policy
+        if pol.wait_for_model:
+            self.admin.wait_jobs_idle("assist")
+        for name in SAMPLE_CLASSES:
+            p = self.op.get(f"/sequences/{self.sequence_id}/bulk-accept/preview",
+                            params={"class_name": name, "min_confidence": pol.bulk_confidence})
+            precision = p["held_out_precision"]
+            if p["tracks"] == 0 or precision is None or precision < pol.bulk_precision or p["held_out_tracks"] < pol.bulk_support:
+                continue
+            bulk = self._edit(f"/sequences/{self.sequence_id}/bulk-accept",
+                              {"class_name": name, "min_confidence": pol.bulk_confidence, "expected_tracks": p["tracks"]})
+            self.counts.bulk_accepts += 1
+            self.counts.bulk_tracks += int(bulk["n_tracks"])
+            self.audit(pol.audit_per_bulk, seed=int(bulk["id"]))
+
+    def audit(self, n: int, seed: int) -> None:
+        """The reviewer inspects `n` bulk-accepted tracks drawn at random: agrees, or corrects the
+        class to the one most of the track's points have."""
+        audits = self.reviewer.post("/audits/sample", {"n": n, "sequence_id": self.sequence_id, "seed": seed,
+                                                       "source": "bulk"}, ok=(201,))
+        for a in audits:
+            track = self.reviewer.get(f"/tracks/{a['track_id']}")
+            classes, _ = self.look(self.show(track))
+            objects = classes[(classes != UNLABELLED) & (classes != GROUND)]
+            truth = SAMPLE_CLASSES[int(np.bincount(objects).argmax())] if len(objects) else a["label"]
+            if truth == a["label"]:
+                self.reviewer.post(f"/audits/{a['id']}/agree")
+            else:
+                self.reviewer.post(f"/audits/{a['id']}/correct", {"label": truth})
+                self.counts.audit_corrections += 1
+            self.counts.audits += 1

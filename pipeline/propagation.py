@@ -1,0 +1,179 @@
+"""A label for every point: where each point's class comes from, and the labels of points no
+review of their own reached.
+
+A point's class comes, in this order, from
+
+1. its track's decision (`reviewed`, or `bulk` for a bulk-accepted prediction) in the track's
+   kept frames;
+2. the nearest point so decided within `radius` in the world frame, in this frame or a nearby one
+   (`propagated`): points of segments too small to be samples, points the range image did not
+   give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
+   ground estimate took reaches only `ground_radius`, so a road beside a reviewed wall stays road;
+3. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
+   far within `radius` (`predicted`, or `propagated` when that point's class was decided);
+4. the ground class, for ground points, when asked for (`ground`).
+
+A point none of these reaches keeps no class (`none`), and is counted. Distances are metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+NONE = 255  # class index of a point without a class
+SOURCES: tuple[str, ...] = ("none", "reviewed", "bulk", "propagated", "predicted", "ground")
+SOURCE = {name: i for i, name in enumerate(SOURCES)}
+DECIDED = (SOURCE["reviewed"], SOURCE["bulk"])
+
+
+@dataclass(frozen=True)
+class Rules:
+    """How far labels travel. radius: to a point that is not ground (m); ground_radius: to a point
+    the ground estimate took (m); voxel: decided points are thinned to one per voxel (m) before
+    they are searched. 0 turns a step off."""
+
+    radius: float = 0.3
+    ground_radius: float = 0.1
+    voxel: float = 0.05
+
+
+@dataclass(frozen=True)
+class PointLabels:
+    """Per point: class_ (N,) uint8 class index (NONE = none), source (N,) uint8 (SOURCES),
+    confidence (N,) float32 in [0, 1] (0 without a class)."""
+
+    class_: np.ndarray
+    source: np.ndarray
+    confidence: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int) -> PointLabels:
+        return cls(np.full(n, NONE, np.uint8), np.zeros(n, np.uint8), np.zeros(n, np.float32))
+
+    def set(self, mask: np.ndarray, class_: np.ndarray, source: np.ndarray | int, confidence: np.ndarray) -> None:
+        """Give the points of `mask` these values (arrays of mask.sum() values, or scalars)."""
+        self.class_[mask], self.source[mask], self.confidence[mask] = class_, source, confidence
+
+    @property
+    def labelled(self) -> np.ndarray:
+        return self.class_ != NONE
+
+
+@dataclass(frozen=True)
+class TrackClasses:
+    """Classes of whole tracks in one frame: ids (T,) int64 ascending track ids, class_ (T,) uint8,
+    source (T,) uint8, confidence (T,) float32."""
+
+    ids: np.ndarray
+    class_: np.ndarray
+    source: np.ndarray
+    confidence: np.ndarray
+
+    def __post_init__(self) -> None:
+        assert np.all(np.diff(self.ids) > 0), "track ids must ascend"
+        assert len(self.class_) == len(self.source) == len(self.confidence) == len(self.ids)
+
+    @classmethod
+    def of(cls, rows: list[tuple[int, int, int, float]]) -> TrackClasses:
+        """From (track id, class, source, confidence) rows in any order."""
+        rows = sorted(rows)
+        cols = list(zip(*rows, strict=True)) if rows else [[], [], [], []]
+        return cls(np.asarray(cols[0], np.int64), np.asarray(cols[1], np.uint8), np.asarray(cols[2], np.uint8),
+                   np.asarray(cols[3], np.float32))
+
+    def lookup(self, track: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) bool whether each point's track is listed, and (N,) its row (valid where listed)."""
+        if len(self.ids) == 0:
+            return np.zeros(len(track), bool), np.zeros(len(track), np.int64)
+        row = np.minimum(np.searchsorted(self.ids, track), len(self.ids) - 1)
+        return (self.ids[row] == track) & (track > 0), row
+
+
+def to_world(points: np.ndarray, T_world_lidar: np.ndarray | None) -> np.ndarray:
+    """(N, 3) float64 world coordinates of (N, 3) lidar points (the lidar frame without a pose)."""
+    p = np.asarray(points, np.float64)
+    if T_world_lidar is None:
+        return p
+    T = np.asarray(T_world_lidar, np.float64)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def thin(points: np.ndarray, labels: PointLabels, voxel: float) -> tuple[np.ndarray, PointLabels]:
+    """The labelled points, one per voxel of side `voxel` (the first), with their labels."""
+    keep = np.flatnonzero(labels.labelled)
+    if voxel > 0 and len(keep):
+        cells = np.floor(points[keep] / voxel).astype(np.int64)
+        _, first = np.unique(cells, axis=0, return_index=True)
+        keep = keep[np.sort(first)]
+    return points[keep], PointLabels(labels.class_[keep], labels.source[keep], labels.confidence[keep])
+
+
+class NearestLabel:
+    """The labels of a cloud of points, searched by distance (a k-d tree)."""
+
+    def __init__(self, points: np.ndarray, labels: PointLabels) -> None:
+        from scipy.spatial import cKDTree
+
+        self.labels = labels
+        self.tree = cKDTree(points) if len(points) else None
+
+    def query(self, points: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """(M,) bool whether a labelled point lies within `radius` of each query point, and (M,)
+        the index of the nearest (valid where found)."""
+        if self.tree is None or radius <= 0 or len(points) == 0:
+            return np.zeros(len(points), bool), np.zeros(len(points), np.int64)
+        dist, idx = self.tree.query(points, k=1, distance_upper_bound=radius, workers=-1)
+        found = np.isfinite(dist)
+        return found, np.where(found, idx, 0)
+
+
+def decided_labels(track: np.ndarray, decided: TrackClasses) -> PointLabels:
+    """Step 1 alone: the points of decided tracks (the reviewed-only export, and what the world
+    search of nearby frames reads)."""
+    out = PointLabels.empty(len(track))
+    hit, row = decided.lookup(np.asarray(track, np.int64))
+    out.set(hit, decided.class_[row[hit]], decided.source[row[hit]], decided.confidence[row[hit]])
+    return out
+
+
+def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestLabel, radius: float,
+          source: np.ndarray | int | None = None) -> None:
+    """Give the points of `want` the label of their nearest point in `near` within `radius`;
+    their source is `source`, or else `propagated` from a decided point and `predicted` otherwise."""
+    idx = np.flatnonzero(want)
+    found, nn = near.query(points[idx], radius)
+    idx, nn = idx[found], nn[found]
+    if source is None:
+        source = np.where(np.isin(near.labels.source[nn], DECIDED), SOURCE["propagated"], SOURCE["predicted"])
+    mask = np.zeros(len(want), bool)
+    mask[idx] = True
+    out.set(mask, near.labels.class_[nn], source, near.labels.confidence[nn])
+
+
+def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, decided: TrackClasses,
+                  predicted: TrackClasses, field: NearestLabel | None, rules: Rules,
+                  ground_class: int | None) -> PointLabels:
+    """Every point's class, source and confidence in one frame (module docstring).
+
+    track: (N,) int64 track id per point (0 = none); ground: (N,) bool the ground estimate;
+    world: (N, 3) float64 world coordinates; decided / predicted: the frame's track classes;
+    field: decided points of this and nearby frames (None = no world search); ground_class: the
+    class written on ground points no other step reached (None = leave them without one).
+    """
+    track = np.asarray(track, np.int64)
+    ground = np.asarray(ground, bool)
+    out = decided_labels(track, decided)
+    if field is not None:
+        _take(out, ~out.labelled & ~ground, world, field, rules.radius, SOURCE["propagated"])
+        _take(out, ~out.labelled & ground, world, field, rules.ground_radius, SOURCE["propagated"])
+    hit, row = predicted.lookup(track)
+    hit &= ~out.labelled
+    out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
+    rest = ~out.labelled & ~ground
+    if rest.any() and out.labelled.any():
+        _take(out, rest, world, NearestLabel(*thin(world, out, rules.voxel)), rules.radius)
+    if ground_class is not None:
+        out.set(~out.labelled & ground, ground_class, SOURCE["ground"], 1.0)
+    return out

@@ -1,0 +1,89 @@
+"""The operator benchmark's simulated operator, over the real service (in-process) and the fake
+pipeline: its action count is the event log's, and it reads the truth of what it is shown only."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.jobs.models_util import register_model_version
+from app.main import create_app
+from app.worker import Worker
+from bench.effort.operator import Operator, Policy
+from bench.effort.service import Api
+from bench.effort.truth import TruthStore
+from pipeline.classes import GROUND
+
+pytest_plugins = ["tests.app.conftest"]
+
+
+def _truth(api: Api, frames) -> dict[str, np.ndarray]:
+    """Track key o + 1 (object o) is class o % 3 (person, car, cyclist); other points are ground."""
+    out = {}
+    for f in frames:
+        p = api.payload(f.id)
+        seg_keys = {}
+        for tid in np.unique(p["track"][p["track"] > 0]):
+            seg_keys[int(tid)] = api.get(f"/tracks/{int(tid)}")["key"]
+        cls = np.full(len(p["track"]), GROUND, np.uint8)
+        for tid, key in seg_keys.items():
+            cls[p["track"] == tid] = (key - 1) % 3
+        out[f.name] = cls
+    return out
+
+
+@pytest.fixture
+def setup(settings, db, factory, tmp_path):
+    from pipeline.config import ModelConfig, SampleConfig
+    from pipeline.model import get_model, save_checkpoint
+
+    seq = factory.ingested_sequence(n_frames=5, n_objects=8)
+    net, samples = ModelConfig(width=4, max_width=8, depth=2), SampleConfig(size=8)
+    ckpt = save_checkpoint(tmp_path / "m8.pt", get_model(net, samples), net, samples)
+    with db.write() as s:
+        register_model_version(s, name="m8", kind="train", path=ckpt, config={"params": {"sequence_ids": [seq]}})
+        s.commit()
+    client = TestClient(create_app(settings, db=db), base_url="http://testserver/api/v1")
+    apis = [Api(client, factory.user(role).token) for role in ("admin", "operator", "reviewer")]
+    frames = apis[1].frames(seq)
+    store = TruthStore(_truth(apis[0], frames))
+    policy = Policy(bulk_every=6, bulk_confidence=0.0, bulk_precision=0.0, bulk_support=0, audit_per_bulk=2,
+                    wait_for_model=False)
+    op = Operator(apis[1], apis[2], apis[0], seq, frames, store, policy)
+    yield seq, op, Worker(settings, db=db)
+    client.close()
+
+
+def _work(op: Operator, worker: Worker, reviews: int) -> None:
+    for _ in range(reviews):
+        worker.schedule()
+        while worker.run_once():
+            pass
+        if not op.review_next():
+            break
+        if op.counts.reviews % op.policy.bulk_every == 0:
+            op.bulk_round()
+
+
+def test_effort_action_count_is_the_event_log_s(setup, db):
+    from app import crud
+
+    seq, op, worker = setup
+    _work(op, worker, 7)
+    c = op.counts
+    assert c.reviews >= 6 and c.bulk_accepts >= 1 and c.audits >= 1
+    with db.read() as s:
+        assert crud.operation_count(s, seq) == c.edits + c.audit_corrections
+
+
+def test_effort_operator_reads_the_truth_of_shown_tracks_only(setup):
+    seq, op, worker = setup
+    _work(op, worker, 7)
+    assert op.store.reads
+    payloads = {f.name: op.op.payload(f.id)["track"] for f in op.frames}
+    for item, frame, points in op.store.reads:
+        assert item is not None and set(payloads[frame][points].tolist()) == {item}
+    op.store.forget()
+    with pytest.raises(PermissionError):
+        op.store.read(op.frames[0].name, np.array([0]))

@@ -1,0 +1,48 @@
+"""The review loop's head: refitted on reviews, unseen classes keep the CNN's say, held-out precision."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.assist import SampleFeatures, assist_probs, held_out_tracks, segment_stats, track_means
+
+
+def _features(n_per: int = 40, seed: int = 0) -> tuple[SampleFeatures, np.ndarray]:
+    """Two well separated classes (0 and 1) in the embedding; the CNN's probabilities say class 2."""
+    rng = np.random.default_rng(seed)
+    truth = np.repeat([0, 1], n_per)
+    emb = rng.normal(size=(2 * n_per, 8)).astype(np.float32) + truth[:, None] * 4.0
+    probs = np.tile(np.array([0.1, 0.1, 0.6, 0.2], np.float32), (2 * n_per, 1))
+    stats = segment_stats(np.full(2 * n_per, 50), np.full(2 * n_per, 10.0), np.zeros(2 * n_per))
+    return SampleFeatures(emb, probs, stats), truth
+
+
+def test_assist_probs_learn_the_reviewed_classes_over_the_cnn_s_guess():
+    feats, truth = _features()
+    labelled = np.r_[0:10, 40:50]
+    probs = assist_probs(feats, labelled, truth[labelled])
+    assert probs.shape == (80, 4) and np.allclose(probs.sum(axis=1), 1.0, atol=1e-5)
+    assert (probs.argmax(axis=1) == truth).mean() > 0.95  # the CNN said class 2 everywhere
+
+
+def test_assist_probs_are_the_cnn_s_until_two_classes_are_reviewed():
+    feats, truth = _features()
+    probs = assist_probs(feats, np.arange(5), truth[:5])
+    assert np.array_equal(probs, feats.probs)
+
+
+def test_track_means_average_each_track_s_samples():
+    probs = np.array([[1, 0], [0, 1], [0.5, 0.5], [0.2, 0.8]], np.float32)
+    mean, counts = track_means(probs, np.array([0, 0, -1, 1]), 3)
+    assert np.allclose(mean[0], [0.5, 0.5]) and np.allclose(mean[1], [0.2, 0.8])
+    assert counts.tolist() == [2, 1, 0]
+
+
+def test_held_out_tracks_leave_whole_tracks_out():
+    feats, truth = _features()
+    group = np.arange(80) // 4  # 20 tracks of 4 samples, 10 per class
+    held = held_out_tracks(feats, np.arange(80), truth, group)
+    assert held is not None and len(held.truth) == 20 and (held.samples == 4).all()
+    precision, support = held.precision(0, 0.5)
+    assert support >= 8 and precision > 0.9
+    assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10]) is None  # one class only

@@ -1,0 +1,67 @@
+"""Every point's class and source: its track's decision, the nearest decided point, the
+prediction, the ground class, or none."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.propagation import NONE, SOURCE, NearestLabel, PointLabels, Rules, TrackClasses, resolve_frame, thin
+
+# a reviewed car (track 1) at x = 0..1, a pending track 2 predicted bush at x = 10..11, and loose points
+CAR, BUSH, GROUND_CLASS = 1, 4, 7
+
+
+def _frame():
+    world = np.array([
+        [0.0, 0, 1], [1.0, 0, 1],  # track 1 (reviewed car)
+        [10.0, 0, 1], [11.0, 0, 1],  # track 2 (predicted bush)
+        [1.2, 0, 1],  # no track, 0.2 m from the car
+        [3.0, 0, 1],  # no track, far from everything
+        [11.25, 0, 1],  # no track, 0.25 m from the predicted bush
+        [1.05, 0, 0.95],  # ground point 0.07 m from the car
+        [1.3, 0, 1],  # ground point 0.3 m from the car
+    ])
+    track = np.array([1, 1, 2, 2, 0, 0, 0, 0, 0])
+    ground = np.array([False] * 7 + [True, True])
+    decided = TrackClasses.of([(1, CAR, SOURCE["reviewed"], 1.0)])
+    predicted = TrackClasses.of([(2, BUSH, SOURCE["predicted"], 0.8)])
+    return track, ground, world, decided, predicted
+
+
+def _field(world, track, decided):
+    from pipeline.propagation import decided_labels
+
+    return NearestLabel(*thin(world, decided_labels(track, decided), 0.0))
+
+
+def test_propagation_gives_each_point_the_nearest_source():
+    track, ground, world, decided, predicted = _frame()
+    out = resolve_frame(track, ground, world, decided, predicted, _field(world, track, decided), Rules(), GROUND_CLASS)
+    assert out.class_.tolist() == [CAR, CAR, BUSH, BUSH, CAR, NONE, BUSH, CAR, GROUND_CLASS]
+    names = {v: k for k, v in SOURCE.items()}
+    assert [names[s] for s in out.source] == ["reviewed", "reviewed", "predicted", "predicted", "propagated", "none",
+                                             "predicted", "propagated", "ground"]
+    assert np.allclose(out.confidence[[2, 3, 6]], 0.8)
+
+
+def test_propagation_off_leaves_untracked_points_without_a_class():
+    track, ground, world, decided, predicted = _frame()
+    rules = Rules(radius=0.0, ground_radius=0.0)
+    out = resolve_frame(track, ground, world, decided, predicted, _field(world, track, decided), rules, None)
+    assert out.class_.tolist() == [CAR, CAR, BUSH, BUSH, NONE, NONE, NONE, NONE, NONE]
+
+
+def test_propagation_reaches_across_frames_through_the_world_field():
+    track, ground, world, decided, predicted = _frame()
+    other = PointLabels(np.array([CAR], np.uint8), np.array([SOURCE["reviewed"]], np.uint8), np.ones(1, np.float32))
+    field = NearestLabel(np.array([[3.1, 0, 1]]), other)  # the car seen in another frame reaches x = 3
+    none = TrackClasses.of([])
+    out = resolve_frame(track, ground, world, none, none, field, Rules(), None)
+    assert out.class_[5] == CAR and out.source[5] == SOURCE["propagated"]
+
+
+def test_propagation_thin_keeps_one_point_per_voxel():
+    pts = np.array([[0.0, 0, 0], [0.01, 0, 0], [1.0, 0, 0], [5.0, 0, 0]])
+    lab = PointLabels(np.array([1, 1, 2, NONE], np.uint8), np.ones(4, np.uint8), np.ones(4, np.float32))
+    kept, kept_lab = thin(pts, lab, 0.05)
+    assert len(kept) == 2 and kept_lab.class_.tolist() == [1, 2]
