@@ -640,26 +640,31 @@ def export(
     seq: Annotated[str, typer.Argument(help="A sequence registered by `tracklabel label`: its path or id.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
     data_dir: DataDir = None,
-    include_ground: Annotated[bool, typer.Option(help="Also write the automatic ground (SemanticKITTI 40, road).")] = False,
+    include_ground: Annotated[bool, typer.Option(help="Write the ground class on the remaining ground points.")] = False,
+    reviewed_only: Annotated[bool, typer.Option(help="Only the reviewed tracks' points (no bulk accepts, "
+                                                "labels carried to nearby points or predictions).")] = False,
 ) -> None:
-    """The reviewed labels as SemanticKITTI files: OUT/sequences/NAME/labels/NNNNNN.label, one
-    uint32 per point of the scan (class id | track id << 16; 0 = not labelled)."""
+    """SemanticKITTI labels, the REST export's: OUT/sequences/NAME/labels/NNNNNN.label, one uint32
+    per point of the scan (class id | track id << 16; 0 = no class), and summary.json (points per
+    source and class)."""
     import numpy as np
 
     from app.core.config import Settings
     from app.core.db import Database
     from app.local import export_semantickitti, find_sequence
+    from app.services.point_labels import ExportOptions
 
     settings = Settings(**({"data_dir": data_dir} if data_dir else {}))
     db = Database.from_settings(settings)
     try:
-        files = export_semantickitti(db, settings, find_sequence(db, seq), out, include_ground)
+        options = ExportOptions(include_ground=include_ground, reviewed_only=reviewed_only)
+        files = export_semantickitti(db, settings, find_sequence(db, seq), out, options)
     finally:
         db.dispose()
     labels = [f for f in files if f.suffix == ".label"]
     ids = np.concatenate([np.fromfile(f, np.uint32) & 0xFFFF for f in labels]) if labels else np.zeros(0, np.uint32)
     per_id = {int(k): int(v) for k, v in zip(*np.unique(ids[ids > 0], return_counts=True), strict=True)}
-    typer.echo(f"{len(labels)} frames, {sum(per_id.values())} points labelled "
+    typer.echo(f"{len(labels)} frames, {sum(per_id.values())} points with a class "
                f"(SemanticKITTI id: points {per_id}) -> {labels[0].parent if labels else out}")
 
 

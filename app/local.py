@@ -160,18 +160,20 @@ def latest_model(db: Database) -> Path:
     return Path(path)
 
 
-def export_semantickitti(db: Database, settings: Settings, seq: Sequence, out: Path, include_ground: bool) -> list[Path]:
-    """The REST export's SemanticKITTI labels (app.exports), unpacked under `out` as
-    sequences/<name>/labels/NNNNNN.label (+ chunk_map.json past 65,535 tracks); the files written."""
+def export_semantickitti(db: Database, settings: Settings, seq: Sequence, out: Path, options: Any) -> list[Path]:
+    """The REST export's SemanticKITTI labels (app.exports, `options`: ExportOptions), unpacked
+    under `out` as sequences/<name>/labels/NNNNNN.label and summary.json (+ chunk_map.json past
+    65,535 tracks); the files written."""
     import tarfile
 
     from app.artifacts import ArtifactStore
-    from app.exports import semantickitti_plan, semantickitti_tar
+    from app.exports import semantickitti_tar
+    from app.services.point_labels import point_label_plan
 
     with db.read() as s:
         row = s.get(Sequence, seq.id)
         assert row is not None
-        plan = semantickitti_plan(s, row, include_ground)
+        plan = point_label_plan(s, row, options)
     stream = _ChunkReader(semantickitti_tar(plan, ArtifactStore(settings.artifacts_path)))
     out.mkdir(parents=True, exist_ok=True)
     written = []

@@ -114,9 +114,12 @@ def test_review_train_predict_export(labelled, recording, tmp_path, monkeypatch)
     assert r.exit_code == 0 and f"model: {ckpt}" in r.output, r.output
     assert json.loads((tmp_path / "pred" / "summary.json").read_text())["frames_scored"] == 4
 
-    r = runner.invoke(app, ["export", str(recording), "--out", str(tmp_path / "x")])
-    assert r.exit_code == 0, r.output
-    files = sorted((tmp_path / "x" / "sequences" / "my_drive" / "labels").glob("*.label"))
-    assert len(files) == 4
-    ids = set(np.unique(np.concatenate([np.fromfile(f, np.uint32) & 0xFFFF for f in files])).tolist())
-    assert ids == {0} | {SEMANTICKITTI_WRITE_ID[c] for c in classes}
+    reviewed = {SEMANTICKITTI_WRITE_ID[c] for c in classes}
+    for extra, check in (([], reviewed.issubset), (["--reviewed-only"], ({0} | reviewed).__eq__)):
+        out = tmp_path / f"x{len(extra)}"
+        r = runner.invoke(app, ["export", str(recording), "--out", str(out), *extra])
+        assert r.exit_code == 0, r.output
+        files = sorted((out / "sequences" / "my_drive" / "labels").glob("*.label"))
+        assert len(files) == 4 and (out / "sequences" / "my_drive" / "summary.json").is_file()
+        ids = set(np.unique(np.concatenate([np.fromfile(f, np.uint32) & 0xFFFF for f in files])).tolist())
+        assert check(ids), (extra, ids)

@@ -5,7 +5,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.propagation import NONE, SOURCE, NearestLabel, PointLabels, Rules, TrackClasses, resolve_frame, thin
+from pipeline.propagation import (
+    NONE,
+    SOURCE,
+    NearestLabel,
+    PointLabels,
+    Rules,
+    TrackClasses,
+    resolve_frame,
+    thin,
+)
 
 # a reviewed car (track 1) at x = 0..1, a pending track 2 predicted bush at x = 10..11, and loose points
 CAR, BUSH, GROUND_CLASS = 1, 4, 7
