@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import COLOUR_MODES, ColourMode, fade, legend_html, point_colours
 from annotator_ui.frame_cache import FrameCache
@@ -159,6 +160,9 @@ class ClientTab:
                                       self.newest_model, self.notify)
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api)
+        with tabs.add_tab("Model", viser.Icon.SPARKLES):
+            self.bulk = BulkPanel(gui, self.api, self.notify, self.sequence_id,
+                                  lambda tid: self.later(lambda: self.open_track(tid)))
         with tabs.add_tab("Jobs", viser.Icon.CPU):
             self.jobs = JobsPanel(gui, self.api, self.notify, self.sequence_id, is_admin=self.user.get("role") == "admin")
         with tabs.add_tab("Anchors", viser.Icon.ANCHOR):
@@ -212,6 +216,7 @@ class ClientTab:
         self.later(self.progress.refresh)
         self.later(self.jobs.refresh_types)
         self.later(self.anchors.refresh)
+        self.later(self.bulk.refresh)
 
     def later(self, fn: Any) -> None:
         """Run `fn` in the viewer's pool unless this tab has closed by then."""

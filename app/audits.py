@@ -21,6 +21,8 @@ from app.core.errors import Conflict, NotFound
 from app.crud import AuthUser
 from app.models import Audit, Track, User, utcnow
 
+DISCARD = "(discard)"  # the auditor's verdict that an audited track is no object
+
 
 def sample_audits(session: Session, user: AuthUser, n: int, sequence_id: int | None, seed: int,
                   source: str | None = None) -> list[Audit]:
@@ -52,7 +54,8 @@ def decide_audit(
     override_lease: bool = False,
     lease_seconds: float | None = None,
 ) -> Audit:
-    """Agree (`label` None, or the operator's own class) or correct the class of an audited track.
+    """Agree (`label` None, or the operator's own class) or correct the class of an audited track;
+    `label` DISCARD: the track is no object of any class (ground, noise) and is discarded.
     NotFound / Conflict when it is decided already or the track is no longer accepted. Commits."""
     audit = session.scalars(select(Audit).where(Audit.id == audit_id).with_for_update()).first()
     if audit is None:
@@ -67,9 +70,10 @@ def decide_audit(
         audit.status, audit.answer_label = "agreed", audit.label
         session.commit()
         return audit
-    audit.status, audit.answer_label = "corrected", label
-    crud.apply_action(session, track.id, user, "label", track.version, label=label, sample_classes=sample_classes,
-                      override_lease=override_lease, lease_seconds=lease_seconds)  # commits both
+    audit.status, audit.answer_label = "corrected", None if label == DISCARD else label
+    action, kw = ("discard", {}) if label == DISCARD else ("label", {"label": label})
+    crud.apply_action(session, track.id, user, action, track.version, sample_classes=sample_classes,
+                      override_lease=override_lease, lease_seconds=lease_seconds, **kw)  # commits both
     return audit
 
 

@@ -235,11 +235,12 @@ def _label_words(fl: FrameLabels, instances: dict[int, int]) -> np.ndarray:
     return words
 
 
-def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterator[bytes]:
+def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sources: bool = False) -> Iterator[bytes]:
     """Stream `sequences/<name>/labels/<frame>.label` (uint32: semantic | instance << 16) per frame,
     one label per row of the frame's scan file (0 for rows that are no point: NaN, inf, no return),
     then `summary.json`: the points per label source and class, confidence histograms, and why
-    points stayed unlabelled (app/services/point_labels.py)."""
+    points stayed unlabelled (app/services/point_labels.py). `with_sources` adds
+    `sources/<frame>.source`: one uint8 per row, the index of its source in `summary.sources`."""
     instances, chunk_map = _instances(plan)
     summary = LabelSummary()
     sink = _Sink()
@@ -248,9 +249,12 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterato
     for fl in iter_frame_labels(plan, artifacts):
         summary.add(fl)
         words = _label_words(fl, instances.get(fl.index, {}))
+        sources = fl.labels.source
         if fl.input_rows is not None:
-            words = _spread(words, fl.input_rows)
+            words, sources = _spread(words, fl.input_rows), _spread(sources, fl.input_rows)
         _add(tar, f"{prefix}/labels/{fl.name}.label", words.tobytes())
+        if with_sources:
+            _add(tar, f"{prefix}/sources/{fl.name}.source", sources.tobytes())
         yield sink.drain()
     if chunk_map is not None:
         _add(tar, f"{prefix}/chunk_map.json", json.dumps({"chunks": chunk_map}, indent=1).encode())

@@ -29,7 +29,7 @@ from typing import Any
 
 import httpx
 
-from bench.effort.operator import Counts, Operator, Policy
+from bench.effort.operator import MODEL_SETTLE_S, WORKER_POLL_S, Counts, Operator, Policy
 from bench.effort.score import bulk_error, score_export
 from bench.effort.service import Api, LocalService
 from bench.effort.truth import SequenceTruth, TruthStore
@@ -67,7 +67,7 @@ class Run:
     """One benchmark run over a registered, ingested sequence."""
 
     def __init__(self, svc_url: str, tokens: dict[str, str], seq_path: Path, truth: SequenceTruth, policy: Policy) -> None:
-        self.client = httpx.Client(base_url=svc_url)
+        self.client = httpx.Client(base_url=svc_url, timeout=600)
         self.admin, op, reviewer = (Api(self.client, tokens[k]) for k in ("admin", "operator", "reviewer"))
         t0 = time.monotonic()
         self.sequence_id = self.admin.register(seq_path)
@@ -81,11 +81,12 @@ class Run:
         self.curve: list[dict[str, Any]] = []
 
     def checkpoint(self) -> dict[str, Any]:
-        self.admin.wait_jobs_idle("assist")
-        labels, summary = self.admin.export(self.sequence_id, include_ground=True)
+        self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
+        export = self.admin.export(self.sequence_id, include_ground=True)
+        self.last_export = export
         c: Counts = self.operator.counts
-        point = {"actions": c.actions, **asdict(c), **score_export(labels, self.truth),
-                 "sources": summary.get("labelled_by_source", {})}
+        point = {"actions": c.actions, **asdict(c), **score_export(export, self.truth),
+                 "sources": export.summary.get("labelled_by_source", {})}
         self.curve.append(point)
         return point
 
@@ -113,9 +114,7 @@ class Run:
         return [float(j["result"]["seconds"]) for j in jobs if j.get("result")]
 
     def finish(self, out: Path) -> dict[str, Any]:
-        r = self.client.get(f"/exports/semantickitti/{self.sequence_id}", params={"include_ground": True},
-                            headers=self.admin.headers, timeout=600)
-        _write_export(r.content, out / "export")
+        _write_export(self.last_export.tar, out / "export")
         stats = self.admin.get("/exports/stats", params={"sequence_id": self.sequence_id})
         ops = self.operator
         return {"sequence_id": self.sequence_id, "ingest_seconds": round(self.ingest_s, 1),
@@ -134,7 +133,7 @@ def _write_export(tar_bytes: bytes, dest: Path) -> None:
     with tarfile.open(fileobj=io.BytesIO(tar_bytes)) as tar:
         for m in tar.getmembers():
             name = Path(m.name)
-            target = dest / ("labels" if name.suffix == ".label" else "") / name.name
+            target = dest / (name.parent.name if name.suffix in (".label", ".source") else "") / name.name
             target.parent.mkdir(parents=True, exist_ok=True)
             target.write_bytes(tar.extractfile(m).read())  # type: ignore[union-attr]
 
@@ -170,7 +169,8 @@ def run_sequence(seq: Path, out: Path, budget: int, frames: tuple[int, int] | No
     with tempfile.TemporaryDirectory(prefix="tl_effort_") as tmp:
         clip = make_clip(seq, *frames, Path(tmp) / "clip" / seq.name) if frames else seq.resolve()
         truth = SequenceTruth(clip)
-        with LocalService(Path(tmp) / "service", [Path(tmp), seq.resolve().parent]) as svc:
+        env = {"TRACKLABEL_WORKER_POLL_SECONDS": str(WORKER_POLL_S)}
+        with LocalService(Path(tmp) / "service", [Path(tmp), seq.resolve().parent], env) as svc:
             tokens = {role: svc.user(role, role) for role in ("admin", "operator", "reviewer")}
             run = Run(svc.url, tokens, clip, truth, policy or Policy())
             run.work(budget)

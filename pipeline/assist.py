@@ -12,6 +12,10 @@ the forest alone decides: keeping the CNN's probability for classes no review ha
 its confident mistakes on real scans override the forest (on the shared clips after 50 reviews:
 0.64 against 0.74 of seq01's points right, 0.62 against 0.67 of seq02's).
 
+Tracks the operator discarded teach one more class, `NO_OBJECT` (pieces of ground, noise: what
+operators throw away); a track the head calls so is left out of bulk accepts and of the
+classes its points take.
+
 `held_out_tracks` estimates, from the reviewed tracks themselves (each fold leaves whole tracks
 out), how often a track predicted as a class with a given confidence is right: the figure a bulk
 accept's preview shows.
@@ -25,6 +29,7 @@ import numpy as np
 
 from pipeline.errors import DataError
 
+NO_OBJECT = "no_object"  # the head's extra class: tracks operators discard
 N_TREES = 200
 MIN_LEAF = 2
 FOLDS = 5
@@ -69,17 +74,25 @@ def _full(forest: object, x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
+def _cnn(features: SampleFeatures, n: int) -> np.ndarray:
+    """(N, n) the CNN's probabilities, 0 for the head's classes beyond the CNN's."""
+    out = np.zeros((len(features.probs), n), np.float32)
+    out[:, : features.probs.shape[1]] = features.probs
+    return out
+
+
 def assist_probs(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, seed: int = 0) -> np.ndarray:
-    """(N, K) float32 class probabilities of every sample: the CNN's alone while the reviews show
-    fewer than two classes, else the forest fitted on `labelled` (indices) with `labels`."""
+    """(N, K + 1) float32 probabilities of every sample over the CNN's K classes and NO_OBJECT
+    (class K): the CNN's alone while the reviews show fewer than two classes, else the forest
+    fitted on `labelled` (indices) with `labels` (0..K)."""
     labelled, labels = np.asarray(labelled, np.int64), np.asarray(labels, np.int64)
     if labelled.shape != labels.shape:
         raise DataError(None, f"labelled {labelled.shape} and labels {labels.shape} differ")
-    base = features.probs.astype(np.float32)
+    n = features.probs.shape[1] + 1
     if len(np.unique(labels)) < 2:
-        return base
+        return _cnn(features, n)
     x = features.matrix()
-    return _full(_fit(x[labelled], labels, seed), x, base.shape[1])
+    return _full(_fit(x[labelled], labels, seed), x, n)
 
 
 def track_means(probs: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
@@ -123,14 +136,15 @@ def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.n
         return None
     fold = np.random.default_rng(seed).permutation(len(tracks)) % FOLDS
     x = features.matrix()[labelled]
-    base = features.probs[labelled].astype(np.float32)
+    n = features.probs.shape[1] + 1
+    base = _cnn(features, n)[labelled]
     probs = np.zeros_like(base)
     for f in range(FOLDS):
         out = fold[inverse] == f
         if len(np.unique(labels[~out])) < 2:
             probs[out] = base[out]
             continue
-        probs[out] = _full(_fit(x[~out], labels[~out], seed), x[out], base.shape[1])
+        probs[out] = _full(_fit(x[~out], labels[~out], seed), x[out], n)
     mean, counts = track_means(probs, inverse, len(tracks))
     truth = np.zeros(len(tracks), np.int64)
     truth[inverse] = labels

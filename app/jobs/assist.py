@@ -3,7 +3,7 @@ operator's reviews so far, and orders the review queue by what a review would co
 
 1. Read the sequence's samples, their segments' size, range and height, and the classes of the
    samples of tracks an operator reviewed (bulk-accepted classes are the model's own guesses and
-   are not trained on).
+   are not trained on); the samples of discarded tracks are `no_object`.
 2. Score every sample with the base CNN: the newest model trained on this sequence, else the
    shipped default model (its embedding and class probabilities).
 3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
@@ -85,6 +85,21 @@ def _read(session: Session, sequence_id: int) -> dict[str, Any]:
     return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed}
 
 
+def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indices, classes) of the samples the head learns from: the reviewed ones with their
+    class, those of discarded tracks (in their kept range) as class k, NO_OBJECT."""
+    reviewed = data["reviewed"]
+    discarded = np.array([t.status == "discarded" for t in data["tracks"]] + [False])
+    cls = np.full(len(data["segs"]), -1, np.int64)
+    for j, r in enumerate(data["segs"]):
+        if int(r.id) in reviewed:
+            cls[j] = reviewed[int(r.id)]
+        elif discarded[group[j]]:
+            cls[j] = k
+    labelled = np.flatnonzero(cls >= 0)
+    return labelled, cls[labelled]
+
+
 def _features(ctx: JobContext, data: dict[str, Any], chosen: ChosenModel, batch: int) -> Any:
     from pipeline.assist import SampleFeatures, segment_stats
     from pipeline.model import load_checkpoint
@@ -120,6 +135,7 @@ def _held_out_record(held: Any, classes: tuple[str, ...]) -> dict[str, list[Any]
 
 
 def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...]) -> int:
+    """Each track's predicted class (`classes`, NO_OBJECT last), its confidence and priority."""
     rows = []
     for i, t in enumerate(tracks):
         has = counts[i] > 0
@@ -134,26 +150,25 @@ def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndar
 
 
 def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
-    from pipeline.assist import assist_probs, held_out_tracks, track_means
+    from pipeline.assist import NO_OBJECT, assist_probs, held_out_tracks, track_means
 
     t0 = time.perf_counter()
     with ctx.db.read() as s:
         data = _read(s, params.sequence_id)
         chosen = base_model(s, params.sequence_id, params.model_id)
     ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
-    features, classes = _features(ctx, data, chosen, 512)
+    features, cnn_classes = _features(ctx, data, chosen, 512)
+    classes = (*cnn_classes, NO_OBJECT)
     ctx.progress(0.6, "fitting the head on the reviews")
-    seg_ids = np.array([int(r.id) for r in data["segs"]], np.int64)
-    labelled = np.flatnonzero(np.isin(seg_ids, np.fromiter(data["reviewed"], np.int64, len(data["reviewed"]))))
-    labels = np.array([data["reviewed"][int(seg_ids[j])] for j in labelled], np.int64)
-    probs = assist_probs(features, labelled, labels, params.seed)
     group, tracks = _kept_group(data)
+    labelled, labels = _training_labels(data, group, len(cnn_classes))
+    probs = assist_probs(features, labelled, labels, params.seed)
     mean, counts = track_means(probs, group, len(tracks))
     held = held_out_tracks(features, labelled, labels, group[labelled], params.seed)
     predicted = _write(ctx, tracks, mean, counts, tuple(classes))
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
-            "after_event": params.after_event, "samples": len(seg_ids), "reviewed_samples": int(len(labelled)),
+            "after_event": params.after_event, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
             "held_out": _held_out_record(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
 

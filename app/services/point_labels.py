@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from app.artifacts import ArtifactStore
 from app.models import Frame, Sequence, Track
+from pipeline.assist import NO_OBJECT
 from pipeline.classes import GROUND, POINT_CLASSES
 from pipeline.propagation import (
     SOURCE,
@@ -68,6 +69,7 @@ class PointLabelPlan:
     decided: list[TrackRow]
     predicted: list[TrackRow]
     options: ExportOptions
+    no_object: list[TrackRow] = field(default_factory=list)  # discarded, or predicted to be no object
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
@@ -76,8 +78,10 @@ def _pose(pose: list[float] | None) -> np.ndarray | None:
 
 def point_label_plan(session: Session, sequence: Sequence, options: ExportOptions) -> PointLabelPlan:
     """Read the frames and the tracks whose classes the points take (see `ExportOptions`): the
-    accepted tracks' decisions, and the pending tracks' predictions. A discarded track (a wrong
-    association) passes its points on to the nearest decided points, not to its prediction."""
+    accepted tracks' decisions, and the pending tracks' predictions. The points of a track that
+    is no object (discarded by an operator, or predicted `no_object`) are treated as ground: a
+    decided point reaches them only within the ground radius, and they take the ground class
+    when it is asked for."""
     frames = [(int(i), str(n), str(a), _pose(p)) for i, n, a, p in session.execute(
         select(Frame.index, Frame.name, Frame.artifact, Frame.pose).where(Frame.sequence_id == sequence.id)
         .order_by(Frame.index)).all()]
@@ -86,7 +90,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         select(Track.id, Track.key, Track.status, Track.label, Track.label_source, Track.predicted_class,
                Track.predicted_confidence, Track.keep_start, Track.keep_end)
         .where(Track.sequence_id == sequence.id, Track.status != "merged")).all()
-    decided, predicted = [], []
+    decided, predicted, no_object = [], [], []
     for r in rows:
         if r.status == "accepted" and r.label is not None:
             if options.reviewed_only and r.label_source == "bulk":
@@ -94,10 +98,12 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
             source = SOURCE["bulk"] if r.label_source == "bulk" else SOURCE["reviewed"]
             conf = float(r.predicted_confidence or 1.0) if source == SOURCE["bulk"] else 1.0
             decided.append(TrackRow(int(r.id), int(r.key), index[r.label], source, conf, int(r.keep_start), int(r.keep_end)))
+        elif r.status == "discarded" or r.predicted_class == NO_OBJECT:
+            no_object.append(TrackRow(int(r.id), int(r.key), GROUND, SOURCE["ground"], 1.0, int(r.keep_start), int(r.keep_end)))
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    return PointLabelPlan(sequence.name, frames, decided, predicted, options)
+    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object)
 
 
 def _in_frame(rows: list[TrackRow], index: int) -> TrackClasses:
@@ -155,15 +161,16 @@ def iter_frame_labels(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterato
         a = artifacts.read_arrays(art, ("points", "track", "ground", "input_rows"))
         track = np.asarray(a["track"], np.int64)
         decided, predicted = _in_frame(plan.decided, index), _in_frame(plan.predicted, index)
+        ground = np.asarray(a["ground"], bool) | _in_frame(plan.no_object, index).lookup(track)[0]
         if opts.reviewed_only:
             labels = decided_labels(track, decided)
             if ground_class is not None:
-                labels.set(~labels.labelled & a["ground"], ground_class, SOURCE["ground"], 1.0)
+                labels.set(~labels.labelled & ground, ground_class, SOURCE["ground"], 1.0)
         else:
-            labels = resolve_frame(track, a["ground"], to_world(a["points"], pose), decided, predicted,
+            labels = resolve_frame(track, ground, to_world(a["points"], pose), decided, predicted,
                                    clouds.field(pos), opts.rules, ground_class)
         own = decided.lookup(track)[0] | (predicted.lookup(track)[0] & (labels.source == SOURCE["predicted"]))
-        yield FrameLabels(index, name, labels, a.get("input_rows"), track, own, np.asarray(a["ground"], bool))
+        yield FrameLabels(index, name, labels, a.get("input_rows"), track, own, ground)
 
 
 class LabelSummary:
@@ -194,6 +201,7 @@ class LabelSummary:
                      for i, s in enumerate(SOURCES) if s != "none"}
         hist = {s: self.confidence[i].tolist() for i, s in enumerate(SOURCES) if s != "none" and self.confidence[i].any()}
         return {
+            "sources": list(SOURCES),
             "frames": self.frames,
             "points": int(self.by_source_class.sum()) + self.no_point,
             "labelled_by_source": by_source,

@@ -31,6 +31,11 @@ from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
 from pipeline.classes import GROUND, SAMPLE_CLASSES, UNLABELLED
 
+# the service's worker polls every WORKER_POLL_S (bench_effort sets it); the operator waits this
+# long without a model run in sight before it takes the next track
+WORKER_POLL_S = 0.2
+MODEL_SETTLE_S = 0.5
+
 
 @dataclass(frozen=True)
 class Policy:
@@ -130,7 +135,7 @@ class Operator:
     def review_next(self) -> bool:
         """Review the track the queue offers; False when the queue is empty."""
         if self.policy.wait_for_model:
-            self.admin.wait_jobs_idle("assist")
+            self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
         track = self.op.post("/review/next", params={"sequence_id": self.sequence_id}, ok=(200, 204))
         if track is None:
             self.counts.queue_empty = True
@@ -184,7 +189,7 @@ class Operator:
         """Accept, class by class, the predictions the preview vouches for; audit each bulk."""
         pol = self.policy
         if pol.wait_for_model:
-            self.admin.wait_jobs_idle("assist")
+            self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
         for name in SAMPLE_CLASSES:
             p = self.op.get(f"/sequences/{self.sequence_id}/bulk-accept/preview",
                             params={"class_name": name, "min_confidence": pol.bulk_confidence})
@@ -198,18 +203,21 @@ class Operator:
             self.audit(pol.audit_per_bulk, seed=int(bulk["id"]))
 
     def audit(self, n: int, seed: int) -> None:
-        """The reviewer inspects `n` bulk-accepted tracks drawn at random: agrees, or corrects the
-        class to the one most of the track's points have."""
+        """The reviewer inspects `n` bulk-accepted tracks drawn at random: agrees; corrects the class
+        to the one most of the track's points have; or discards a track of ground."""
         audits = self.reviewer.post("/audits/sample", {"n": n, "sequence_id": self.sequence_id, "seed": seed,
                                                        "source": "bulk"}, ok=(201,))
         for a in audits:
             track = self.reviewer.get(f"/tracks/{a['track_id']}")
             classes, _ = self.look(self.show(track))
-            objects = classes[(classes != UNLABELLED) & (classes != GROUND)]
-            truth = SAMPLE_CLASSES[int(np.bincount(objects).argmax())] if len(objects) else a["label"]
-            if truth == a["label"]:
+            known = classes[classes != UNLABELLED]
+            major = int(np.bincount(known).argmax()) if len(known) else None
+            if major is None or (major != GROUND and SAMPLE_CLASSES[major] == a["label"]):
                 self.reviewer.post(f"/audits/{a['id']}/agree")
+            elif major == GROUND:
+                self.reviewer.post(f"/audits/{a['id']}/discard")
+                self.counts.audit_corrections += 1
             else:
-                self.reviewer.post(f"/audits/{a['id']}/correct", {"label": truth})
+                self.reviewer.post(f"/audits/{a['id']}/correct", {"label": SAMPLE_CLASSES[major]})
                 self.counts.audit_corrections += 1
             self.counts.audits += 1

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.effort.service import Api, FrameInfo
+from bench.effort.service import Api, Export, FrameInfo
 from bench.effort.truth import SequenceTruth
 from pipeline.classes import GROUND, POINT_CLASSES, UNLABELLED, to_ours
 
@@ -17,14 +17,16 @@ def exported_classes(words: np.ndarray) -> np.ndarray:
     return to_ours(np.asarray(words, np.uint32) & 0xFFFF)
 
 
-def score_export(labels: dict[str, np.ndarray], truth: SequenceTruth) -> dict[str, Any]:
+def score_export(export: Export, truth: SequenceTruth) -> dict[str, Any]:
     """Over the frames that have labels (every input row: NaN, inf and no-return rows included)."""
     n = {k: 0 for k in ("ng", "ng_right", "ng_none", "g", "g_right", "g_none")}
     per_class = np.zeros((len(POINT_CLASSES), 2), np.int64)  # (points, right) per true class
+    sources = export.summary.get("sources", [])
+    per_source = np.zeros((max(len(sources), 1), 2), np.int64)  # non-ground points (taken, right) per source
     for name, ft in truth.labelled.items():
-        if name not in labels:
+        if name not in export.labels:
             raise ValueError(f"the export has no labels for frame {name}")
-        t, e = ft.per_input_row(), exported_classes(labels[name])
+        t, e = ft.per_input_row(), exported_classes(export.labels[name])
         if len(e) != len(t):
             raise ValueError(f"frame {name}: {len(e)} exported labels for {len(t)} points")
         ng, g = (t != GROUND) & (t != UNLABELLED), t == GROUND
@@ -37,6 +39,10 @@ def score_export(labels: dict[str, np.ndarray], truth: SequenceTruth) -> dict[st
         known = t != UNLABELLED
         np.add.at(per_class, (t[known], 0), 1)
         np.add.at(per_class, (t[known], 1), (e[known] == t[known]).astype(np.int64))
+        if name in export.sources:
+            src = export.sources[name].astype(np.int64)
+            np.add.at(per_source, (src[ng], 0), 1)
+            np.add.at(per_source, (src[ng], 1), (e[ng] == t[ng]).astype(np.int64))
 
     def share(a: str, b: str) -> float | None:
         return round(n[a] / n[b], 4) if n[b] else None
@@ -46,13 +52,16 @@ def score_export(labels: dict[str, np.ndarray], truth: SequenceTruth) -> dict[st
         "ground_right": share("g_right", "g"), "ground_unlabelled": share("g_none", "g"),
         "non_ground_points": n["ng"], "ground_points": n["g"],
         "recall_per_class": {POINT_CLASSES[c]: round(r / p, 4) for c, (p, r) in enumerate(per_class) if p},
+        "non_ground_by_source": {sources[i]: {"share": round(int(a) / n["ng"], 4), "right": round(int(r) / int(a), 4)}
+                                 for i, (a, r) in enumerate(per_source) if a and i < len(sources)},
     }
 
 
 def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: SequenceTruth) -> dict[str, Any]:
     """The error of the bulk-accepted tracks against the truth: a track is wrong when most of its
-    labelled object points are of another class; shares of tracks and of their points, and the
-    share of their labelled points whose class differs from the track's."""
+    labelled points are of another class (ground included: such a track is no object); shares of
+    tracks and of their points, the wrong tracks that are ground, and the share of their labelled
+    points whose class differs from the track's."""
     tracks, offset = [], 0
     while True:
         page = admin.get("/tracks", params={"sequence_id": sequence_id, "status": "accepted", "limit": 500,
@@ -62,15 +71,15 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
         if offset >= page["total"]:
             break
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
-    wrong_tracks = wrong_track_points = points = disagree = labelled = 0
+    wrong_tracks = wrong_track_points = points = disagree = labelled = ground_tracks = 0
     for t in tracks:
         cls = POINT_CLASSES.index(t["label"])
         seen = [truth.all[f.name][payloads[f.id] == t["id"]] for f in frames if t["keep_start"] <= f.index <= t["keep_end"]]
         c = np.concatenate(seen) if seen else np.zeros(0, np.uint8)
         c = c[c != UNLABELLED]
-        objects = c[c != GROUND]
-        major = int(np.bincount(objects).argmax()) if len(objects) else GROUND
+        major = int(np.bincount(c).argmax()) if len(c) else GROUND
         wrong_tracks += major != cls
+        ground_tracks += major == GROUND
         wrong_track_points += len(c) if major != cls else 0
         points += len(c)
         disagree += int((c != cls).sum())
@@ -78,4 +87,5 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
     return {"tracks": len(tracks), "points": points,
             "track_error": round(wrong_tracks / len(tracks), 4) if tracks else None,
             "point_weighted_track_error": round(wrong_track_points / points, 4) if points else None,
-            "point_disagreement": round(disagree / labelled, 4) if labelled else None}
+            "point_disagreement": round(disagree / labelled, 4) if labelled else None,
+            "ground_tracks": ground_tracks}

@@ -84,6 +84,16 @@ class FrameInfo:
     T_world_lidar: np.ndarray
 
 
+@dataclass(frozen=True)
+class Export:
+    """An export: per frame name its uint32 words and uint8 sources, the summary, the tar itself."""
+
+    labels: dict[str, np.ndarray]
+    sources: dict[str, np.ndarray]
+    summary: dict[str, Any]
+    tar: bytes
+
+
 class Api:
     """REST calls as one user. `client` is any httpx client whose base URL is the API root."""
 
@@ -92,7 +102,7 @@ class Api:
         self.headers = {"Authorization": f"Bearer {token}"}
 
     def _call(self, method: str, path: str, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
-        r = self.client.request(method, path, headers=self.headers, timeout=600, **kw)
+        r = self.client.request(method, path, headers=self.headers, **kw)
         if r.status_code not in ok:
             raise RuntimeError(f"{method} {path}: {r.status_code} {r.text[:500]}")
         return r
@@ -119,14 +129,22 @@ class Api:
             time.sleep(1.0)
         raise RuntimeError(f"sequence {sequence_id} was not ready within {timeout:g} s")
 
-    def wait_jobs_idle(self, job_type: str, timeout: float = 600.0) -> float:
-        """Wait until no job of `job_type` is queued or running; returns the seconds waited."""
+    def wait_jobs_idle(self, job_type: str, timeout: float = 600.0, settle: float = 0.0) -> float:
+        """Wait until no job of `job_type` is queued or running, seen twice `settle` seconds
+        apart (a worker that polls more often than that has queued what it would); returns the
+        seconds waited."""
         t0 = time.monotonic()
+        idle_since: float | None = None
         while time.monotonic() - t0 < timeout:
             busy = [j for st in ("queued", "running") for j in self.get("/jobs", params={"status": st, "type": job_type})]
-            if not busy:
-                return time.monotonic() - t0
-            time.sleep(0.5)
+            now = time.monotonic()
+            if busy:
+                idle_since = None
+            elif idle_since is None:
+                idle_since = now
+            if idle_since is not None and now - idle_since >= settle:
+                return now - t0
+            time.sleep(min(0.2, settle) if idle_since is not None else 0.5)
         raise RuntimeError(f"{job_type} jobs still busy after {timeout:g} s")
 
     def frames(self, sequence_id: int) -> list[FrameInfo]:
@@ -140,15 +158,17 @@ class Api:
         with np.load(io.BytesIO(r.content)) as z:
             return {k: z[k] for k in z.files}
 
-    def export(self, sequence_id: int, **params: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        """The SemanticKITTI export: per frame name its uint32 words, and the summary."""
-        r = self._call("GET", f"/exports/semantickitti/{sequence_id}", params=params)
+    def export(self, sequence_id: int, **params: Any) -> Export:
+        """The SemanticKITTI export (with each point's source)."""
+        r = self._call("GET", f"/exports/semantickitti/{sequence_id}", params={**params, "with_sources": True})
         tar = tarfile.open(fileobj=io.BytesIO(r.content))
-        labels, summary = {}, {}
+        out = Export({}, {}, {}, r.content)
         for member in tar.getmembers():
             data = tar.extractfile(member).read()  # type: ignore[union-attr]
             if member.name.endswith(".label"):
-                labels[Path(member.name).stem] = np.frombuffer(data, np.uint32)
+                out.labels[Path(member.name).stem] = np.frombuffer(data, np.uint32)
+            elif member.name.endswith(".source"):
+                out.sources[Path(member.name).stem] = np.frombuffer(data, np.uint8)
             elif member.name.endswith("summary.json"):
-                summary = json.loads(data)
-        return labels, summary
+                out.summary.update(json.loads(data))
+        return out

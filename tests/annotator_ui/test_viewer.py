@@ -276,3 +276,39 @@ def test_viewer_stitches_panel_lists_the_tracks_stitches_and_decides_them(viewer
     panel._decide(st, f"Show {st['track_b_id']}")
     wait_until(lambda: viewer.tabs[0].session.track_id == st["track_b_id"])
     api.close()
+
+
+def _predict(live_api, n: int, cls: str, conf: float) -> list[int]:
+    """Predictions on n unleased pending tracks, as the model in the loop writes them."""
+    from sqlalchemy import select, update
+
+    from app.core.db import Database
+    from app.models import Track
+
+    db = Database.from_settings(live_api.settings)
+    with db.write() as s:
+        ids = list(s.scalars(select(Track.id).where(Track.status == "pending", Track.lease_user_id.is_(None))
+                             .order_by(Track.id.desc()).limit(n)).all())
+        s.execute(update(Track).where(Track.id.in_(ids)).values(predicted_class=cls, predicted_confidence=conf))
+        s.execute(update(Track).where(Track.id.not_in(ids), Track.predicted_class == cls)
+                  .values(predicted_class=None, predicted_confidence=None))
+        s.commit()
+    db.dispose()
+    return ids
+
+
+def test_viewer_model_panel_previews_accepts_and_undoes_a_bulk(viewer, tab_client, live_api):
+    from annotator_ui.bulk_panel import BulkPanel
+
+    ids = _predict(live_api, 2, "trunk", 0.97)
+    panel: BulkPanel = viewer.tabs[0].bulk
+    panel.gui_class.value, panel.gui_confidence.value = "trunk", 0.95
+    p = panel.preview()
+    assert p["tracks"] == 2 and "**2** pending tracks" in panel.gui_summary.content and not panel.gui_accept.disabled
+    bulk = panel.accept()
+    assert bulk is not None and bulk["n_tracks"] == 2
+    assert {live_api.track(i)["label_source"] for i in ids} == {"bulk"}
+    assert "#" in panel.gui_history.content and not panel.gui_undo.disabled
+    panel.undo()
+    assert {live_api.track(i)["status"] for i in ids} == {"pending"}
+    _predict(live_api, 0, "trunk", 0.0)

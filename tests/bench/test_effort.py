@@ -15,8 +15,6 @@ from bench.effort.service import Api
 from bench.effort.truth import TruthStore
 from pipeline.classes import GROUND
 
-pytest_plugins = ["tests.app.conftest"]
-
 
 def _truth(api: Api, frames) -> dict[str, np.ndarray]:
     """Track key o + 1 (object o) is class o % 3 (person, car, cyclist); other points are ground."""

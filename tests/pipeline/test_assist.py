@@ -21,14 +21,21 @@ def test_assist_probs_learn_the_reviewed_classes_over_the_cnn_s_guess():
     feats, truth = _features()
     labelled = np.r_[0:10, 40:50]
     probs = assist_probs(feats, labelled, truth[labelled])
-    assert probs.shape == (80, 4) and np.allclose(probs.sum(axis=1), 1.0, atol=1e-5)
+    assert probs.shape == (80, 5) and np.allclose(probs.sum(axis=1), 1.0, atol=1e-5)  # 4 classes + no_object
     assert (probs.argmax(axis=1) == truth).mean() > 0.95  # the CNN said class 2 everywhere
 
 
 def test_assist_probs_are_the_cnn_s_until_two_classes_are_reviewed():
     feats, truth = _features()
     probs = assist_probs(feats, np.arange(5), truth[:5])
-    assert np.array_equal(probs, feats.probs)
+    assert np.array_equal(probs[:, :4], feats.probs) and not probs[:, 4].any()
+
+
+def test_assist_probs_learn_no_object_from_discarded_tracks():
+    feats, truth = _features()
+    labels = np.where(truth == 1, 4, 0)  # the second cluster was discarded
+    probs = assist_probs(feats, np.arange(80), labels)
+    assert (probs.argmax(axis=1) == labels).mean() > 0.95
 
 
 def test_track_means_average_each_track_s_samples():

@@ -63,3 +63,10 @@ def correct(audit_id: IdPath, body: AuditCorrect, guard: LeaseGuardDep, session:
     """The track's class is `label`: it is relabelled (an event of the auditor) and the audit
     counts as a disagreement unless `label` is the operator's class."""
     return _decide(audit_id, guard, session, body.label)
+
+
+@router.post("/audits/{audit_id}/discard")
+def discard(audit_id: IdPath, guard: LeaseGuardDep, session: WriteSessionDep) -> AuditPublic:
+    """The track is no object of any class (ground, noise): it is discarded (an event of the
+    auditor) and the audit counts as corrected. 409 when already decided or no longer accepted."""
+    return _decide(audit_id, guard, session, audits.DISCARD)

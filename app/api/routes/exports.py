@@ -77,6 +77,7 @@ def export_semantickitti(
     radius: Annotated[float, Query(ge=0.0, le=5.0, description="Metres labels travel to points no review reached.")] = Rules.radius,
     ground_radius: Annotated[float, Query(ge=0.0, le=5.0, description="The same, to points the ground estimate took.")]
     = Rules.ground_radius,
+    with_sources: bool = False,
 ) -> StreamingResponse:
     """Per-frame SemanticKITTI `.label` files as a streamed tar, a class for every point that any
     source reaches: its track's reviewed or bulk-accepted class, else the nearest decided point
@@ -84,7 +85,8 @@ def export_semantickitti(
     or its frame's nearest labelled point; instance = track key (chunked with `chunk_map.json`
     past 65,535). `include_ground` writes the ground class on the remaining ground points;
     `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts the points per
-    source and class, with confidences, and the points left without a class."""
+    source and class, with confidences, and the points left without a class; `with_sources` adds
+    each point's source (`sources/<frame>.source`, uint8 per row: its index in `summary.sources`)."""
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
@@ -92,7 +94,7 @@ def export_semantickitti(
     plan = point_label_plan(session, seq, options)
     session.close()
     return StreamingResponse(
-        exports.semantickitti_tar(plan, artifacts),
+        exports.semantickitti_tar(plan, artifacts, with_sources),
         media_type="application/x-tar",
         headers={"Content-Disposition": f'attachment; filename="labels_{sequence_id}.tar"'},
     )
