@@ -7,8 +7,10 @@ RUN apt-get update && apt-get install -y --no-install-recommends libgl1 libglib2
     && rm -rf /var/lib/apt/lists/*
 WORKDIR /srv/tracklabel
 
-# torch first (pinned as in the Makefile), then the package with the PostgreSQL driver
-RUN pip install "torch==2.13.0"
+# torch first (pinned as in the Makefile), then the package with the PostgreSQL driver, every
+# package at the version of constraints.txt
+COPY constraints.txt ./
+RUN pip install -c constraints.txt "torch==2.13.0"
 COPY pyproject.toml README.md ./
 COPY pipeline ./pipeline
 COPY app ./app
@@ -16,7 +18,7 @@ COPY annotator_ui ./annotator_ui
 COPY research ./research
 COPY migrations ./migrations
 COPY alembic.ini ./
-RUN pip install ".[postgres]" && useradd --create-home tracklabel && mkdir -p /data /datasets \
+RUN pip install -c constraints.txt ".[postgres]" && useradd --create-home tracklabel && mkdir -p /data /datasets \
     && chown tracklabel /data
 USER tracklabel
 

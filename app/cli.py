@@ -30,10 +30,13 @@ def friendly_errors(func: F) -> F:
 
     @functools.wraps(func)
     def wrapper(*args: object, **kwargs: object) -> object:
+        from app.core.errors import ServiceError
         from pipeline.errors import TracklabelError
 
         try:
             return func(*args, **kwargs)
+        except ServiceError as exc:  # a check of the service, met by a local command
+            fail(exc.detail)
         except (TracklabelError, KeyError, FileNotFoundError) as exc:
             msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
             fail(str(msg))
@@ -167,8 +170,9 @@ def evaluate(
 def predict(
     seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
     out: Annotated[Path, typer.Option("--out", help="Output folder.")],
-    model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training; default: "
-                                               "the model shipped with tracklabel (trained on the simulated campus).")] = None,
+    model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training, or latest: the "
+                                               "newest model trained in the data folder; default: the model shipped "
+                                               "with tracklabel (trained on the simulated campus).")] = None,
     sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
     poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
     size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
@@ -180,6 +184,9 @@ def predict(
     from pipeline.config import load_config
     from pipeline.predict import run_predict
 
+    if model is not None and str(model) == "latest" and not model.is_file():
+        model = _latest_model()
+        typer.echo(f"model: {model}")
     summary = run_predict(
         seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
         smooth_tracks=smooth_tracks, progress=TqdmProgress(), log=lambda m: typer.echo(f"warning: {m}", err=True),
@@ -189,8 +196,12 @@ def predict(
         f"{summary['frames']} frames, {sum(seg.values())} segments classified "
         f"({', '.join(f'{k} {v}' for k, v in seg.items() if v)}), {summary['frames_per_second']} frames/s -> {out}"
     )
+    scored = summary.get("frames_scored", 0)
     if "point_iou" in summary:
-        typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f}")
+        typer.echo(f"point mIoU against the sequence's labels: {100 * summary['point_iou']['mean_iou']:.1f} "
+                   f"(the {scored} of {summary['frames']} frames that have labels)")
+    else:
+        typer.echo("no frame has labels: nothing scored")
 
 
 # ----------------------------------------------------------------------------- experiments
@@ -524,34 +535,168 @@ def worker(once: Annotated[bool, typer.Option(help="Run at most one job, then ex
     worker_main(once=once)
 
 
+Port = Annotated[int, typer.Option(min=1, max=65535, help="API port.")]
+ViewerPort = Annotated[int, typer.Option(min=0, max=65535, help="Annotator port (0 = any free one).")]
+DataDir = Annotated[Path | None, typer.Option(
+    "--data-dir", help="Database, artifacts and models (default: TRACKLABEL_DATA_DIR, else one folder per user: "
+    "$XDG_DATA_HOME/tracklabel or ~/.local/share/tracklabel).")]
+
+
 @app.command()
 @friendly_errors
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Folder for the scene, database and artifacts.")] = Path("data/demo"),
     frames: Annotated[int, typer.Option(min=2, help="Frames to simulate.")] = 100,
     seed: Annotated[int, typer.Option(help="Scene seed.")] = 0,
-    port: Annotated[int, typer.Option(help="Port to serve on.")] = 8000,
+    port: Port = 8000,
     serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
-    viewer_port: Annotated[int, typer.Option(help="Annotator port (the next free one when it is taken).")] = 8080,
+    viewer_port: ViewerPort = 8080,
 ) -> None:
     """Simulate the campus scene, register and ingest it, then serve it with the annotator signed in
-    as the demo operator, and print the URLs and tokens."""
+    as the demo operator, and print the URLs and tokens. A busy port is an error before any work."""
     from app.demo import prepare_demo
+    from app.local import check_ports
 
-    info = prepare_demo(out, frames=frames, seed=seed, port=port, log=typer.echo)
-    typer.echo(f"\nAPI:            {info.url}")
-    typer.echo(f"operator token: {info.operator_token}")
-    typer.echo(f"admin token:    {info.admin_token}")
-    typer.echo(f'try:  curl -H "Authorization: Bearer {info.operator_token}" '
-               f"http://{info.settings.host}:{port}/api/v1/exports/stats")
     if serve_api:
-        import uvicorn
+        check_ports("127.0.0.1", {"--port": port, "--viewer-port": viewer_port})
+    typer.echo(f"data: {out.resolve()} (the scene, database and artifacts)")
+    info = prepare_demo(out, frames=frames, seed=seed, port=port, log=typer.echo, progress=TqdmProgress())
+    _print_tokens(info.settings.host, port, info.admin_token, info.operator_token)
+    if serve_api:
+        _serve_here(info.settings, info.operator_token, viewer_port, "the demo operator")
 
-        from app.main import create_app
 
-        annotator = _start_viewer(info.settings.host, port, info.operator_token, viewer_port)
-        typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser (keys: A D 1-7 [ ] Z)")
-        uvicorn.run(create_app(info.settings), host=info.settings.host, port=port, log_level="warning")
+@app.command()
+@friendly_errors
+def label(
+    seq: Annotated[Path, typer.Argument(help="Your recording: a sequence folder or LiDAR file, any supported format.")],
+    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them (KISS-ICP).")] = "file",
+    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
+    name: Annotated[str | None, typer.Option(help="Sequence name (default: the folder's).")] = None,
+    data_dir: DataDir = None,
+    host: Annotated[str, typer.Option(help="Bind address of the API and the annotator.")] = "127.0.0.1",
+    port: Port = 8000,
+    viewer_port: ViewerPort = 8080,
+    reingest: Annotated[bool, typer.Option(help="Process a sequence ingested before again (drops its reviews).")] = False,
+    serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
+) -> None:
+    """Label your own recording: register SEQ, ingest it (progress bar), serve the API and the
+    annotator (signed in as the local admin), and print the address and tokens. Run it again to
+    go on: the data folder keeps the tracks and reviews."""
+    from app.label import Source, label_settings, prepare
+    from app.local import check_ports
+
+    if poses not in ("file", "icp"):
+        fail(f"--poses {poses!r}: use file or icp")
+    if serve_api:
+        check_ports(host, {"--port": port, "--viewer-port": viewer_port})
+    settings = label_settings(data_dir, seq, host=host, port=port)
+    typer.echo(f"data: {settings.data_dir.resolve()} (database, artifacts, models)")
+    src = Source(seq, name=name, fmt=fmt, sensor=sensor, poses=poses, reingest=reingest)
+    ready = prepare(settings, src, log=typer.echo, progress=TqdmProgress())
+    _print_tokens(host, port, ready.admin_token, ready.operator_token)
+    if serve_api:
+        _serve_here(settings, ready.admin_token, viewer_port, "the local admin (Jobs tab: Start training)")
+
+
+@app.command()
+@friendly_errors
+def train(
+    seq: Annotated[str, typer.Argument(help="A sequence registered by `tracklabel label`: its path or id.")],
+    data_dir: DataDir = None,
+    model_size: Annotated[str, typer.Option(help="tiny, small, default or large.")] = "default",
+    constraints: Annotated[str, typer.Option(help="verified (of accepted tracks), automatic or none.")] = "verified",
+    epochs: Annotated[int | None, typer.Option(min=1, help="Epochs (default: the library's).")] = None,
+    steps_per_epoch: Annotated[int | None, typer.Option(min=1, help="Steps per epoch (default: the library's).")] = None,
+) -> None:
+    """Train the sample CNN on the sequence's reviewed labels and constraints (the same `train`
+    job as the annotator's Start training button); prints the checkpoint for `predict --model`."""
+    from app.core.config import Settings
+    from app.core.db import Database
+    from app.local import find_sequence, queue_job, run_job, user_id
+
+    settings = Settings(**({"data_dir": data_dir} if data_dir else {}))
+    db = Database.from_settings(settings)
+    try:
+        sequence = find_sequence(db, seq)
+        params = {"sequence_ids": [sequence.id], "model_size": model_size, "constraints": constraints}
+        params |= {k: v for k, v in (("epochs", epochs), ("steps_per_epoch", steps_per_epoch)) if v is not None}
+        job_id = queue_job(db, "train", params, user_id(db, "admin"))
+        result = run_job(settings, db, job_id, "train", TqdmProgress())
+    finally:
+        db.dispose()
+    metrics = result.get("metrics") or {}
+    data = metrics.get("data") or {}
+    val_f = metrics.get("val_mean_f")
+    typer.echo(f"model {result['model_id']}: trained on {data.get('labelled_train')} labels and {data.get('pairs')} "
+               f"pairs; validation F {'-' if val_f is None else f'{val_f:.1f}'} ({data.get('labelled_val')} labels)")
+    typer.echo(f"checkpoint: {result['path']}")
+
+
+@app.command()
+@friendly_errors
+def export(
+    seq: Annotated[str, typer.Argument(help="A sequence registered by `tracklabel label`: its path or id.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    data_dir: DataDir = None,
+    include_ground: Annotated[bool, typer.Option(help="Write the ground class on the remaining ground points.")] = False,
+    reviewed_only: Annotated[bool, typer.Option(help="Only the reviewed tracks' points (no bulk accepts, "
+                                                "labels carried to nearby points or predictions).")] = False,
+) -> None:
+    """SemanticKITTI labels, the REST export's: OUT/sequences/NAME/labels/NNNNNN.label, one uint32
+    per point of the scan (class id | track id << 16; 0 = no class), and summary.json (points per
+    source and class)."""
+    import numpy as np
+
+    from app.core.config import Settings
+    from app.core.db import Database
+    from app.local import export_semantickitti, find_sequence
+    from app.services.point_labels import ExportOptions
+
+    settings = Settings(**({"data_dir": data_dir} if data_dir else {}))
+    db = Database.from_settings(settings)
+    try:
+        options = ExportOptions(include_ground=include_ground, reviewed_only=reviewed_only)
+        files = export_semantickitti(db, settings, find_sequence(db, seq), out, options)
+    finally:
+        db.dispose()
+    labels = [f for f in files if f.suffix == ".label"]
+    ids = np.concatenate([np.fromfile(f, np.uint32) & 0xFFFF for f in labels]) if labels else np.zeros(0, np.uint32)
+    per_id = {int(k): int(v) for k, v in zip(*np.unique(ids[ids > 0], return_counts=True), strict=True)}
+    typer.echo(f"{len(labels)} frames, {sum(per_id.values())} points with a class "
+               f"(SemanticKITTI id: points {per_id}) -> {labels[0].parent if labels else out}")
+
+
+def _latest_model() -> Path:
+    from app.core.config import Settings
+    from app.core.db import Database
+    from app.local import latest_model
+
+    db = Database.from_settings(Settings())
+    try:
+        return latest_model(db)
+    finally:
+        db.dispose()
+
+
+def _print_tokens(host: str, port: int, admin_token: str, operator_token: str) -> None:
+    typer.echo(f"\nAPI:            http://{host}:{port}/api/v1/docs")
+    typer.echo(f"admin token:    {admin_token}")
+    typer.echo(f"operator token: {operator_token}")
+    typer.echo(f'try:  curl -H "Authorization: Bearer {operator_token}" http://{host}:{port}/api/v1/exports/stats')
+
+
+def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None:  # settings: app Settings
+    """The API (with its worker) and the annotator signed in with `viewer_token`, until Ctrl-C."""
+    import uvicorn
+
+    from app.main import create_app
+
+    annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
+    typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
+    typer.echo("keys: A accept, D discard, 1-7 class, [ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
+    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="warning")
 
 
 def main() -> None:

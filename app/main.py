@@ -19,6 +19,7 @@ from fastapi import FastAPI
 
 from app.api import errors
 from app.api.body_limit import BodyLimit
+from app.api.docs import install_docs
 from app.api.main import api_router
 from app.api.routes import health
 from app.artifacts import ArtifactStore
@@ -98,7 +99,7 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
         version=__version__,
         description="Track-level LiDAR annotation: datasets, frames, tracks, review, exports and jobs.",
         openapi_url=f"{API_PREFIX}/openapi.json",
-        docs_url=f"{API_PREFIX}/docs",
+        docs_url=None,  # install_docs: the same page with its assets served here, not from a CDN
         redoc_url=None,
         lifespan=lifespan,
     )
@@ -113,5 +114,6 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
 
     app.include_router(api_router, prefix=API_PREFIX)
     _serve_job_schema(app)
+    install_docs(app, API_PREFIX)
     app.include_router(health.router, include_in_schema=False)  # plain /health for load balancers
     return app

@@ -115,7 +115,16 @@ def resolve_device(name: str = "auto") -> torch.device:
     """`auto` = CUDA when present, else CPU; `cpu` / `cuda` / `cuda:N` as given."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ConfigError(f"unknown device {name!r}: use auto, cpu or cuda (cuda:N)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        build = f"this PyTorch {torch.__version__} is a CPU build" if torch.version.cuda is None else (
+            f"this PyTorch {torch.__version__} (CUDA {torch.version.cuda}) finds no CUDA device")
+        raise ConfigError(f"device {name!r}: {build}; use --device cpu, or install a CUDA wheel of torch "
+                          "(README, Install)")
+    return device
 
 
 def to_input(batch: torch.Tensor) -> torch.Tensor:
@@ -209,7 +218,9 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for corrupt files
-        raise DataError(path, f"cannot read checkpoint: {exc}") from exc
+        # torch's own text advises weights_only=False, which would run a corrupt file's pickle
+        raise DataError(path, f"cannot read checkpoint: the file is corrupt, truncated or not a "
+                        f"tracklabel checkpoint ({type(exc).__name__})") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise DataError(path, f"not a {CHECKPOINT_FORMAT} checkpoint")
     try:

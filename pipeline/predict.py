@@ -14,7 +14,8 @@ valid segment and writes::
     OUT/segments/NNNNNN.npz     per classified segment: segment (V,) int32 local id, track (V,)
                                 int64 track id, probs (V, K) float16 class probabilities.
     OUT/summary.json            frames, classified segments, points per class, timings, frames/s
-                                and, when the sequence has SemanticKITTI labels, point IoU per class.
+                                and point IoU per class over the frames that have SemanticKITTI
+                                labels (`frames_scored` says how many; the others are not scored).
     OUT/config.yaml             the pipeline config used.
 
 With `smooth_tracks` a segment takes the mean probabilities of its whole track up to and including
@@ -157,7 +158,8 @@ class _PredictionWriter:
         self.segment_counts = np.zeros(clf.model.config.num_classes, np.int64)
         self.preds: list[np.ndarray] = []
         self.truths: list[np.ndarray] = []
-        self.evaluate = evaluate  # until a frame without labels turns it off
+        self.evaluate = evaluate  # frames with labels are scored, the others only counted
+        self.unlabelled_frames = 0
         self.frames, self.classify_s, self.write_s = 0, 0.0, 0.0
 
     def flush(self, batch: list[FrameResult]) -> None:
@@ -186,14 +188,11 @@ class _PredictionWriter:
         self.point_counts += np.bincount(pred.point_class, minlength=256)
         if len(probs):
             self.segment_counts += np.bincount(probs.argmax(axis=1), minlength=len(self.segment_counts))
-        if self.evaluate:
-            if fr.scan.semantic is None:
-                self.evaluate = False
-                self.preds.clear()
-                self.truths.clear()
-            else:
-                self.preds.append(pred.point_class)
-                self.truths.append(to_ours(fr.scan.semantic))
+        if self.evaluate and fr.scan.semantic is None:
+            self.unlabelled_frames += 1
+        elif self.evaluate:
+            self.preds.append(pred.point_class)
+            self.truths.append(to_ours(fr.scan.semantic))
         self.frames += 1
 
     def counts(self) -> dict[str, Any]:
@@ -279,6 +278,8 @@ def run_predict(
         "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
         "outputs": OUTPUTS,
     }
+    if writer.evaluate:
+        summary["frames_scored"] = len(writer.preds)  # the frames that carry labels
     if writer.evaluate and writer.preds:
         summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

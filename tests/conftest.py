@@ -1,11 +1,21 @@
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REAL = SHARED / "data" / "real"
+# Screenshots that tests take go here (ignored by git); `make screenshots` refreshes docs/'s.
+SCREENSHOTS = Path(os.environ.get("TRACKLABEL_SCREENSHOT_DIR") or Path(__file__).resolve().parents[1] / "build" / "screenshots")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Point the per-user data folder (app.core.config.default_data_dir) at a temporary one, for
+    this process and the commands tests start, so that no test reads or writes the user's own."""
+    os.environ["XDG_DATA_HOME"] = tempfile.mkdtemp(prefix="tracklabel-test-xdg-")
 
 
 @pytest.fixture(scope="session")

@@ -14,12 +14,19 @@ from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
+def default_data_dir() -> Path:
+    """One data folder per user, whatever folder a command runs from: `$XDG_DATA_HOME/tracklabel`,
+    else `~/.local/share/tracklabel` (a `./data` default gave each working folder its own database)."""
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "tracklabel"
+
+
 class Settings(BaseSettings):
     """Service settings. Every field is read from `TRACKLABEL_<FIELD>` (case-insensitive)."""
 
     model_config = SettingsConfigDict(env_prefix="TRACKLABEL_", extra="ignore")
 
-    data_dir: Path = Path("data")
+    data_dir: Path = Field(default_factory=default_data_dir)
     # SQLAlchemy URL; None = sqlite file `<data_dir>/tracklabel.db`.
     database_url: str | None = None
     # Per-frame artifact files (compressed .npz); None = `<data_dir>/artifacts`.

@@ -1,7 +1,8 @@
 """Track repair in a real browser (chromium + playwright, demo scene): split a track that holds
 two simulated objects with the cut box, label both parts, check the SemanticKITTI export, undo;
 merge the two tracks of a stitch; the aggregated view; the page layout fixes. Screenshots of the
-split in progress and of the aggregated view go to docs/ (README). Skips without chromium."""
+split in progress and of the aggregated view go to build/screenshots/ (`make screenshots` writes
+them to docs/, where the README shows them). Skips without chromium."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ import pytest
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 from pipeline.classes import SAMPLE_CLASSES, to_ours
 from tests.annotator_ui.test_browser import ARGS, CANVAS, CHROMIUM
+from tests.conftest import SCREENSHOTS
 
-DOCS = Path(__file__).resolve().parents[2] / "docs"
 CAR = 10  # the SemanticKITTI id the simulator writes
 
 pytestmark = [pytest.mark.browser, pytest.mark.skipif(CHROMIUM is None, reason="chromium is absent")]
@@ -148,7 +149,7 @@ def test_browser_split_two_objects_with_the_box_label_both_export_undo(browser, 
         tab.repair.gizmo.position = tuple((lo + hi) / 2)
         tab.repair.gui_size.value = tuple(hi - lo)
         time.sleep(1.0)
-        page.screenshot(path=str(DOCS / "split_in_progress.png"))
+        page.screenshot(path=str(SCREENSHOTS / "split_in_progress.png"))
         page.get_by_role("button", name="All kept frames").first.click()
         wait(lambda: api(live_api, "GET", f"/tracks/{tid}").json()["version"] == track["version"] + 1, what="the split")
         split = [e for e in api(live_api, "GET", f"/tracks/{tid}/events").json() if e["action"] == "split"][-1]
@@ -231,7 +232,7 @@ def test_browser_aggregated_view_and_orthographic_images(browser, live_api):
         page.get_by_text("Aggregate kept frames").click()
         wait(lambda: tab.views.aggregated, what="the aggregate switch")
         time.sleep(2.0)  # the kept frames' payloads load, the cloud and images are drawn
-        page.screenshot(path=str(DOCS / "aggregated_view.png"))
+        page.screenshot(path=str(SCREENSHOTS / "aggregated_view.png"))
         assert not page.errors
     finally:
         page.close()

@@ -88,6 +88,26 @@ def test_cli_predict_corrupt_checkpoint_exits_2(sim, ckpt, tmp_path):
     junk.write_text("not a checkpoint")
     r = runner.invoke(app, ["predict", str(sim), "--model", str(junk), "--out", str(tmp_path / "o")])
     assert r.exit_code == 2 and "junk.pt" in r.output
+    assert "corrupt" in r.output and "weights_only" not in r.output  # never torch's advice to unpickle it
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has CUDA")
+def test_cli_predict_device_cuda_without_cuda_exits_2(sim, ckpt, tmp_path):
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(ckpt), "--out", str(tmp_path / "o"), "--device", "cuda"])
+    assert r.exit_code == 2 and "cuda" in r.output and "--device cpu" in r.output, r.output
+    assert r.exception is None or isinstance(r.exception, SystemExit)
+
+
+def test_cli_predict_scores_the_frames_that_have_labels(sim, ckpt, tmp_path):
+    seq = tmp_path / "seq"
+    shutil.copytree(sim, seq)
+    (seq / "labels" / "000001.label").unlink()
+    out = tmp_path / "pred"
+    r = runner.invoke(app, ["predict", str(seq), "--model", str(ckpt), "--out", str(out), "--device", "cpu"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 3 and summary["frames_scored"] == 2 and "point_iou" in summary
+    assert "the 2 of 3 frames that have labels" in r.output
 
 
 def test_cli_predict_size_mismatch_exits_2(sim, ckpt, tmp_path):
