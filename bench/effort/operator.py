@@ -42,9 +42,9 @@ class Policy:
     pure: float = 0.9
     split_gain: int = 200  # points a split must move to their right class (and 10 % of the track's)
     bulk_every: int = 10
-    bulk_confidence: float = 0.9
+    bulk_confidence: float = 0.95
     bulk_precision: float = 0.98
-    bulk_support: int = 10
+    bulk_support: int = 5
     audit_per_bulk: int = 5
     wait_for_model: bool = True
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)

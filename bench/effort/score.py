@@ -83,6 +83,7 @@ def prediction_calibration(admin: Api, sequence_id: int, frames: list[FrameInfo]
     confidence bin: tracks, right tracks, points, points of right tracks."""
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
     rows = np.zeros((len(CONFIDENCE_EDGES) - 1, 4), np.int64)
+    wrong: dict[str, int] = {}  # "predicted->true" points of wrong predictions at confidence >= 0.9
     for t in _all_tracks(admin, sequence_id, "pending"):
         conf, cls = t.get("predicted_confidence"), t.get("predicted_class")
         c = _track_truth(t, frames, payloads, truth)
@@ -92,8 +93,12 @@ def prediction_calibration(admin: Api, sequence_id: int, frames: list[FrameInfo]
         right = cls in POINT_CLASSES and int(np.bincount(c).argmax()) == POINT_CLASSES.index(cls)
         right = right or (cls == "no_object" and int(np.bincount(c).argmax()) == GROUND)
         rows[b] += (1, int(right), len(c), len(c) * int(right))
-    return {f"{lo:g}-{hi:g}": {"tracks": int(r[0]), "right": int(r[1]), "points": int(r[2]), "points_right": int(r[3])}
+        if not right and conf >= 0.9:
+            key = f"{cls}->{POINT_CLASSES[int(np.bincount(c).argmax())]}"
+            wrong[key] = wrong.get(key, 0) + len(c)
+    bins = {f"{lo:g}-{hi:g}": {"tracks": int(r[0]), "right": int(r[1]), "points": int(r[2]), "points_right": int(r[3])}
             for lo, hi, r in zip(CONFIDENCE_EDGES[:-1], CONFIDENCE_EDGES[1:], rows, strict=True)}
+    return {"bins": bins, "wrong_at_0.9_points": dict(sorted(wrong.items(), key=lambda kv: -kv[1]))}
 
 
 def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: SequenceTruth) -> dict[str, Any]:
