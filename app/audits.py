@@ -13,13 +13,13 @@ import math
 import random
 from typing import Any
 
-from sqlalchemy import Integer, func, select
+from sqlalchemy import Integer, func, or_, select
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.core.errors import Conflict, NotFound
 from app.crud import AuthUser
-from app.models import Audit, Track, User, utcnow
+from app.models import AnnotationEvent, Audit, BulkAction, Track, User, utcnow
 
 DISCARD = "(discard)"  # the auditor's verdict that an audited track is no object
 
@@ -39,10 +39,19 @@ def sample_audits(session: Session, user: AuthUser, n: int, sequence_id: int | N
     audits = []
     for track in session.scalars(select(Track).where(Track.id.in_(picked)).order_by(Track.id)):
         audits.append(Audit(sequence_id=track.sequence_id, track_id=track.id, operator_id=track.reviewed_by_id,
-                            label=track.label, status="queued", sampled_by_id=user.id, source=track.label_source))
+                            label=track.label, status="queued", sampled_by_id=user.id, source=track.label_source,
+                            bulk_id=_bulk_of(session, track) if track.label_source == "bulk" else None))
     session.add_all(audits)
     session.commit()
     return audits
+
+
+def _bulk_of(session: Session, track: Track) -> int | None:
+    """The bulk accept that gave the track its class (its newest bulk_accept event)."""
+    ev = session.scalars(select(AnnotationEvent).where(AnnotationEvent.track_id == track.id,
+                                                       AnnotationEvent.action == "bulk_accept")
+                         .order_by(AnnotationEvent.id.desc()).limit(1)).first()
+    return None if ev is None or not ev.detail else int(ev.detail["bulk_id"])
 
 
 def decide_audit(
@@ -116,8 +125,10 @@ def bulk_error(session: Session, sequence_id: int | None) -> dict[str, Any]:
     """The measured error of bulk-accepted classes: per class, the share of audited bulk tracks
     the auditor corrected, with its 95 % Wilson interval; overall, the same over every audited
     bulk track (audits draw uniformly among the bulk-accepted tracks, so the pooled share
-    estimates the error of the tracks accepted in bulk)."""
-    where = [Audit.status != "queued", Audit.source == "bulk"]
+    estimates the error of the tracks accepted in bulk). Audits of a bulk accept that was undone
+    since are left out: its tracks carry no bulk class any more."""
+    undone = select(BulkAction.id).where(BulkAction.undone_at.is_not(None))
+    where = [Audit.status != "queued", Audit.source == "bulk", or_(Audit.bulk_id.is_(None), Audit.bulk_id.not_in(undone))]
     if sequence_id is not None:
         where.append(Audit.sequence_id == sequence_id)
     corrected = func.sum((Audit.status == "corrected").cast(Integer))

@@ -422,8 +422,10 @@ class Audit(Base):
     auditor_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     answer_label: Mapped[str | None] = mapped_column(String(16))
     decided_at: Mapped[datetime | None] = mapped_column(DateTime)
-    # migration 0010: the label's source when sampled (LABEL_SOURCES), so bulk accepts are audited apart
+    # migration 0010: the label's source when sampled (LABEL_SOURCES), so bulk accepts are audited
+    # apart, and the bulk accept that gave it (an undone bulk's audits leave its estimate)
     source: Mapped[str | None] = mapped_column(String(16))
+    bulk_id: Mapped[int | None] = mapped_column(ForeignKey("bulk_actions.id", ondelete="SET NULL"))
 
 
 class BulkAction(Base):

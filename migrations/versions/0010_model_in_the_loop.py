@@ -35,8 +35,6 @@ def upgrade() -> None:
     with op.batch_alter_table('annotation_events', schema=None) as batch_op:
         batch_op.drop_constraint(batch_op.f('ck_annotation_events_action'), type_='check')
         batch_op.create_check_constraint('action', NEW_ACTIONS)
-    with op.batch_alter_table('audits', schema=None) as batch_op:
-        batch_op.add_column(sa.Column('source', sa.String(length=16), nullable=True))
     op.create_table('bulk_actions',
     sa.Column('id', sa.Integer(), nullable=False),
     sa.Column('sequence_id', sa.Integer(), nullable=False),
@@ -55,15 +53,22 @@ def upgrade() -> None:
     )
     with op.batch_alter_table('bulk_actions', schema=None) as batch_op:
         batch_op.create_index('ix_bulk_actions_sequence_id_id', ['sequence_id', 'id'], unique=False)
+    with op.batch_alter_table('audits', schema=None) as batch_op:
+        batch_op.add_column(sa.Column('source', sa.String(length=16), nullable=True))
+        batch_op.add_column(sa.Column('bulk_id', sa.Integer(), nullable=True))
+        batch_op.create_foreign_key(batch_op.f('fk_audits_bulk_id_bulk_actions'), 'bulk_actions', ['bulk_id'], ['id'],
+                                    ondelete='SET NULL')
 
 
 def downgrade() -> None:
     # a database holding bulk accepts cannot go back: the old action check would refuse their events
+    with op.batch_alter_table('audits', schema=None) as batch_op:
+        batch_op.drop_constraint(batch_op.f('fk_audits_bulk_id_bulk_actions'), type_='foreignkey')
+        batch_op.drop_column('bulk_id')
+        batch_op.drop_column('source')
     with op.batch_alter_table('bulk_actions', schema=None) as batch_op:
         batch_op.drop_index('ix_bulk_actions_sequence_id_id')
     op.drop_table('bulk_actions')
-    with op.batch_alter_table('audits', schema=None) as batch_op:
-        batch_op.drop_column('source')
     with op.batch_alter_table('annotation_events', schema=None) as batch_op:
         batch_op.drop_constraint(batch_op.f('ck_annotation_events_action'), type_='check')
         batch_op.create_check_constraint('action', OLD_ACTIONS)

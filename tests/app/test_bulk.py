@@ -115,3 +115,19 @@ def test_bulk_audit_measures_error_per_class_with_an_interval(client, factory, d
     assert (row["audited"], row["corrected"]) == (3, 1)
     assert row["ci95"][0] < 1 / 3 < row["ci95"][1]
     assert bulk["overall"]["error"] == round(1 / 3, 4)
+
+
+def test_bulk_undone_bulk_leaves_the_audit_estimate(client, factory, db):
+    seq = factory.ingested_sequence(n_objects=3)
+    t = factory.track_ids(seq)
+    _predict(db, seq, {i: ("bush", 0.99) for i in t})
+    op, reviewer = factory.user(), factory.user("reviewer")
+    bulk = _bulk(client, op, seq).json()
+    audits = client.post("/api/v1/audits/sample", json={"n": 1, "sequence_id": seq, "source": "bulk"},
+                         headers=reviewer.headers).json()
+    client.post(f"/api/v1/audits/{audits[0]['id']}/discard", headers=reviewer.headers)  # no object: discarded
+    assert factory.track(audits[0]["track_id"]).status == "discarded"
+    stats = lambda: client.get("/api/v1/exports/stats", params={"sequence_id": seq}, headers=op.headers).json()  # noqa: E731
+    assert stats()["audit"]["bulk"]["overall"]["corrected"] == 1
+    client.post(f"/api/v1/bulk-actions/{bulk['id']}/undo", headers=op.headers)
+    assert stats()["audit"]["bulk"]["overall"]["audited"] == 0
