@@ -112,6 +112,9 @@ class Sequence(Base):
     config: Mapped[dict[str, Any] | None] = mapped_column(JSON)  # pipeline overrides for ingest
     status: Mapped[str] = mapped_column(String(16), default="registered")
     n_frames: Mapped[int] = mapped_column(Integer, default=0)
+    # migration 0010: the highest track key handed out (app/track_ids.py); a split's new track
+    # takes the next one under this row's lock, so a key is never given twice, even after undo
+    last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
@@ -142,8 +145,10 @@ class Track(Base):
     __table_args__ = (
         UniqueConstraint("sequence_id", "key"),
         CheckConstraint(_in("status", TRACK_STATUSES), name="status"),
-        Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
-        Index("ix_tracks_status_n_samples", "status", "n_samples"),
+        # the review queue's order (n_samples, then id, both descending: crud.review_queue), read
+        # off the index without sorting the ties (migration 0010 added the id)
+        Index("ix_tracks_queue", "sequence_id", "status", "n_samples", "id"),
+        Index("ix_tracks_status_n_samples", "status", "n_samples", "id"),
         Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
         # predicted class + confidence, then every sort key of GET /tracks but updated_at (which each
         # action changes): a filtered, sorted page is found in the index alone (crud.list_tracks)
@@ -155,6 +160,9 @@ class Track(Base):
         # the index in either direction (SQLite's indexes hold the rowid anyway; PostgreSQL's
         # don't, and sorted every row of a long run of equal lengths without it)
         *(Index(f"ix_tracks_sort_{c}", c, "id") for c in TRACK_SORT_COLUMNS),
+        # ids are never reused on SQLite either (migration 0010): an edit sent with the id of a
+        # track that an undo removed must get 404, never land on a newer track
+        {"sqlite_autoincrement": True},
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
@@ -177,6 +185,20 @@ class Track(Base):
     reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class Assignment(Base):
+    """An operator (or reviewer) assigned to a sequence by an admin: they may queue jobs on it
+    (app/jobs/policy.py). Leases and reviews alone give no such right. Migration 0010."""
+
+    __tablename__ = "assignments"
+    __table_args__ = (UniqueConstraint("sequence_id", "user_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 
 class Segment(Base):

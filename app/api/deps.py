@@ -116,8 +116,11 @@ class LeaseGuard:
     override: bool
     lease_seconds: float
 
-    def check(self, session: Session, track: Track) -> None:
-        leases.check(session, track, self.user, utcnow(), override=self.override, renew_seconds=self.lease_seconds)
+    def check(self, session: Session, track: Track, renew: bool = True) -> None:
+        """409 unless the caller may change the track now; renews the caller's own lease unless
+        `renew` is False (a check in a read session, which must not write)."""
+        leases.check(session, track, self.user, utcnow(), override=self.override,
+                     renew_seconds=self.lease_seconds if renew else None)
 
 
 async def get_lease_guard(

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 
-from app.api import deps
+from app.api import deps, retry
 from app.api.errors import ErrorBody
 from app.api.query_check import strict_query
 from app.api.routes import (
@@ -76,4 +76,5 @@ def declare_errors(router: APIRouter) -> None:
 api_router = APIRouter(dependencies=[Depends(strict_query)])
 for module in (health, users, datasets, frames, tracks, repair, review, exports, jobs, models, anchors, stitches, audits):
     declare_errors(module.router)  # before including: an included router's routes are not listed
+    retry.install(module.router)  # a route that loses a race to another writer runs again
     api_router.include_router(module.router)

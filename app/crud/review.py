@@ -98,7 +98,7 @@ def _track_for_review(
 ) -> Track:
     """The track, locked for update, once the action may go ahead: its sequence is ready, the
     lease allows it (renewing the caller's own), `version` is current and it is not merged away."""
-    track = session.get(Track, track_id, with_for_update=True)
+    track = session.get(Track, track_id, with_for_update={"key_share": True})
     if track is None:
         raise NotFound(f"track {track_id} not found")
     require_ready(session, track.sequence_id, "tracks can be reviewed once it is ready")
