@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import insert, select, update
+from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -199,8 +199,11 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     ctx.checkpoint()
 
     with ctx.db.write() as s:
+        top = max(state.tracks, default=0)  # the split's key counter starts above every ingested key
         s.execute(
-            update(Sequence).where(Sequence.id == params.sequence_id).values(status="ready", n_frames=state.frames)
+            update(Sequence).where(Sequence.id == params.sequence_id).values(
+                status="ready", n_frames=state.frames,
+                last_track_key=case((Sequence.last_track_key >= top, Sequence.last_track_key), else_=top))
         )
         crud.analyze_tables(s)
         s.commit()
