@@ -56,12 +56,13 @@ def _serve_job_schema(app: FastAPI) -> None:
     from fastapi.openapi.utils import get_openapi
 
     from app.api.job_schema import patch_openapi
+    from app.api.openapi_contract import tighten
     from app.jobs.registry import job_types
 
     def openapi() -> dict:
         if app.openapi_schema is None:
             doc = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
-            app.openapi_schema = patch_openapi(doc, f"{API_PREFIX}/jobs", job_types())
+            app.openapi_schema = tighten(patch_openapi(doc, f"{API_PREFIX}/jobs", job_types()))
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

@@ -35,9 +35,10 @@ class _Public(BaseModel):
 
 class JsonModel(BaseModel):
     """A request body (or job params) read as JSON Schema reads it: a number field takes a JSON
-    number only, an integer field one without fraction (`1` or `1.0`), a boolean field `true` or
-    `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`; the schema promises it is
-    refused (`{"version": "1"}` gets 422)."""
+    number only, an integer field a JSON integer only (`1`, not `1.0` or `"1"`), a boolean field
+    `true` or `false` only. Pydantic's lax mode would coerce `"1"`, `50.0` or `"yes"`; the schema
+    promises they are refused (`{"version": "1"}` gets 422). No string anywhere in the body
+    holds a NUL byte (PostgreSQL cannot store one; 422 instead of a 500)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -49,6 +50,8 @@ class JsonModel(BaseModel):
         if not isinstance(data, dict):
             return data
         for name, value in data.items():
+            if _holds_nul(value):
+                raise ValueError(f"{name} holds a NUL byte")
             field = cls.model_fields.get(name)
             if field is None or value is None:
                 continue
@@ -57,7 +60,22 @@ class JsonModel(BaseModel):
                 raise ValueError(f"{name} must be true or false, not {type(value).__name__}")
             if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
                 raise ValueError(f"{name} must be a JSON number, not {type(value).__name__}")
+            if kinds == {int} and isinstance(value, float):
+                raise ValueError(f"{name} must be a JSON integer, not a number with a fraction part")
         return data
+
+
+def _holds_nul(value: Any) -> bool:
+    """True for a string (or list of strings) with a NUL byte. Free-form JSON values (configs,
+    results) may hold one: they are stored as JSON text, escaped."""
+    if isinstance(value, str):
+        return "\x00" in value
+    return isinstance(value, list) and any(isinstance(v, str) and "\x00" in v for v in value)
+
+
+# no NUL byte, and no part between slashes longer than NAME_MAX (255; a longer one is 422, not
+# the file system's error). Linear to match: each repeated part must end at a slash.
+PATH_PATTERN = r"^/*([^/\x00]{1,255}/+)*[^/\x00]{0,255}$"
 
 
 def _scalar_kinds(annotation: Any) -> set[type]:
@@ -120,7 +138,10 @@ IngestPoses = Literal["file", "icp"]
 POSES_HELP = "Poses for ingest: file (the sequence's own; none links no tracks) or icp (estimated by KISS-ICP)."
 
 class DatasetBase(_Request):
-    path: str = Field(min_length=1, max_length=4096, description="A sequence path under a configured data root.")
+    path: str = Field(
+        min_length=1, max_length=4096, pattern=PATH_PATTERN,
+        description="A sequence path under a configured data root (no part longer than 255 characters).",
+    )
     name: str | None = Field(default=None, max_length=128)
     format: str = Field(default="auto", max_length=32, pattern=r"^[a-z0-9_]+$")
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from app.crud.bulk_load import BULK_TABLES, analyze_tables, clear_sequence_rows, vacuum_after_bulk_load
 from app.crud.datasets import (
     check_ready,
+    check_sensor_file,
     check_tree_inside_roots,
     create_dataset,
     registered_sequence_id,
@@ -58,6 +59,7 @@ __all__ = [
     "list_tokens",
     "resolve_registration_path",
     "check_tree_inside_roots",
+    "check_sensor_file",
     "registered_sequence_id",
     "create_dataset",
     "sequence_stats",
