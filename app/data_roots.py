@@ -59,7 +59,7 @@ class DataRoots:
         real = self.real_inside(path, path.name)
         multi: dict[tuple[int, int], tuple[str, int]] = {}
         seen: Counter[tuple[int, int]] = Counter()
-        for shown, entry, st in self._walk(path, real):
+        for shown, st in self._walk(path, real):
             if stat.S_ISREG(st.st_mode) and st.st_nlink > 1:
                 key = (st.st_dev, st.st_ino)
                 multi.setdefault(key, (shown, st.st_nlink))
@@ -72,11 +72,11 @@ class DataRoots:
                 raise Forbidden(f"{shown} is a hard link to a file with a name outside the configured data roots; refused")
             self.linked_ok.add(key)
 
-    def _walk(self, top: Path, real_top: Path) -> Iterator[tuple[str, Path, os.stat_result]]:
-        """(name relative to `top`, path, stat of the real file) of every entry, following links
+    def _walk(self, top: Path, real_top: Path) -> Iterator[tuple[str, os.stat_result]]:
+        """(name relative to `top`, stat of the real file) of every entry, following links
         to folders once per real folder; each entry's real path is checked on the way."""
         if not real_top.is_dir():
-            yield top.name, top, real_top.stat()
+            yield top.name, real_top.stat()
             return
         visited = {real_top}
         for folder, dirs, files in os.walk(top, followlinks=True):
@@ -88,7 +88,7 @@ class DataRoots:
                     st = real.stat()
                 except OSError:
                     continue  # a dangling link inside the roots reads nothing
-                yield shown, entry, st
+                yield shown, st
             kept = []
             for name in dirs:  # descend each real folder once (a link loop ends)
                 real = (Path(folder) / name).resolve()
