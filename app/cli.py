@@ -6,6 +6,7 @@ Library errors (`pipeline.errors.TracklabelError`) become a one-line message and
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -450,23 +451,25 @@ def user_enable(name: Annotated[str, typer.Argument(help="User name.")]) -> None
 def serve(
     host: Annotated[str | None, typer.Option(help="Bind address (TRACKLABEL_HOST).")] = None,
     port: Annotated[int | None, typer.Option(help="Port (TRACKLABEL_PORT).")] = None,
-    worker: Annotated[bool, typer.Option(help="Run one in-process job worker.")] = True,
+    worker: Annotated[bool, typer.Option(help="Start job worker processes beside the API (--no-worker: none).")] = True,
+    workers: Annotated[int, typer.Option(min=1, max=64, help="How many job worker processes (one job each at a time).")] = 1,
     wait: Annotated[float, typer.Option(help="Seconds to wait for the database.")] = 30.0,
     viewer: Annotated[
         bool, typer.Option("--viewer/--no-viewer", help="Also start the 3D annotator; operators sign in with their token.")
     ] = True,
     viewer_port: Annotated[int, typer.Option(help="Annotator port (the next free one when it is taken).")] = 8080,
 ) -> None:
-    """Serve the REST API: wait for the database, upgrade it, then run uvicorn (+ a worker thread)
-    and the annotator (viser) next to it."""
+    """Serve the REST API: wait for the database, upgrade it, then run uvicorn, the job workers
+    (separate processes, `--workers N`) and the annotator (viser) next to it."""
     import uvicorn
 
     from app.core.config import Settings
     from app.core.db import make_engine, wait_for_db
     from app.core.migrate import upgrade
     from app.main import create_app
+    from app.worker_processes import WorkerProcesses
 
-    overrides: dict[str, object] = {"embedded_worker": worker}
+    overrides: dict[str, object] = {"embedded_worker": False}
     if host is not None:
         overrides["host"] = host
     if port is not None:
@@ -480,7 +483,22 @@ def serve(
     if viewer:
         annotator = _start_viewer(settings.host, settings.port, None, viewer_port)
         typer.echo(f"annotator {annotator.url} (operators sign in with their token)")
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    pool = WorkerProcesses(workers if worker else 0)
+    pool.start()
+    _exit_on_sigterm()  # uvicorn re-raises SIGTERM after its shutdown: then stop the workers too
+    if worker:
+        typer.echo(f"{workers} job worker process{'es' if workers > 1 else ''} started")
+    try:
+        uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
+                    proxy_headers=True, forwarded_allow_ips=settings.forwarded_allow_ips)
+    finally:
+        pool.stop()
+
+
+def _exit_on_sigterm() -> None:
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
 
 
 def _start_viewer(api_host: str, api_port: int, token: str | None, port: int):  # -> AnnotatorViewer
@@ -548,10 +566,18 @@ def demo(
         import uvicorn
 
         from app.main import create_app
+        from app.worker_processes import WorkerProcesses
 
         annotator = _start_viewer(info.settings.host, port, info.operator_token, viewer_port)
         typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser (keys: A D 1-7 [ ] Z)")
-        uvicorn.run(create_app(info.settings), host=info.settings.host, port=port, log_level="warning")
+        pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(info.settings.data_dir),
+                                   "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in info.settings.data_roots)})
+        pool.start()
+        _exit_on_sigterm()
+        try:
+            uvicorn.run(create_app(info.settings), host=info.settings.host, port=port, log_level="warning")
+        finally:
+            pool.stop()
 
 
 def main() -> None:

@@ -1,8 +1,9 @@
 """The FastAPI application factory: `create_app(settings)`.
 
 Start-up order (as in full-stack-fastapi-template): wait for the database, upgrade it, seed;
-`tracklabel serve` does those before building the app. With `embedded_worker`, the app runs one
-worker thread in-process (the embedded SQLite default needs no other process).
+`tracklabel serve` does those before building the app, and starts the job workers as separate
+processes. With `embedded_worker` (off by default) the app runs one worker thread in-process
+instead, for a one-process set-up whose jobs may stall its requests.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from app.api import errors
 from app.api.body_limit import BodyLimit
 from app.api.main import api_router
 from app.api.routes import health
+from app.api.security import FailedAuthLimit, SecurityHeaders
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
@@ -107,8 +109,11 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     app.state.db = db or Database.from_settings(settings)
     app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
 
+    app.state.auth_limit = FailedAuthLimit(settings.auth_failures_per_minute)
+
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(ServerTiming)
+    app.add_middleware(SecurityHeaders, docs_path=f"{API_PREFIX}/docs")  # outermost: every answer
 
     errors.install(app)
 

@@ -155,6 +155,19 @@ class DatasetCreate(DatasetBase):
     )
 
 
+class AssignmentCreate(_Request):
+    sequence_id: int = Field(ge=1, le=2**31 - 1)
+    user_id: int = Field(ge=1, le=2**31 - 1)
+
+
+class AssignmentPublic(_Public):
+    id: int
+    sequence_id: int
+    user_id: int
+    created_by_id: int | None
+    created_at: UtcDateTime
+
+
 class SequencePublic(_Public):
     id: int
     dataset_id: int

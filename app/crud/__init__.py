@@ -7,6 +7,7 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 
 from __future__ import annotations
 
+from app.crud.assignments import create_assignment, delete_assignment, list_assignments
 from app.crud.bulk_load import BULK_TABLES, analyze_tables, clear_sequence_rows, vacuum_after_bulk_load
 from app.crud.datasets import (
     check_ready,
@@ -49,6 +50,9 @@ from app.crud.users import (
 )
 
 __all__ = [
+    "create_assignment",
+    "list_assignments",
+    "delete_assignment",
     "AuthUser",
     "create_user",
     "create_token",
