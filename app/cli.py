@@ -509,6 +509,9 @@ def _start_viewer(api_host: str, api_port: int, token: str | None, port: int):  
     return start_viewer(f"http://{local}:{api_port}", token, host=api_host, port=port, check=False)
 
 
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
 @app.command()
 @friendly_errors
 def annotate(
@@ -520,10 +523,20 @@ def annotate(
     host: Annotated[str, typer.Option(help="Bind address of the viewer.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="Viewer port (the next free one when taken).")] = 8080,
     wait: Annotated[float, typer.Option(min=0, help="Seconds to wait for the API to answer.")] = 30.0,
+    insecure_single_user: Annotated[
+        bool, typer.Option("--insecure-single-user", help="Allow --token on a non-loopback address: anyone who "
+                           "reaches the port then acts as that token's user without signing in.")
+    ] = False,
 ) -> None:
-    """The 3D annotator (viser): review tracks of the track service at --api in the browser."""
+    """The 3D annotator (viser): review tracks of the track service at --api in the browser.
+    Each tab signs in with its operator's token; a preset --token signs every tab in as one user,
+    which on an address others can reach needs --insecure-single-user."""
     from annotator_ui.main import ViewerStartError, start_viewer
 
+    if token and host not in LOOPBACK and not insecure_single_user:
+        fail(f"--token would sign in everyone who reaches {host}:{port} as its user; leave it out so that each "
+             "operator signs in, or pass --insecure-single-user")
+        return
     try:
         viewer = start_viewer(api, token, host=host, port=port, wait_s=wait)
     except ViewerStartError as exc:

@@ -9,8 +9,10 @@ behind it. Races with other writers run the request again (app/api/retry.py), ne
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from sqlalchemy.orm import Session
 
 from app import repair, track_ids
@@ -27,6 +29,11 @@ RESPONSES: dict[int | str, dict[str, str]] = {
                          "track now (lease), or a region that selects no point or every point of the track."},
     422: {"description": "A body the schema refuses."},
 }
+
+
+def _write_timing(response: Response, t0: float) -> None:
+    """`Server-Timing: write;dur=<ms>`: how long the write transaction (locks held) lasted."""
+    response.headers["Server-Timing"] = f"write;dur={1e3 * (time.perf_counter() - t0):.2f}"
 
 
 def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, track_id: int) -> repair.RepairContext:
@@ -56,7 +63,7 @@ def _selector(session: Session, ctx: repair.RepairContext, track_id: int, body: 
 @router.post("/tracks/{track_id}/split", responses=RESPONSES)
 def split_track(
     track_id: BigIdPath, body: SplitAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
-    artifacts: ArtifactsDep, db: DatabaseDep,
+    artifacts: ArtifactsDep, db: DatabaseDep, response: Response,
 ) -> SplitPublic:
     """Cut the track's points inside `region` (world frame) out into a new pending track, in every
     kept frame or in `frame_index` only: a box, a half-space, a top-view prism, a screen lasso, the
@@ -67,7 +74,9 @@ def split_track(
         selector = _selector(read, ctx, track_id, body)
         plan = repair.plan_split(read, ctx, track_id, guard, body.version, selector, body.frame_index,
                                  lambda sequence_id: track_ids.reserve(db, sequence_id))
+    t0 = time.perf_counter()
     res = repair.apply_split(session, plan, guard, ctx)
+    _write_timing(response, t0)
     return SplitPublic(track=TrackPublic.model_validate(res.track), new_track=TrackPublic.model_validate(res.new_track),
                        moved_points=res.moved_points)
 
@@ -75,7 +84,7 @@ def split_track(
 @router.post("/tracks/{track_id}/merge", responses=RESPONSES)
 def merge_tracks(
     track_id: BigIdPath, body: MergeAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
-    artifacts: ArtifactsDep, db: DatabaseDep,
+    artifacts: ArtifactsDep, db: DatabaseDep, response: Response,
 ) -> TrackPublic:
     """Join `other_track_id` into this track (one object in two tracks, e.g. both sides of a
     stitch). The other track becomes `merged`; the joined track keeps the review state both
@@ -83,7 +92,10 @@ def merge_tracks(
     with db.read() as read:
         ctx = _context(read, settings, artifacts, track_id)
         plan = repair.plan_merge(read, ctx, track_id, guard, body.version, body.other_track_id, body.other_version)
-    return TrackPublic.model_validate(repair.apply_merge(session, plan, guard, ctx))
+    t0 = time.perf_counter()
+    track = repair.apply_merge(session, plan, guard, ctx)
+    _write_timing(response, t0)
+    return TrackPublic.model_validate(track)
 
 
 @router.post("/tracks/{track_id}/undo", responses=RESPONSES)
