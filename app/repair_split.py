@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from sqlalchemy import func, insert, select, update
+from sqlalchemy import bindparam, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -253,19 +253,24 @@ def plan_split(
 
 
 def _write_frames(session: Session, plan: SplitPlan) -> list[int]:
-    """The plan's segment and frame rows; the ids of the segment rows it created."""
-    table, created = Segment.__table__, []
-    for fp in plan.frames:
-        if fp.moved:
-            session.execute(update(table).where(table.c.id.in_(fp.moved)).values(track_id=plan.ids.id))
-        update_segments(session, fp.updates)
-        if fp.inserts:
-            result = session.execute(insert(table).returning(table.c.id, sort_by_parameter_order=True), fp.inserts)
-            created += [int(i) for i in result.scalars().all()]
-        session.execute(
-            update(Frame.__table__).where(Frame.__table__.c.id == fp.frame_id)
-            .values(artifact=fp.artifact_after, n_segments=fp.n_segments_after, n_samples=fp.n_samples_after)
-        )
+    """The plan's segment and frame rows, a few statements for all frames together (the write
+    transaction's length must not grow with statements per frame); the ids of the rows created."""
+    table, frames = Segment.__table__, Frame.__table__
+    moved = [i for fp in plan.frames for i in fp.moved]
+    for k in range(0, len(moved), 10_000):
+        session.execute(update(table).where(table.c.id.in_(moved[k : k + 10_000])).values(track_id=plan.ids.id))
+    update_segments(session, [u for fp in plan.frames for u in fp.updates])
+    inserts = [row for fp in plan.frames for row in fp.inserts]
+    created = []
+    if inserts:
+        result = session.execute(insert(table).returning(table.c.id, sort_by_parameter_order=True), inserts)
+        created = [int(i) for i in result.scalars().all()]
+    session.execute(
+        update(frames).where(frames.c.id == bindparam("_id"))
+        .values(artifact=bindparam("artifact"), n_segments=bindparam("n_segments"), n_samples=bindparam("n_samples")),
+        [{"_id": fp.frame_id, "artifact": fp.artifact_after, "n_segments": fp.n_segments_after,
+          "n_samples": fp.n_samples_after} for fp in plan.frames],
+    )
     return created
 
 

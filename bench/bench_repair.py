@@ -188,7 +188,8 @@ def run(out_dir: Path, quick: bool = False) -> dict:
     result["headline"] = (
         f"{result['database']}: split p50 {with_['split_p50_ms']} ms, its write transaction p95 "
         f"{with_['split_write_p95_ms']} / max {with_['split_write_max_ms']} ms; other actions p95 {base_p95} ms "
-        f"alone, {with_['action_p95_ms']} ms beside splits (max {with_['action_max_ms']})"
+        f"(max {phases['baseline']['action_max_ms']}) alone, {with_['action_p95_ms']} ms (max {with_['action_max_ms']}) "
+        "beside splits"
     )
     return result
 
