@@ -23,6 +23,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
@@ -149,6 +150,10 @@ class Track(Base):
         # off the index without sorting the ties (migration 0010 added the id)
         Index("ix_tracks_queue", "sequence_id", "status", "n_samples", "id"),
         Index("ix_tracks_status_n_samples", "status", "n_samples", "id"),
+        # review/next looks for the caller's own running lease first (it scanned every track);
+        # partial: a plain index of a mostly-NULL column looks useless to SQLite's statistics
+        Index("ix_tracks_lease_user_id", "lease_user_id", sqlite_where=text("lease_user_id IS NOT NULL"),
+              postgresql_where=text("lease_user_id IS NOT NULL")),
         Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
         # predicted class + confidence, then every sort key of GET /tracks but updated_at (which each
         # action changes): a filtered, sorted page is found in the index alone (crud.list_tracks)

@@ -1,5 +1,5 @@
 """track keys from a per-sequence counter, track ids never reused, queue indexes ending in the
-id, operator assignments to sequences
+id and one on the lease holder, operator assignments to sequences
 
 Revision ID: 0010
 Revises: 0009
@@ -36,6 +36,9 @@ def upgrade() -> None:
         batch_op.drop_index('ix_tracks_status_n_samples')
         batch_op.create_index('ix_tracks_queue', ['sequence_id', 'status', 'n_samples', 'id'], unique=False)
         batch_op.create_index('ix_tracks_status_n_samples', ['status', 'n_samples', 'id'], unique=False)
+        batch_op.create_index('ix_tracks_lease_user_id', ['lease_user_id'], unique=False,
+                              sqlite_where=sa.text('lease_user_id IS NOT NULL'),
+                              postgresql_where=sa.text('lease_user_id IS NOT NULL'))
     op.create_table('assignments',
     sa.Column('id', sa.Integer(), nullable=False),
     sa.Column('sequence_id', sa.Integer(), nullable=False),
@@ -59,6 +62,7 @@ def downgrade() -> None:
     sqlite = op.get_bind().dialect.name == 'sqlite'
     recreate = {'recreate': 'always', 'table_kwargs': {'sqlite_autoincrement': False}} if sqlite else {}
     with op.batch_alter_table('tracks', schema=None, **recreate) as batch_op:
+        batch_op.drop_index('ix_tracks_lease_user_id')
         batch_op.drop_index('ix_tracks_status_n_samples')
         batch_op.drop_index('ix_tracks_queue')
         batch_op.create_index('ix_tracks_status_n_samples', ['status', 'n_samples'], unique=False)
