@@ -153,20 +153,23 @@ def _review_after(
 
 
 def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
-    """Set the track's length, samples, points and mean range from its segments in
-    `keep_start..keep_end` (what ingest computes over the whole track). Invalid when none is kept."""
-    length, n_samples, n_points, range_sum = session.execute(
+    """Set the track's length (frames), samples, points and mean range (per segment) from its
+    segments in `keep_start..keep_end` (what ingest computes over the whole track). A merged
+    track can hold two segments in one frame: length counts frames, not segments. Invalid when
+    none is kept."""
+    segments, length, n_samples, n_points, range_sum = session.execute(
         select(
             func.count(),
+            func.count(func.distinct(Segment.frame_index)),
             func.coalesce(func.sum(Segment.valid.cast(Integer)), 0),
             func.coalesce(func.sum(Segment.n_points), 0),
             func.coalesce(func.sum(Segment.range), 0.0),
         ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
     ).one()
-    if length == 0:
+    if segments == 0:
         raise NotApplicable(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
     track.length, track.n_samples = int(length), int(n_samples)
-    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
+    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(segments)
 
 
 def last_undoable_event(session: Session, track_id: int, user_id: int) -> AnnotationEvent | None:

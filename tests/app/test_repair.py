@@ -351,3 +351,14 @@ def test_repair_split_after_undo_gets_a_fresh_id_and_key(client, factory):
     assert second["id"] > first["id"] and second["key"] > first["key"]
     _post(client, op, first["id"], "accept", {"version": first["version"]}, status=404)
     assert factory.track(second["id"]).version == 1
+
+
+def test_repair_merged_track_length_counts_frames_after_truncate(client, factory):
+    """Two tracks seen in the same frames merged: two segments per frame, but length is frames."""
+    seq = factory.ingested_sequence(n_frames=4, n_objects=2)  # object 0 in frames 0-3, object 1 in 1-3
+    op = factory.user()
+    a, b = factory.track_ids(seq)
+    out = _post(client, op, a, "merge", {"version": 1, "other_track_id": b, "other_version": 1})
+    assert out["length"] == 4
+    out = _post(client, op, a, "truncate", {"version": 2, "start": 1, "end": 3})
+    assert out["length"] == 3 and out["n_samples"] == 6
