@@ -35,10 +35,11 @@ class _Public(BaseModel):
 
 class JsonModel(BaseModel):
     """A request body (or job params) read as JSON Schema reads it: a number field takes a JSON
-    number only, an integer field a JSON integer only (`1`, not `1.0` or `"1"`), a boolean field
-    `true` or `false` only. Pydantic's lax mode would coerce `"1"`, `50.0` or `"yes"`; the schema
-    promises they are refused (`{"version": "1"}` gets 422). No string anywhere in the body
-    holds a NUL byte (PostgreSQL cannot store one; 422 instead of a 500)."""
+    number only, an integer field a number without fraction (`1` or `1.0`: JSON Schema counts
+    `1.0` an integer, and refusing it would break the declared schema; `1.5` and `"1"` are 422),
+    a boolean field `true` or `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`;
+    the schema promises they are refused (`{"version": "1"}` gets 422). No string field holds a
+    NUL byte (PostgreSQL cannot store one; 422 instead of a 500)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -60,8 +61,6 @@ class JsonModel(BaseModel):
                 raise ValueError(f"{name} must be true or false, not {type(value).__name__}")
             if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
                 raise ValueError(f"{name} must be a JSON number, not {type(value).__name__}")
-            if kinds == {int} and isinstance(value, float):
-                raise ValueError(f"{name} must be a JSON integer, not a number with a fraction part")
         return data
 
 
