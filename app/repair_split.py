@@ -142,13 +142,33 @@ def _pick_frames(
 
 
 def _rerendered(ctx: RepairContext, art: FrameArtifact, segment: np.ndarray, ids: np.ndarray) -> tuple[Any, np.ndarray, np.ndarray]:
-    """Statistics of segments `ids` after the cut, and the frame's new (samples, sample_segment):
-    the untouched segments' samples as they were, the re-rendered ones appended."""
+    """Statistics of segments `ids` after the cut, and the frame's new (samples, sample_segment).
+    A re-rendered segment keeps its slot, a new one is appended, one that lost its sample gives
+    its slot to the last sample: every other segment keeps its `sample_index`, so the write step
+    changes a few rows per cut instead of every row after it (on PostgreSQL, one round trip each)."""
     res = ctx.backend.resample(ctx.sensor, ctx.config, art.points, art.intensity, segment, ids)
-    keep = ~np.isin(art.sample_segment, ids)
-    valid_ids = ids[res.sample_of >= 0].astype(np.int32)
-    samples = np.concatenate([art.samples[keep], res.samples.astype(np.uint8)]) if len(res.samples) else art.samples[keep]
-    return res, samples, np.concatenate([art.sample_segment[keep], valid_ids]).astype(np.int32)
+    samples, owner = list(art.samples), [int(s) for s in art.sample_segment]
+    slot = {local: i for i, local in enumerate(owner)}
+    for k, local in enumerate(ids.tolist()):
+        j = slot.get(local)
+        if res.sample_of[k] >= 0:
+            if j is None:
+                slot[local] = len(samples)
+                samples.append(res.samples[res.sample_of[k]])
+                owner.append(local)
+            else:
+                samples[j] = res.samples[res.sample_of[k]]
+        elif j is not None:  # no sample any more: the last sample moves into its slot
+            del slot[local]
+            last = len(samples) - 1
+            if j != last:
+                samples[j], owner[j] = samples[last], owner[last]
+                slot[owner[j]] = j
+            samples.pop()
+            owner.pop()
+    shape = art.samples.shape[1:]
+    stacked = np.stack(samples).astype(np.uint8) if samples else np.zeros((0, *shape), np.uint8)
+    return res, stacked, np.array(owner, np.int32)
 
 
 def _stats(res: Any, k: int, pose: np.ndarray, sample_index: int | None) -> dict[str, Any]:

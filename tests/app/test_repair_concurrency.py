@@ -91,16 +91,19 @@ def _storm(url: str, callers: list, tracks: list[int], seconds: float) -> tuple[
 
 
 def _check_frames(factory, settings, seq: int) -> None:
-    """Each frame's per-point segment and track ids agree with its segment rows."""
+    """Each frame's per-point segment and track ids, and its samples, agree with its segment rows."""
     store = ArtifactStore(settings.artifacts_path)
     with factory.db.read() as s:
         for frame in s.scalars(select(Frame).where(Frame.sequence_id == seq)).all():
             art = store.read_frame(frame.artifact)
-            rows = s.execute(select(Segment.local_id, Segment.track_id, Segment.n_points).where(Segment.frame_id == frame.id)).all()
-            for local, track_id, n_points in rows:
+            rows = s.execute(select(Segment.local_id, Segment.track_id, Segment.n_points, Segment.sample_index)
+                             .where(Segment.frame_id == frame.id)).all()
+            for local, track_id, n_points, sample_index in rows:
                 mine = art.segment == local
                 assert int(mine.sum()) == n_points, (frame.index, local)
                 assert set(art.track[mine].tolist()) <= {track_id or 0}, (frame.index, local, track_id)
+                assert sample_index is None or art.sample_segment[sample_index] == local, (frame.index, local)
+            assert len(art.samples) == frame.n_samples == sum(r.sample_index is not None for r in rows)
             assert set(np.unique(art.segment[art.segment >= 0]).tolist()) <= {r.local_id for r in rows}
 
 
