@@ -232,7 +232,7 @@ class Worker:
                 self.stop_event.wait(self.settings.worker_poll_seconds)
 
     def start_thread(self) -> threading.Thread:
-        """Run `run_forever` in a daemon thread (the in-process worker of `tracklabel serve`)."""
+        """Run `run_forever` in a daemon thread (the in-process worker of `TRACKLABEL_EMBEDDED_WORKER`)."""
         t = threading.Thread(target=self.run_forever, daemon=True, name="worker")
         t.start()
         return t

@@ -4,7 +4,7 @@ Two writers can meet on the same rows: a deadlock or a serialization failure on 
 duplicate insert of two requests that both found the row missing, a lock wait that ran out, or a
 track repair whose frames another repair rewrote meanwhile (`Retry`). Each is the loser's
 transaction failing as a whole, so the request can simply run again from the start with fresh
-sessions state: every session the route holds is rolled back, and the route is called again
+session state: every session the route holds is rolled back, and the route is called again
 after a short random pause. Run again, the loser usually succeeds, or its own checks now see the
 winner's change and answer 404 / 409. After `ATTEMPTS` losses the answer is a 409 in the usual
 `{"detail": ...}` shape; never a 500.
