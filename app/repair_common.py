@@ -150,15 +150,15 @@ def rebuild_links(session: Session, track: Track) -> None:
          "score": float(b.link_score or 0.0), "kind": "must_link"}
         for a, b in zip(segs, segs[1:], strict=False)
     ]
-    if rows:
-        session.execute(insert(PairConstraint), rows)
+    if rows:  # the table, not the entity: the ORM's bulk insert took 5 ms for 70 rows
+        session.execute(insert(PairConstraint.__table__), rows)
 
 
 def restore_links(session: Session, track_ids: list[int], rows: list[dict[str, Any]]) -> None:
     """The tracks' must-link rows exactly as recorded (same ids)."""
     session.execute(delete(PairConstraint).where(PairConstraint.track_id.in_(track_ids), PairConstraint.kind == "must_link"))
     if rows:
-        session.execute(insert(PairConstraint), [{**r, "kind": "must_link"} for r in rows])
+        session.execute(insert(PairConstraint.__table__), [{**r, "kind": "must_link"} for r in rows])
 
 
 def restat(session: Session, track: Track, ranges_from_segments: bool) -> None:
