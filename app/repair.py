@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from sqlalchemy import bindparam, delete, func, select
+from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -48,6 +48,7 @@ from app.repair_common import (
     refresh_labels,
     restore_frames,
     restore_links,
+    update_segments,
 )
 from app.repair_merge import MergePlan, apply_merge, plan_merge
 from app.repair_split import Selector, SplitPlan, SplitResult, apply_split, plan_split
@@ -164,10 +165,7 @@ def _undo_split(session: Session, track_id: int, ev: AnnotationEvent, guard: Gua
         PairConstraint.segment_a_id.in_(created) | PairConstraint.segment_b_id.in_(created)))
     # segments first: a segment the split moved whole belongs to the new track, and dropping that
     # track deletes its segments (ON DELETE CASCADE)
-    if d["segments_before"]:
-        table = Segment.__table__
-        session.execute(table.update().where(table.c.id == bindparam("_id")).values({f: bindparam(f) for f in SEGMENT_FIELDS}),
-                        [{"_id": r["id"], **{f: r[f] for f in SEGMENT_FIELDS}} for r in d["segments_before"]])
+    update_segments(session, [{"id": r["id"], **{f: r[f] for f in SEGMENT_FIELDS}} for r in d["segments_before"]])
     _drop_track(session, new)
     session.execute(delete(Segment).where(Segment.id.in_(created)))
     _restore_track(track, d["track_before"])

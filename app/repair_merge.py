@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from sqlalchemy import bindparam, delete, select, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -32,6 +32,7 @@ from app.repair_common import (
     remove_files,
     restat,
     track_fields,
+    update_by_id,
     write_revision,
 )
 
@@ -83,9 +84,7 @@ def _join(session: Session, a: Track, b: Track, plan: MergePlan) -> list[int]:
     """Move b's segments and frames to a; a's ranges and state; b merged away. The moved ids."""
     moved = [int(i) for i in session.scalars(select(Segment.id).where(Segment.track_id == b.id).order_by(Segment.id)).all()]
     frames = Frame.__table__
-    if plan.frames:  # one statement for all frames: the write transaction stays short
-        session.execute(update(frames).where(frames.c.id == bindparam("_id")).values(artifact=bindparam("artifact")),
-                        [{"_id": f["frame_id"], "artifact": f["artifact_after"]} for f in plan.frames])
+    update_by_id(session, frames, [{"id": f["frame_id"], "artifact": f["artifact_after"]} for f in plan.frames])
     segments = Segment.__table__
     session.execute(update(segments).where(segments.c.track_id == b.id).values(track_id=a.id))
     if (a.status, a.label) != (b.status, b.label):

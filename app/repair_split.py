@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from sqlalchemy import bindparam, func, insert, select, update
+from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -40,6 +40,7 @@ from app.repair_common import (
     remove_files,
     restat,
     track_fields,
+    update_by_id,
     update_segments,
     write_revision,
 )
@@ -285,12 +286,8 @@ def _write_frames(session: Session, plan: SplitPlan) -> list[int]:
     if inserts:
         result = session.execute(insert(table).returning(table.c.id, sort_by_parameter_order=True), inserts)
         created = [int(i) for i in result.scalars().all()]
-    session.execute(
-        update(frames).where(frames.c.id == bindparam("_id"))
-        .values(artifact=bindparam("artifact"), n_segments=bindparam("n_segments"), n_samples=bindparam("n_samples")),
-        [{"_id": fp.frame_id, "artifact": fp.artifact_after, "n_segments": fp.n_segments_after,
-          "n_samples": fp.n_samples_after} for fp in plan.frames],
-    )
+    update_by_id(session, frames, [{"id": fp.frame_id, "artifact": fp.artifact_after, "n_segments": fp.n_segments_after,
+                                    "n_samples": fp.n_samples_after} for fp in plan.frames])
     return created
 
 

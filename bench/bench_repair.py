@@ -65,9 +65,11 @@ def _ingest(url: str, tmp: Path, frames: int) -> dict:
         job = s.get(Job, job_id)
         assert job is not None and job.status == "succeeded", (job and job.status, job and job.error)
         result = dict(job.result or {})
-        rows = s.execute(select(Track.id, Track.length).where(Track.sequence_id == seq_id).order_by(Track.length.desc())).all()
+        rows = s.execute(select(Track.id, Track.length, Track.n_points).where(Track.sequence_id == seq_id)
+                         .order_by(Track.length.desc(), Track.n_points.desc(), Track.id)).all()
     db.dispose()
     return {"tokens": tokens, "long": [r.id for r in rows[:3]], "short": [r.id for r in rows[20:]],
+            "split_track": {"frames": rows[0].length, "points": rows[0].n_points},
             "ingest_seconds": round(time.perf_counter() - t0, 1), "tracks": result["tracks"], "frames": result["frames"]}
 
 
@@ -178,7 +180,7 @@ def run(out_dir: Path, quick: bool = False) -> dict:
                 _pg_schema(pg_base, schema, create=False)
     base_p95, with_ = phases["baseline"]["action_p95_ms"], phases["splitting"]
     result = {"database": "postgresql" if pg_base else "sqlite", "seconds_per_phase": seconds, **phases,
-              **{k: info[k] for k in ("ingest_seconds", "tracks", "frames")}}
+              **{k: info[k] for k in ("ingest_seconds", "tracks", "frames", "split_track")}}
     result["targets"] = {
         "split_write_max_ms": {"value": with_["split_write_max_ms"], "target": TARGET_MS,
                                "met": bool(with_["split_write_max_ms"] <= TARGET_MS)},
