@@ -75,6 +75,7 @@ class ArtifactStore:
 
     def __init__(self, root: str | Path, payload_cache_bytes: int = 0) -> None:
         self.root = Path(root)
+        self._real_root = self.root.resolve()
         self._cache: OrderedDict[tuple[str, int], memoryview] = OrderedDict()
         self._cache_bytes = 0
         self._cache_limit = payload_cache_bytes
@@ -87,7 +88,13 @@ class ArtifactStore:
         return f"seq_{sequence_id:06d}/{index:06d}{suffix}.npz"
 
     def path(self, relpath: str) -> Path:
-        return self.root / relpath
+        """The file of `relpath`; ArtifactMissing when its real path leaves the artifact folder
+        (a link planted there is never followed out of it)."""
+        path = self.root / relpath
+        real = path.resolve()
+        if not real.is_relative_to(self._real_root):
+            raise ArtifactMissing(f"artifact {relpath} resolves outside the artifact folder")
+        return path
 
     def write_frame(self, sequence_id: int, index: int, frame: FrameArtifact, revision: str | None = None) -> str:
         """Write one frame atomically; returns its relative path."""

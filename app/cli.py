@@ -6,6 +6,7 @@ Library errors (`pipeline.errors.TracklabelError`) become a one-line message and
 from __future__ import annotations
 
 import functools
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -461,23 +462,25 @@ def user_enable(name: Annotated[str, typer.Argument(help="User name.")]) -> None
 def serve(
     host: Annotated[str | None, typer.Option(help="Bind address (TRACKLABEL_HOST).")] = None,
     port: Annotated[int | None, typer.Option(help="Port (TRACKLABEL_PORT).")] = None,
-    worker: Annotated[bool, typer.Option(help="Run one in-process job worker.")] = True,
+    worker: Annotated[bool, typer.Option(help="Start job worker processes beside the API (--no-worker: none).")] = True,
+    workers: Annotated[int, typer.Option(min=1, max=64, help="How many job worker processes (one job each at a time).")] = 1,
     wait: Annotated[float, typer.Option(help="Seconds to wait for the database.")] = 30.0,
     viewer: Annotated[
         bool, typer.Option("--viewer/--no-viewer", help="Also start the 3D annotator; operators sign in with their token.")
     ] = True,
     viewer_port: Annotated[int, typer.Option(help="Annotator port (the next free one when it is taken).")] = 8080,
 ) -> None:
-    """Serve the REST API: wait for the database, upgrade it, then run uvicorn (+ a worker thread)
-    and the annotator (viser) next to it."""
+    """Serve the REST API: wait for the database, upgrade it, then run uvicorn, the job workers
+    (separate processes, `--workers N`) and the annotator (viser) next to it."""
     import uvicorn
 
     from app.core.config import Settings
     from app.core.db import make_engine, wait_for_db
     from app.core.migrate import upgrade
     from app.main import create_app
+    from app.worker_processes import WorkerProcesses
 
-    overrides: dict[str, object] = {"embedded_worker": worker}
+    overrides: dict[str, object] = {"embedded_worker": False}
     if host is not None:
         overrides["host"] = host
     if port is not None:
@@ -491,7 +494,22 @@ def serve(
     if viewer:
         annotator = _start_viewer(settings.host, settings.port, None, viewer_port)
         typer.echo(f"annotator {annotator.url} (operators sign in with their token)")
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info")
+    pool = WorkerProcesses(workers if worker else 0)
+    pool.start()
+    _exit_on_sigterm()  # uvicorn re-raises SIGTERM after its shutdown: then stop the workers too
+    if worker:
+        typer.echo(f"{workers} job worker process{'es' if workers > 1 else ''} started")
+    try:
+        uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="info",
+                    proxy_headers=True, forwarded_allow_ips=settings.forwarded_allow_ips)
+    finally:
+        pool.stop()
+
+
+def _exit_on_sigterm() -> None:
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
 
 
 def _start_viewer(api_host: str, api_port: int, token: str | None, port: int):  # -> AnnotatorViewer
@@ -500,6 +518,9 @@ def _start_viewer(api_host: str, api_port: int, token: str | None, port: int):  
 
     local = "127.0.0.1" if api_host in ("0.0.0.0", "::", "") else api_host
     return start_viewer(f"http://{local}:{api_port}", token, host=api_host, port=port, check=False)
+
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
 @app.command()
@@ -513,10 +534,20 @@ def annotate(
     host: Annotated[str, typer.Option(help="Bind address of the viewer.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(min=0, max=65535, help="Viewer port (the next free one when taken).")] = 8080,
     wait: Annotated[float, typer.Option(min=0, help="Seconds to wait for the API to answer.")] = 30.0,
+    insecure_single_user: Annotated[
+        bool, typer.Option("--insecure-single-user", help="Allow --token on a non-loopback address: anyone who "
+                           "reaches the port then acts as that token's user without signing in.")
+    ] = False,
 ) -> None:
-    """The 3D annotator (viser): review tracks of the track service at --api in the browser."""
+    """The 3D annotator (viser): review tracks of the track service at --api in the browser.
+    Each tab signs in with its operator's token; a preset --token signs every tab in as one user,
+    which on an address others can reach needs --insecure-single-user."""
     from annotator_ui.main import ViewerStartError, start_viewer
 
+    if token and host not in LOOPBACK and not insecure_single_user:
+        fail(f"--token would sign in everyone who reaches {host}:{port} as its user; leave it out so that each "
+             "operator signs in, or pass --insecure-single-user")
+        return
     try:
         viewer = start_viewer(api, token, host=host, port=port, wait_s=wait)
     except ViewerStartError as exc:
@@ -688,15 +719,25 @@ def _print_tokens(host: str, port: int, admin_token: str, operator_token: str) -
 
 
 def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None:  # settings: app Settings
-    """The API (with its worker) and the annotator signed in with `viewer_token`, until Ctrl-C."""
+    """The API, one job worker process (as `serve`) and the annotator signed in with
+    `viewer_token`, until Ctrl-C."""
     import uvicorn
 
     from app.main import create_app
+    from app.worker_processes import WorkerProcesses
 
     annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
     typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
     typer.echo("keys: A accept, D discard, 1-7 class, [ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
-    uvicorn.run(create_app(settings), host=settings.host, port=settings.port, log_level="warning")
+    pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(settings.data_dir),
+                               "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in settings.data_roots)})
+    pool.start()
+    _exit_on_sigterm()
+    try:
+        uvicorn.run(create_app(settings.model_copy(update={"embedded_worker": False})), host=settings.host,
+                    port=settings.port, log_level="warning")
+    finally:
+        pool.stop()
 
 
 def main() -> None:

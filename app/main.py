@@ -1,8 +1,9 @@
 """The FastAPI application factory: `create_app(settings)`.
 
 Start-up order (as in full-stack-fastapi-template): wait for the database, upgrade it, seed;
-`tracklabel serve` does those before building the app. With `embedded_worker`, the app runs one
-worker thread in-process (the embedded SQLite default needs no other process).
+`tracklabel serve` does those before building the app, and starts the job workers as separate
+processes. With `embedded_worker` (off by default) the app runs one worker thread in-process
+instead, for a one-process set-up whose jobs may stall its requests.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from app.api.body_limit import BodyLimit
 from app.api.docs import install_docs
 from app.api.main import api_router
 from app.api.routes import health
+from app.api.security import FailedAuthLimit, SecurityHeaders
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
@@ -57,12 +59,13 @@ def _serve_job_schema(app: FastAPI) -> None:
     from fastapi.openapi.utils import get_openapi
 
     from app.api.job_schema import patch_openapi
+    from app.api.openapi_contract import tighten
     from app.jobs.registry import job_types
 
     def openapi() -> dict:
         if app.openapi_schema is None:
             doc = get_openapi(title=app.title, version=app.version, description=app.description, routes=app.routes)
-            app.openapi_schema = patch_openapi(doc, f"{API_PREFIX}/jobs", job_types())
+            app.openapi_schema = tighten(patch_openapi(doc, f"{API_PREFIX}/jobs", job_types()))
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
@@ -107,8 +110,11 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
     app.state.db = db or Database.from_settings(settings)
     app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
 
+    app.state.auth_limit = FailedAuthLimit(settings.auth_failures_per_minute)
+
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(ServerTiming)
+    app.add_middleware(SecurityHeaders, docs_path=f"{API_PREFIX}/docs")  # outermost: every answer
 
     errors.install(app)
 

@@ -23,6 +23,7 @@ from sqlalchemy import (
     String,
     Text,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
@@ -116,6 +117,9 @@ class Sequence(Base):
     config: Mapped[dict[str, Any] | None] = mapped_column(JSON)  # pipeline overrides for ingest
     status: Mapped[str] = mapped_column(String(16), default="registered")
     n_frames: Mapped[int] = mapped_column(Integer, default=0)
+    # migration 0010: the highest track key handed out (app/track_ids.py); a split's new track
+    # takes the next one under this row's lock, so a key is never given twice, even after undo
+    last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
@@ -147,10 +151,14 @@ class Track(Base):
         UniqueConstraint("sequence_id", "key"),
         CheckConstraint(_in("status", TRACK_STATUSES), name="status"),
         CheckConstraint(_in("label_source", LABEL_SOURCES), name="label_source"),
-        Index("ix_tracks_queue", "sequence_id", "status", "n_samples"),
-        # the review queue's order (app/crud/review_queue.py): most expected gain first, ties by id
+        # the review queue's order (priority, then id, both descending: crud.review_queue), read
+        # off the index without sorting the ties, in one sequence or over all (migration 0011)
         Index("ix_tracks_queue_priority", "sequence_id", "status", "priority", "id"),
-        Index("ix_tracks_status_n_samples", "status", "n_samples"),
+        Index("ix_tracks_status_priority", "status", "priority", "id"),
+        # review/next looks for the caller's own running lease first (it scanned every track);
+        # partial: a plain index of a mostly-NULL column looks useless to SQLite's statistics
+        Index("ix_tracks_lease_user_id", "lease_user_id", sqlite_where=text("lease_user_id IS NOT NULL"),
+              postgresql_where=text("lease_user_id IS NOT NULL")),
         Index("ix_tracks_predicted", "predicted_class", "predicted_confidence"),
         # predicted class + confidence, then every sort key of GET /tracks but updated_at (which each
         # action changes): a filtered, sorted page is found in the index alone (crud.list_tracks)
@@ -162,6 +170,9 @@ class Track(Base):
         # the index in either direction (SQLite's indexes hold the rowid anyway; PostgreSQL's
         # don't, and sorted every row of a long run of equal lengths without it)
         *(Index(f"ix_tracks_sort_{c}", c, "id") for c in TRACK_SORT_COLUMNS),
+        # ids are never reused on SQLite either (migration 0010): an edit sent with the id of a
+        # track that an undo removed must get 404, never land on a newer track
+        {"sqlite_autoincrement": True},
     )
 
     id: Mapped[int] = mapped_column(BigId, primary_key=True)
@@ -179,7 +190,7 @@ class Track(Base):
     label: Mapped[str | None] = mapped_column(String(16), index=True)
     predicted_class: Mapped[str | None] = mapped_column(String(16))  # ix_tracks_predicted(_sorts)
     predicted_confidence: Mapped[float | None] = mapped_column(Float)
-    # migration 0010: the review queue serves the highest first: the points the track's review is
+    # migration 0011: the review queue serves the highest first: the points the track's review is
     # expected to correct (n_points x (1 - predicted confidence)), n_points before any prediction
     priority: Mapped[float] = mapped_column(Float, default=0.0, server_default="0")
     label_source: Mapped[str | None] = mapped_column(String(16))  # LABEL_SOURCES; None unless accepted with a class
@@ -188,6 +199,20 @@ class Track(Base):
     reviewed_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     lease_expires_at: Mapped[datetime | None] = mapped_column(DateTime)
+
+
+class Assignment(Base):
+    """An operator (or reviewer) assigned to a sequence by an admin: they may queue jobs on it
+    (app/jobs/policy.py). Leases and reviews alone give no such right. Migration 0010."""
+
+    __tablename__ = "assignments"
+    __table_args__ = (UniqueConstraint("sequence_id", "user_id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"), index=True)
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
 
 class Segment(Base):
@@ -272,7 +297,7 @@ class Label(Base):
     track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"), index=True)
     class_name: Mapped[str] = mapped_column(String(16))
     class_index: Mapped[int] = mapped_column(Integer)
-    source: Mapped[str] = mapped_column(String(16), default="review")  # LABEL_SOURCES (migration 0010; "track" before)
+    source: Mapped[str] = mapped_column(String(16), default="review")  # LABEL_SOURCES (migration 0011; "track" before)
     user_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
@@ -422,7 +447,7 @@ class Audit(Base):
     auditor_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     answer_label: Mapped[str | None] = mapped_column(String(16))
     decided_at: Mapped[datetime | None] = mapped_column(DateTime)
-    # migration 0010: the label's source when sampled (LABEL_SOURCES), so bulk accepts are audited
+    # migration 0011: the label's source when sampled (LABEL_SOURCES), so bulk accepts are audited
     # apart, and the bulk accept that gave it (an undone bulk's audits leave its estimate)
     source: Mapped[str | None] = mapped_column(String(16))
     bulk_id: Mapped[int | None] = mapped_column(ForeignKey("bulk_actions.id", ondelete="SET NULL"))

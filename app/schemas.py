@@ -36,9 +36,11 @@ class _Public(BaseModel):
 
 class JsonModel(BaseModel):
     """A request body (or job params) read as JSON Schema reads it: a number field takes a JSON
-    number only, an integer field one without fraction (`1` or `1.0`), a boolean field `true` or
-    `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`; the schema promises it is
-    refused (`{"version": "1"}` gets 422)."""
+    number only, an integer field a number without fraction (`1` or `1.0`: JSON Schema counts
+    `1.0` an integer, and refusing it would break the declared schema; `1.5` and `"1"` are 422),
+    a boolean field `true` or `false` only. Pydantic's lax mode would coerce `"1"` or `"yes"`;
+    the schema promises they are refused (`{"version": "1"}` gets 422). No string field holds a
+    NUL byte (PostgreSQL cannot store one; 422 instead of a 500)."""
 
     model_config = ConfigDict(extra="forbid")
 
@@ -50,6 +52,8 @@ class JsonModel(BaseModel):
         if not isinstance(data, dict):
             return data
         for name, value in data.items():
+            if _holds_nul(value):
+                raise ValueError(f"{name} holds a NUL byte")
             field = cls.model_fields.get(name)
             if field is None or value is None:
                 continue
@@ -59,6 +63,19 @@ class JsonModel(BaseModel):
             if kinds & {int, float} and bool not in kinds and isinstance(value, str | bool):
                 raise ValueError(f"{name} must be a JSON number, not {type(value).__name__}")
         return data
+
+
+def _holds_nul(value: Any) -> bool:
+    """True for a string (or list of strings) with a NUL byte. Free-form JSON values (configs,
+    results) may hold one: they are stored as JSON text, escaped."""
+    if isinstance(value, str):
+        return "\x00" in value
+    return isinstance(value, list) and any(isinstance(v, str) and "\x00" in v for v in value)
+
+
+# no NUL byte, and no part between slashes longer than NAME_MAX (255; a longer one is 422, not
+# the file system's error). Linear to match: each repeated part must end at a slash.
+PATH_PATTERN = r"^/*([^/\x00]{1,255}/+)*[^/\x00]{0,255}$"
 
 
 def _scalar_kinds(annotation: Any) -> set[type]:
@@ -121,7 +138,10 @@ IngestPoses = Literal["file", "icp"]
 POSES_HELP = "Poses for ingest: file (the sequence's own; none links no tracks) or icp (estimated by KISS-ICP)."
 
 class DatasetBase(_Request):
-    path: str = Field(min_length=1, max_length=4096, description="A sequence path under a configured data root.")
+    path: str = Field(
+        min_length=1, max_length=4096, pattern=PATH_PATTERN,
+        description="A sequence path under a configured data root (no part longer than 255 characters).",
+    )
     name: str | None = Field(default=None, max_length=128)
     format: str = Field(default="auto", max_length=32, pattern=r"^[a-z0-9_]+$")
 
@@ -133,6 +153,19 @@ class DatasetCreate(DatasetBase):
     reregister: bool = Field(
         default=False, description="Register the folder again although a sequence of it exists (else 409)."
     )
+
+
+class AssignmentCreate(_Request):
+    sequence_id: int = Field(ge=1, le=2**31 - 1)
+    user_id: int = Field(ge=1, le=2**31 - 1)
+
+
+class AssignmentPublic(_Public):
+    id: int
+    sequence_id: int
+    user_id: int
+    created_by_id: int | None
+    created_at: UtcDateTime
 
 
 class SequencePublic(_Public):

@@ -23,7 +23,7 @@ from datetime import timedelta
 from typing import Any
 
 from pydantic import ValidationError
-from sqlalchemy import or_, select, update
+from sqlalchemy import case, or_, select, update
 
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
@@ -90,8 +90,10 @@ class Worker:
                 job.attempts += 1
                 job.lease_expires_at = now + lease
                 job.heartbeat_at = now
-                job.started_at = job.started_at or now
-                job.message = f"claimed by {self.worker_id} (attempt {job.attempts})"
+                # never before its creation, whichever machine's clock stamped that
+                job.started_at = job.started_at or max(now, job.created_at)
+                # the worker's host and pid stay in worker_id, for admins and the logs
+                job.message = f"claimed by a worker (attempt {job.attempts})"
                 claimed = ClaimedJob(job.id, job.type, dict(job.params or {}), job.attempts, job.created_by_id)
                 s.commit()
                 return claimed
@@ -125,7 +127,7 @@ class Worker:
         beat.start()
         params: Any = None
         try:
-            params = job_type.params.model_validate(claimed.params)
+            params = _within_cores(job_type.params.model_validate(claimed.params))
             result = job_type.handler(ctx, params)
         except JobStopped as exc:
             if exc.reason == "timed out":
@@ -166,9 +168,10 @@ class Worker:
         message: str = "",
         trace: str | None = None,
     ) -> None:
+        now = utcnow()
         values: dict[str, Any] = {
             "status": status,
-            "finished_at": utcnow(),
+            "finished_at": case((Job.started_at > now, Job.started_at), else_=now),  # never before the start
             "lease_expires_at": None,
             "message": message or status,
         }
@@ -239,10 +242,17 @@ class Worker:
                 self.stop_event.wait(self.settings.worker_poll_seconds)
 
     def start_thread(self) -> threading.Thread:
-        """Run `run_forever` in a daemon thread (the in-process worker of `tracklabel serve`)."""
+        """Run `run_forever` in a daemon thread (the in-process worker of `TRACKLABEL_EMBEDDED_WORKER`)."""
         t = threading.Thread(target=self.run_forever, daemon=True, name="worker")
         t.start()
         return t
+
+
+def _within_cores(params: Any) -> Any:
+    """The params with `threads` at most this machine's cores (the API checked its own)."""
+    threads = getattr(params, "threads", None)
+    cores = policy.machine_cores()
+    return params.model_copy(update={"threads": cores}) if threads is not None and threads > cores else params
 
 
 def main(once: bool = False) -> None:

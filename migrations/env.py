@@ -43,6 +43,21 @@ def run_migrations_online() -> None:
 
 
 def _run(connection) -> None:  # noqa: ANN001
+    if connection.dialect.name == "sqlite":
+        # batch mode rebuilds a table by DROP TABLE + rename; with foreign keys on, SQLite's
+        # DROP TABLE deletes every row first and cascades (rebuilding `tracks` emptied
+        # `segments`). The pragma is a no-op inside a transaction: set it on the raw connection
+        # before the migration's transaction begins, and back on after.
+        connection.connection.dbapi_connection.execute("PRAGMA foreign_keys=OFF")
+        try:
+            _migrate(connection)
+        finally:
+            connection.connection.dbapi_connection.execute("PRAGMA foreign_keys=ON")
+        return
+    _migrate(connection)
+
+
+def _migrate(connection) -> None:  # noqa: ANN001
     context.configure(
         connection=connection,
         target_metadata=target_metadata,

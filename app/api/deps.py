@@ -65,17 +65,26 @@ WriteSessionDep = Annotated[Session, Depends(get_write_session)]
 
 
 async def get_current_user(
+    request: Request,
     db: DatabaseDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> AuthUser:
-    """The caller named by a valid bearer token; 401 otherwise. Uses its own short read session.
+    """The caller named by a valid bearer token; 401 otherwise, 429 while the client's address
+    is over the limit of invalid tokens (app/api/security.py). Uses its own short read session.
 
     Looked up on every request, never cached: a revoked or expired token, or a disabled user, is
     refused from the next request on, whichever process (CLI, another API worker) changed it."""
     if credentials is None or credentials.scheme.lower() != "bearer" or not credentials.credentials:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token", {"WWW-Authenticate": "Bearer"})
+    limit = request.app.state.auth_limit
+    address = request.client.host if request.client else "unknown"
+    wait = limit.retry_after(address)
+    if wait:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"too many invalid tokens from this address; retry in {wait} s", {"Retry-After": str(wait)})
     user = await run_in_threadpool(_lookup_token, db, credentials.credentials)
     if user is None:
+        limit.failed(address)
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED, "invalid, expired or revoked token", {"WWW-Authenticate": "Bearer"}
         )
@@ -116,8 +125,11 @@ class LeaseGuard:
     override: bool
     lease_seconds: float
 
-    def check(self, session: Session, track: Track) -> None:
-        leases.check(session, track, self.user, utcnow(), override=self.override, renew_seconds=self.lease_seconds)
+    def check(self, session: Session, track: Track, renew: bool = True) -> None:
+        """409 unless the caller may change the track now; renews the caller's own lease unless
+        `renew` is False (a check in a read session, which must not write)."""
+        leases.check(session, track, self.user, utcnow(), override=self.override,
+                     renew_seconds=self.lease_seconds if renew else None)
 
 
 async def get_lease_guard(

@@ -41,6 +41,19 @@ def invalid_body(message: str) -> dict[str, Any]:
     return {"detail": [{"loc": [], "msg": message, "type": "value_error"}]}
 
 
+def allowed_methods(request: Request) -> list[str]:
+    """Every method the API documents at the request's path (the `Allow` of a 405)."""
+    from starlette.routing import compile_path
+
+    patterns = getattr(request.app.state, "allow_patterns", None)
+    if patterns is None:
+        patterns = [(compile_path(path)[0], {m.upper() for m in item if m != "parameters"})
+                    for path, item in request.app.openapi()["paths"].items()]
+        request.app.state.allow_patterns = patterns
+    path = request.url.path
+    return sorted({m for regex, methods in patterns if regex.match(path) for m in methods})
+
+
 def install(app: FastAPI) -> None:
     """Register the handlers that give every error its documented shape."""
 
@@ -57,11 +70,14 @@ def install(app: FastAPI) -> None:
         return JSONResponse({"detail": hide_paths(str(exc))}, status_code=404)
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         if exc.status_code == 400:  # FastAPI's "error parsing the body": a malformed body is a 422 too
             return JSONResponse({"detail": [{"loc": ["body"], "msg": "the body is not valid JSON", "type": "json_invalid"}]},
                                 status_code=422)
-        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
+        headers = exc.headers
+        if exc.status_code == 405:  # Starlette names only the first route of the path's methods
+            headers = {**(headers or {}), "Allow": ", ".join(allowed_methods(request) or [(exc.headers or {}).get("Allow", "")])}
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=headers)
 
     @app.exception_handler(RequestValidationError)
     async def _request_invalid(_request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -9,11 +9,12 @@ from fastapi import APIRouter, Depends
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 
-from app.api import deps
+from app.api import deps, retry
 from app.api.errors import ErrorBody
 from app.api.query_check import strict_query
 from app.api.routes import (
     anchors,
+    assignments,
     audits,
     bulk,
     datasets,
@@ -35,6 +36,7 @@ ERROR_TEXT = {
     404: "An id in the path, query or body names nothing.",
     409: "The state does not allow it (stale version, another user's lease, not ready, a duplicate).",
     413: "The request body is larger than the service's max_body_bytes.",
+    429: "Too many invalid tokens from the client's address (Retry-After says how long to wait).",
 }
 # which dependencies can refuse a caller's role (403)
 _ROLE_CHECKS = {deps.require_admin, deps.require_auditor, deps.get_lease_guard}
@@ -61,6 +63,7 @@ def error_statuses(route: APIRoute) -> list[int]:
         codes.append(409)
     if route.body_field is not None:
         codes.append(413)
+    codes.append(429)
     return codes
 
 
@@ -75,7 +78,8 @@ def declare_errors(router: APIRouter) -> None:
 
 
 api_router = APIRouter(dependencies=[Depends(strict_query)])
-for module in (health, users, datasets, frames, tracks, repair, review, bulk, exports, jobs, models, anchors, stitches,
-               audits):
+for module in (health, users, datasets, assignments, frames, tracks, repair, review, bulk, exports, jobs, models, anchors,
+               stitches, audits):
     declare_errors(module.router)  # before including: an included router's routes are not listed
+    retry.install(module.router)  # a route that loses a race to another writer runs again
     api_router.include_router(module.router)

@@ -1,6 +1,7 @@
 """Query strings as strict as bodies: a parameter the route does not declare, or a repeated one
 the route takes once, is a 422 (naming it), not silently ignored. (FastAPI ignores both; the
-OpenAPI contract says they are not part of the request.)"""
+OpenAPI contract says they are not part of the request.) A NUL byte in a query or path value is
+a 422 too (PostgreSQL cannot hold one: `/models?kind=car%00` was a 500)."""
 
 from __future__ import annotations
 
@@ -41,7 +42,12 @@ async def strict_query(request: Request) -> None:
     if not isinstance(route, APIRoute):
         return
     names, lists = _declared(route)
-    errors = []
+    errors = [
+        {"loc": [where, key], "msg": "holds a NUL byte", "type": "string_pattern_mismatch"}
+        for where, items in (("query", request.query_params.multi_items()), ("path", request.path_params.items()))
+        for key, value in items
+        if isinstance(value, str) and "\x00" in value
+    ]
     for key in request.query_params:
         if key not in names:
             errors.append({"loc": ["query", key], "msg": "not a parameter of this operation", "type": "extra_forbidden"})

@@ -18,9 +18,15 @@ from app.schemas import JobPublic
 _ABS_PATH = re.compile(r"(?<![\w.:/])/[^\s'\"/,;()\[\]]+(?:/[^\s'\",;()\[\]]*)+")
 
 
+# a worker id (host:pid:hex) and an IPv4 address: where the service runs is not for operators
+_WORKER_ID = re.compile(r"\b[\w.-]+:\d+:[0-9a-f]{8}\b")
+_IPV4 = re.compile(r"\b\d{1,3}(?:\.\d{1,3}){3}\b")
+
+
 def hide_paths(text: str) -> str:
-    """`text` with every absolute path replaced by `<path>`."""
-    return _ABS_PATH.sub("<path>", text)
+    """`text` with every absolute path replaced by `<path>`, worker ids by `<worker>` and IPv4
+    addresses by `<address>`."""
+    return _IPV4.sub("<address>", _WORKER_ID.sub("<worker>", _ABS_PATH.sub("<path>", text)))
 
 
 def hide_paths_in(value: Any) -> Any:

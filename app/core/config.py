@@ -65,11 +65,19 @@ class Settings(BaseSettings):
     token_expiry_days: float = Field(default=90.0, gt=0, le=36500)
     # Largest request body accepted (bytes); a longer one gets 413 without being read.
     max_body_bytes: int = Field(default=1 << 20, ge=1024)
+    # Invalid tokens one client address may present per minute; then 429 until the minute
+    # passes (per API process; app/api/security.py).
+    auth_failures_per_minute: int = Field(default=20, ge=1, le=100_000)
+    # Addresses whose X-Forwarded-For uvicorn trusts (the TLS proxy's), so that the limit above
+    # counts per client and not per proxy; "*" trusts any (only where the API port is private).
+    forwarded_allow_ips: str = "127.0.0.1"
 
     # HTTP server (`tracklabel serve`).
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=0, le=65535)
-    embedded_worker: bool = True  # `serve` runs one worker thread in-process
+    # one job worker thread inside the API process (create_app); off by default: `serve` starts
+    # worker processes instead, so that no job shares the API's event loop and memory
+    embedded_worker: bool = False
     threadpool_size: int = Field(default=8, ge=1, le=256)  # threads for the sync routes
     gil_switch_interval_ms: float = Field(default=1.0, gt=0, le=100)  # Python's default is 5 ms
 

@@ -123,3 +123,27 @@ def wait_for_db(engine: Engine, timeout_s: float = 60.0, interval_s: float = 1.0
             if time.monotonic() >= deadline:
                 raise
             time.sleep(interval_s)
+
+
+# PostgreSQL SQLSTATEs of a transaction that lost a race and may simply run again: serialization
+# failure, deadlock, and the unique / foreign-key violations of two writers inserting the same
+# row at once (run again, the loser finds the winner's row and answers 404 / 409 itself)
+_RETRY_SQLSTATES = frozenset({"40001", "40P01", "23505", "23503"})
+_RETRY_SQLITE = ("database is locked", "database table is locked", "UNIQUE constraint failed",
+                 "FOREIGN KEY constraint failed")
+
+
+def is_transient(exc: BaseException) -> bool:
+    """True for an error that says another transaction got there first (a deadlock, a
+    serialization failure, a lock wait that ran out, a duplicate insert of a racing writer):
+    the request may run again from the start."""
+    from sqlalchemy.exc import DBAPIError
+
+    if isinstance(exc, TimeoutError):  # this process's SQLite write lock (see _on_begin)
+        return True
+    if not isinstance(exc, DBAPIError):
+        return False
+    code = getattr(exc.orig, "sqlstate", None)
+    if code is not None:
+        return code in _RETRY_SQLSTATES
+    return any(text in str(exc.orig) for text in _RETRY_SQLITE)

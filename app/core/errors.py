@@ -34,3 +34,8 @@ class NotApplicable(Conflict):
     """A well-formed request that the named resource's current state rules out (a frame range
     outside the track, a region that selects nothing, a track merged with itself): 409. 422 is
     kept for requests the schema itself refuses."""
+
+
+class Retry(Exception):  # noqa: N818 - a signal, not a failure
+    """The rows a request prepared a change for changed meanwhile: run the request again
+    (app/api/retry.py does, for routes)."""

@@ -7,10 +7,12 @@ themselves; on PostgreSQL they lock the rows they change (`FOR UPDATE`).
 
 from __future__ import annotations
 
+from app.crud.assignments import create_assignment, delete_assignment, list_assignments
 from app.crud.bulk import bulk_accept, bulk_preview, list_bulk_actions, operation_count, undo_bulk
 from app.crud.bulk_load import BULK_TABLES, analyze_tables, clear_sequence_rows, vacuum_after_bulk_load
 from app.crud.datasets import (
     check_ready,
+    check_sensor_file,
     check_tree_inside_roots,
     create_dataset,
     registered_sequence_id,
@@ -54,6 +56,9 @@ __all__ = [
     "list_bulk_actions",
     "operation_count",
     "undo_bulk",
+    "create_assignment",
+    "list_assignments",
+    "delete_assignment",
     "AuthUser",
     "create_user",
     "create_token",
@@ -64,6 +69,7 @@ __all__ = [
     "list_tokens",
     "resolve_registration_path",
     "check_tree_inside_roots",
+    "check_sensor_file",
     "registered_sequence_id",
     "create_dataset",
     "sequence_stats",

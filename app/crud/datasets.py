@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path, PurePath
 from typing import Any
 
@@ -10,6 +9,7 @@ from sqlalchemy import bindparam, func, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
+from app.data_roots import DataRoots, sensor_file
 from app.models import Dataset, Frame, PairConstraint, Sequence, Track
 
 
@@ -34,34 +34,32 @@ def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
             raise Invalid(f"cannot resolve path: {exc}") from exc
         if any(real == r or real.is_relative_to(r) for r in real_roots):
             inside = True
-            if real.exists():
-                return real
+            try:
+                if real.exists():
+                    return real
+            except OSError:  # a part longer than the file system takes: nothing is there
+                continue
     if not inside:
         raise Forbidden("path is outside the configured data roots")
     raise NotFound(f"no such file or folder under the data roots: {raw}")
 
 
-def check_tree_inside_roots(path: Path, roots: list[Path]) -> None:
+def check_tree_inside_roots(path: Path, roots: list[Path]) -> DataRoots:
     """Forbidden (403) naming the first file or folder under `path` (or `path` itself) whose real
-    path (symlinks resolved) lies outside every root: a link inside a root must not smuggle in a
-    file from elsewhere. Checked at registration and again when ingest opens the sequence."""
-    real_roots = [r.resolve() for r in roots]
+    path lies outside every root, whatever the number of link hops, or that is a hard link to a
+    file with a name outside them (app/data_roots.py). Checked at registration and again when
+    ingest opens the sequence; returns the roots with the hard links it cleared."""
+    data_roots = DataRoots.of(roots)
+    data_roots.check_tree(path)
+    return data_roots
 
-    def inside(p: Path) -> bool:
-        real = p.resolve()
-        return any(real == r or real.is_relative_to(r) for r in real_roots)
 
-    if not inside(path):
-        raise Forbidden(f"{path.name} resolves outside the configured data roots")
-    if not path.is_dir():
-        return
-    for folder, dirs, files in os.walk(path, followlinks=False):
-        for name in (*dirs, *files):
-            entry = Path(folder) / name
-            if entry.is_symlink() and not inside(entry):
-                raise Forbidden(
-                    f"{entry.relative_to(path)} is a link to outside the configured data roots; refused"
-                )
+def check_sensor_file(config: Any, roots: list[Path]) -> None:
+    """A pipeline config's sensor file (an Ouster json) must lie under the roots too (403)."""
+    name = getattr(getattr(config, "sensor", None), "name", "auto")
+    path = sensor_file(str(name))
+    if path is not None:
+        DataRoots.of(roots).check_file(path, f"sensor file {path.name}")
 
 
 def registered_sequence_id(session: Session, path: Path) -> int | None:

@@ -109,7 +109,7 @@ def _track_for_review(
 ) -> Track:
     """The track, locked for update, once the action may go ahead: its sequence is ready, the
     lease allows it (renewing the caller's own), `version` is current and it is not merged away."""
-    track = session.get(Track, track_id, with_for_update=True)
+    track = session.get(Track, track_id, with_for_update={"key_share": True})
     if track is None:
         raise NotFound(f"track {track_id} not found")
     require_ready(session, track.sequence_id, "tracks can be reviewed once it is ready")
@@ -168,20 +168,23 @@ def _review_after(
 
 
 def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:
-    """Set the track's length, samples, points and mean range from its segments in
-    `keep_start..keep_end` (what ingest computes over the whole track). Invalid when none is kept."""
-    length, n_samples, n_points, range_sum = session.execute(
+    """Set the track's length (frames), samples, points and mean range (per segment) from its
+    segments in `keep_start..keep_end` (what ingest computes over the whole track). A merged
+    track can hold two segments in one frame: length counts frames, not segments. Invalid when
+    none is kept."""
+    segments, length, n_samples, n_points, range_sum = session.execute(
         select(
             func.count(),
+            func.count(func.distinct(Segment.frame_index)),
             func.coalesce(func.sum(Segment.valid.cast(Integer)), 0),
             func.coalesce(func.sum(Segment.n_points), 0),
             func.coalesce(func.sum(Segment.range), 0.0),
         ).where(Segment.track_id == track.id, Segment.frame_index.between(keep_start, keep_end))
     ).one()
-    if length == 0:
+    if segments == 0:
         raise NotApplicable(f"frame range {keep_start}..{keep_end} keeps no segment of the track")
     track.length, track.n_samples = int(length), int(n_samples)
-    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(length)
+    track.n_points, track.mean_range = int(n_points), float(range_sum) / int(segments)
     track.priority = queue_priority(track.n_points, track.predicted_confidence)
 
 

@@ -8,8 +8,9 @@ from typing import Any
 from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
-from app.core.errors import Conflict, NotFound
+from app.core.errors import NotFound
 from app.crud.users import AuthUser
+from app.leases import LeaseHeld
 from app.models import Sequence, Track, User, utcnow
 
 
@@ -40,8 +41,8 @@ def lease_next_track(
 ) -> Track | None:
     """Lease a pending track of a ready sequence to `user`: their own live lease first, else the
     unleased (or lease-expired) pending track of the highest `queue_priority` (`order` "size": the
-    one with the most points). Tracks in `exclude` are
-    passed over (one user's other viewer tabs hold them, or the operator skipped them). Commits."""
+    one with the most points). Tracks in `exclude` are passed over (one user's other viewer tabs
+    hold them, or the operator skipped them); among equal priorities the newest track first. Commits."""
     now = utcnow()
     ready = select(Sequence.id).where(Sequence.status == "ready")
     base = [Track.status == "pending", Track.sequence_id.in_(ready)]
@@ -63,7 +64,9 @@ def lease_next_track(
         cand = session.scalars(
             select(Track)
             .where(*base, _unleased(now))
-            .order_by(QUEUE_ORDERS[order].desc(), Track.id)
+            # both descending: one direction, so the queue index (..., priority, id) is read
+            # backwards and stops at the first free track (id ascending sorted every tie first)
+            .order_by(QUEUE_ORDERS[order].desc(), Track.id.desc())
             .limit(1)
             .with_for_update(skip_locked=True)
         ).first()
@@ -116,8 +119,7 @@ def lease_track(session: Session, track_id: int, user: AuthUser, lease_seconds: 
         session.rollback()
         holder = session.get(Track, track_id)
         name = session.scalar(select(User.name).where(User.id == holder.lease_user_id)) if holder else None
-        until = holder.lease_expires_at.isoformat(timespec="seconds") if holder and holder.lease_expires_at else "?"
-        raise Conflict(f"track {track_id} is being reviewed by {name or 'another operator'} (lease until {until})")
+        raise LeaseHeld(track_id, name or "another user", (holder and holder.lease_expires_at) or now)  # the 409 of app.leases
     session.commit()
     session.refresh(track)
     return track

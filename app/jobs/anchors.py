@@ -168,7 +168,7 @@ register(
         admin_only=False,
         description="Score a sequence's samples with a model and propose anchors (per class) to confirm.",
         prepare=prepare_propose,
-        operator_rule=OperatorRule(max_values={"per_class": 200, "unknown": 500, "batch": 1024}),
+        operator_rule=OperatorRule(max_values={"per_class": 200, "unknown": 500, "batch": 1024, "min_track_samples": 1000}),
         max_run_seconds=1800.0,
     )
 )

@@ -206,10 +206,12 @@ register(
         admin_only=False,
         description="Fine-tune a model on a sequence's confirmed anchors and constraints; register it; optionally predict.",
         prepare=prepare_finetune,
-        # operators: a run of minutes on the shared worker, and no predict (it rewrites every
-        # track's predicted class, an admin decision)
+        # operators: a bounded run on the shared worker (every numeric param; a step at most
+        # 128 labels x (1 + 2 x 4) canvases), and no predict (it rewrites every track's predicted
+        # class, an admin decision)
         operator_rule=OperatorRule(
-            max_values={"epochs": 50, "steps_per_epoch": 1000, "batch_labelled": 256, "threads": 8},
+            max_values={"epochs": 50, "steps_per_epoch": 1000, "batch_labelled": 128, "pairs_per_label": 4, "threads": 8,
+                        "min_score": 1.0, "gamma": 1.0, "lr": 0.1, "balance_weight": 10.0, "seed": 2**31 - 1},
             admin_switches=("predict",),
         ),
         max_run_seconds=3600.0,

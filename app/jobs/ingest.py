@@ -21,12 +21,13 @@ from typing import Any, Protocol
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import insert, select, update
+from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import FrameArtifact
 from app.core.errors import Conflict, NotFound
+from app.data_roots import GuardedSource
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
@@ -158,11 +159,13 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     ctx.artifacts.remove_sequence(params.sequence_id)
     ctx.progress(0.0, "opening the sequence")
 
-    # the files may have changed since registration: no link out of the data roots is read
-    crud.check_tree_inside_roots(Path(path), ctx.settings.data_roots)
+    # the files may have changed since registration: no link out of the data roots is read, and
+    # each frame's files are checked again as they are read (app/data_roots.py)
+    data_roots = crud.check_tree_inside_roots(Path(path), ctx.settings.data_roots)
     config = _backend.config(ctx.settings.pipeline_config, overrides)
+    crud.check_sensor_file(config, ctx.settings.data_roots)
     opened = _backend.open(path, fmt, getattr(getattr(config, "sensor", None), "name", "auto"), params.poses)
-    source, sensor = opened.source, opened.sensor
+    source, sensor = GuardedSource(opened.source, data_roots), opened.sensor
     total = len(source)
     with ctx.db.write() as s:
         s.execute(
@@ -199,8 +202,11 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     ctx.checkpoint()
 
     with ctx.db.write() as s:
+        top = max(state.tracks, default=0)  # the split's key counter starts above every ingested key
         s.execute(
-            update(Sequence).where(Sequence.id == params.sequence_id).values(status="ready", n_frames=state.frames)
+            update(Sequence).where(Sequence.id == params.sequence_id).values(
+                status="ready", n_frames=state.frames,
+                last_track_key=case((Sequence.last_track_key >= top, Sequence.last_track_key), else_=top))
         )
         crud.analyze_tables(s)
         s.commit()

@@ -2,9 +2,12 @@
 
 - Admins queue every job type with any valid params; their jobs run first (`ADMIN_PRIORITY`).
 - Operators queue only the types that carry an `OperatorRule` (fine-tuning and anchor proposals
-  on a sequence they work on, the selftest), within the rule's bounds: a numeric param above its
-  bound, or an admin-only switch turned on (finetune's `predict`), is refused with 403 naming
-  the param.
+  on a sequence an admin assigned them to, the selftest), within the rule's bounds: every numeric
+  param but the ids has one (`max_values`); a value above it, a null where it applies (null
+  meant "no limit": `steps_per_epoch: null` is one pass over all pairs), or an admin-only switch
+  turned on (finetune's `predict`) is refused with 403 naming the param.
+- For everyone, `threads` may not exceed this machine's cores (422); a worker with fewer cores
+  runs the job with its own count.
 - Per user, at most `job_max_queued_per_user` jobs wait and `job_max_running_per_user` run at a
   time (admins included: one admin cannot fill the worker either); the queue limit is checked
   when the job is created (429), the running limit when a worker claims (the job waits).
@@ -15,6 +18,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -23,8 +27,8 @@ from pydantic import BaseModel
 from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
 
-from app.core.errors import Forbidden, ServiceError
-from app.models import AnchorEvent, AnnotationEvent, Job, Track
+from app.core.errors import Forbidden, Invalid, ServiceError
+from app.models import Assignment, Job
 
 if TYPE_CHECKING:
     from app.core.config import Settings
@@ -43,10 +47,10 @@ class TooManyJobs(ServiceError):
 class OperatorRule:
     """What an operator may queue of one job type.
 
-    `max_values`: upper bounds of numeric params (None values pass: they mean "the default").
+    `max_values`: upper bounds of numeric params; a null value where a bound applies is refused.
     `admin_switches`: boolean params only an admin may turn on.
-    `own_sequence`: the job's `sequence_id` must be a sequence the operator works on (they hold
-    a lease there or have decided a track or an anchor of it).
+    `own_sequence`: the job's `sequence_id` must be a sequence an admin assigned the operator to
+    (`POST /assignments`; leases and reviews alone do not count).
     """
 
     max_values: Mapping[str, float] = field(default_factory=dict)
@@ -61,33 +65,50 @@ def check_operator_params(rule: OperatorRule, job_type: str, params: BaseModel) 
             raise Forbidden(f"params.{name}: only an admin may set it on a {job_type} job")
     for name, bound in rule.max_values.items():
         value = getattr(params, name, None)
-        if value is not None and value > bound:
+        if value is None:
+            raise Forbidden(f"params.{name}: operators give a value of at most {bound:g} for {job_type} jobs (null means no limit)")
+        if value > bound:
             raise Forbidden(f"params.{name}: {value} is above the operators' limit of {bound:g} for {job_type} jobs")
 
 
-def works_on(session: Session, user_id: int, sequence_id: int) -> bool:
-    """True when the user holds a lease on a track of the sequence or has decided one of its
-    tracks or anchors."""
-    tracks = select(Track.id).where(Track.sequence_id == sequence_id)
-    leased = select(Track.id).where(Track.sequence_id == sequence_id, Track.lease_user_id == user_id).limit(1)
-    reviewed = select(AnnotationEvent.id).where(AnnotationEvent.user_id == user_id, AnnotationEvent.track_id.in_(tracks)).limit(1)
-    anchored = select(AnchorEvent.id).where(AnchorEvent.user_id == user_id, AnchorEvent.sequence_id == sequence_id).limit(1)
-    return any(session.scalar(q) is not None for q in (leased, reviewed, anchored))
+def machine_cores() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def check_threads(params: BaseModel) -> None:
+    """Invalid (422) when a `threads` param asks for more cores than the machine has (anyone)."""
+    threads = getattr(params, "threads", None)
+    if threads is not None and threads > machine_cores():
+        raise Invalid(f"params.threads: {threads} is more than this machine's {machine_cores()} cores")
+
+
+def assigned(session: Session, user_id: int, sequence_id: int) -> bool:
+    """True when an admin assigned the user to the sequence."""
+    return session.scalar(
+        select(Assignment.id).where(Assignment.user_id == user_id, Assignment.sequence_id == sequence_id).limit(1)
+    ) is not None
 
 
 def authorize(session: Session, user: AuthUser, job_type: JobType, params: BaseModel, settings: Settings) -> int:
     """Check that `user` may queue `job_type` with `params` now; returns the job's priority.
 
-    Forbidden (403) for a type or params beyond the caller's role, TooManyJobs (429) past the
-    per-user queue limit."""
+    Forbidden (403) for a type or params beyond the caller's role, Invalid (422) for more threads
+    than cores, TooManyJobs (429) past the per-user queue limit."""
     if not user.is_admin:
         rule = job_type.rule_for_operators()
         if rule is None:
             raise Forbidden(f"job type {job_type.name!r} needs the admin role")
         check_operator_params(rule, job_type.name, params)
         sequence_id = getattr(params, "sequence_id", None)
-        if rule.own_sequence and sequence_id is not None and not works_on(session, user.id, sequence_id):
-            raise Forbidden(f"sequence {sequence_id}: operators queue {job_type.name} jobs only on sequences they review")
+        if rule.own_sequence and sequence_id is not None and not assigned(session, user.id, sequence_id):
+            raise Forbidden(
+                f"sequence {sequence_id}: operators queue {job_type.name} jobs only on sequences an admin assigned them to"
+            )
+    check_threads(params)
     queued = session.scalar(
         select(func.count()).select_from(Job).where(Job.created_by_id == user.id, Job.status == "queued")
     ) or 0

@@ -1,8 +1,8 @@
 """The API contract check: schemathesis over every operation of the OpenAPI schema, with all of
 its checks (server errors, status codes, content types, headers and bodies conforming to the
 schema, negative data rejected, positive data accepted, auth not ignored, unsupported methods,
-...), as an admin over a database holding an ingested sequence, so that routes get past
-authentication. Used by tests/app/test_api_fuzz.py (few examples) and bench/bench_service.py
+...), as an admin or as an operator (assigned to the sequence) over a database holding an
+ingested sequence, so that routes get past authentication. Used by tests/app/test_api_fuzz.py (few examples) and bench/bench_service.py
 (many). schemathesis' own pytest plugin does not run under this pytest, so operations are
 driven here.
 """
@@ -17,11 +17,12 @@ from hypothesis.errors import Unsatisfiable
 from schemathesis import GenerationMode
 
 
-def run_contract(client: Any, factory: Any, examples: int) -> dict[str, Any]:
-    """Drive every operation with `examples` positive and `examples` negative cases; returns
-    operations, negated (operations that had negative cases), failures and their list."""
-    factory.ingested_sequence(n_frames=3, n_objects=2)
-    admin = factory.user("admin")
+def run_contract(client: Any, factory: Any, examples: int, role: str = "admin") -> dict[str, Any]:
+    """Drive every operation with `examples` positive and `examples` negative cases as a user of
+    `role`; returns operations, negated (operations that had negative cases), failures and their list."""
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    caller = factory.user(role)
+    factory.assign(caller, seq)
     schema = schemathesis.openapi.from_asgi("/api/v1/openapi.json", client.app)
     failures: list[str] = []
     operations = negated = 0
@@ -39,7 +40,7 @@ def run_contract(client: Any, factory: Any, examples: int) -> dict[str, Any]:
                 suppress_health_check=list(HealthCheck),
             )
             def run(case: Any) -> None:
-                case.call_and_validate(headers=admin.headers)
+                case.call_and_validate(headers=caller.headers)
 
             try:
                 run()

@@ -47,6 +47,13 @@ class Factory:
             user, token = crud.create_user(s, name, role)
             return Caller(user.id, user.name, user.role, token)
 
+    def assign(self, caller: Caller, sequence_id: int) -> None:
+        """An admin's assignment of `caller` to the sequence (operators queue jobs only there); a
+        second call changes nothing."""
+        with self.db.write() as s:
+            if not crud.list_assignments(s, sequence_id, caller.id):
+                crud.create_assignment(s, sequence_id, caller.id, caller.id)
+
     def sequence_folder(self, name: str = "seq") -> Path:
         folder = self.settings.data_roots[0] / name
         (folder / "velodyne").mkdir(parents=True, exist_ok=True)

@@ -35,8 +35,11 @@ def model_id(db, tmp_path: Path) -> int:
 
 
 def _run_job(client, settings, db, caller, type_: str, **params) -> dict:
-    if caller.role != "admin":  # operators queue jobs on sequences they review (app/jobs/policy.py)
-        client.post("/api/v1/review/next", params={"sequence_id": params["sequence_id"]}, headers=caller.headers)
+    from tests.app.factories import Factory
+
+    factory = Factory(db, settings)
+    if caller.role != "admin":  # operators queue jobs on sequences an admin assigned them to (app/jobs/policy.py)
+        factory.assign(caller, params["sequence_id"])
     r = client.post("/api/v1/jobs", json={"type": type_, "params": params}, headers=caller.headers)
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]

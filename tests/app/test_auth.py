@@ -86,6 +86,7 @@ def _secured_operations(client) -> list[tuple[str, str]]:
 
 def test_auth_every_secured_route_refuses_missing_and_wrong_tokens(client, factory):
     factory.user("admin")
+    client.app.state.auth_limit.limit = 10**6  # every route's own answer, not the limit's 429
     ops = _secured_operations(client)
     assert len(ops) >= 25
     bad = []
@@ -116,3 +117,30 @@ def test_auth_operator_gets_403_on_every_admin_route(client, factory):
         (m, p): client.request(m, p, json=bodies.get(p, {}), headers=op.headers).status_code for m, p in ADMIN_ROUTES
     }
     assert set(codes.values()) == {403}, codes
+
+
+def test_auth_failed_tokens_are_rate_limited_with_retry_after(client, factory, settings):
+    op = factory.user("operator")
+    for _ in range(settings.auth_failures_per_minute):
+        assert client.get("/api/v1/users/me", headers={"Authorization": "Bearer tl_wrong"}).status_code == 401
+    r = client.get("/api/v1/users/me", headers={"Authorization": "Bearer tl_wrong"})
+    assert r.status_code == 429 and 1 <= int(r.headers["Retry-After"]) <= 60, r.headers
+    # the address waits, whatever it sends; missing tokens are not counted
+    assert client.get("/api/v1/users/me", headers=op.headers).status_code == 429
+    client.app.state.auth_limit.window_s = 0.0  # the minute has passed
+    assert client.get("/api/v1/users/me", headers=op.headers).status_code == 200
+
+
+def test_auth_every_answer_carries_the_security_headers(client, factory):
+    admin = factory.user("admin")
+    for r in (client.get("/api/v1/users/me", headers=admin.headers),
+              client.post("/api/v1/users", json={"name": "new"}, headers=admin.headers),
+              client.get("/api/v1/nothing-here"), client.post("/api/v1/users/me", headers=admin.headers)):
+        assert r.headers["x-content-type-options"] == "nosniff" and "default-src 'none'" in r.headers["content-security-policy"]
+        assert r.headers["cache-control"] == "no-store", r.url  # the new token's answer above included
+
+
+def test_auth_405_lists_every_allowed_method(client, factory):
+    admin = factory.user("admin")
+    r = client.delete("/api/v1/jobs", headers=admin.headers)
+    assert r.status_code == 405 and r.headers["allow"] == "GET, POST"

@@ -1,4 +1,4 @@
-"""The service commands: user add, db upgrade/downgrade, serve (with its in-process worker)."""
+"""The service commands: user add, db upgrade/downgrade, serve (with its worker process)."""
 
 from __future__ import annotations
 
@@ -56,7 +56,14 @@ def test_cli_db_upgrade_and_downgrade(env, tmp_path):
     engine.dispose()
 
 
-def test_cli_serve_runs_the_api_and_an_in_process_worker(env, tmp_path):
+def _children(pid: int) -> list[str]:
+    """Command lines of a process's children (Linux /proc)."""
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    kids = path.read_text().split() if path.exists() else []
+    return [Path(f"/proc/{k}/cmdline").read_bytes().replace(b"\0", b" ").decode() for k in kids]
+
+
+def test_cli_serve_runs_the_api_and_a_worker_process(env, tmp_path):
     token = CliRunner().invoke(cli, ["user", "add", "carol"]).output.strip()
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -84,6 +91,8 @@ def test_cli_serve_runs_the_api_and_an_in_process_worker(env, tmp_path):
         while (state := httpx.get(f"{base}/jobs/{job['id']}", headers=headers).json())["status"] != "succeeded":
             assert state["status"] in ("queued", "running") and time.monotonic() < deadline
             time.sleep(0.1)
+        if Path("/proc").is_dir():  # the job ran in a process of its own, not in the API's
+            assert any("app.cli worker" in c for c in _children(proc.pid)), _children(proc.pid)
     finally:
         proc.terminate()
         proc.wait(timeout=10)

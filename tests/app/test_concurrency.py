@@ -2,32 +2,9 @@
 
 from __future__ import annotations
 
-import socket
 import threading
-import time
 
 import httpx
-import pytest
-import uvicorn
-
-from app.main import create_app
-
-
-@pytest.fixture
-def live_url(settings, db):
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(settings, db=db), host="127.0.0.1", port=port, log_level="warning"))
-    t = threading.Thread(target=server.run, daemon=True)
-    t.start()
-    deadline = time.monotonic() + 10
-    while not server.started:
-        assert time.monotonic() < deadline
-        time.sleep(0.02)
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    t.join(timeout=5)
 
 
 def _race(url, track_id, bodies):

@@ -73,3 +73,42 @@ def test_contract_unknown_or_repeated_query_parameters_are_422(client, factory):
         r = client.get(f"/api/v1/models{query}", headers=op.headers)
         assert r.status_code == 422 and isinstance(r.json()["detail"], list), query
     assert client.get("/api/v1/tracks?ids=1&ids=2", headers=op.headers).status_code == 200  # a list parameter
+
+
+def test_contract_integer_fields_take_integral_numbers_only(client, factory):
+    """JSON Schema's integer: 5 and 5.0 (the same number), never 5.5 nor "5"."""
+    admin = factory.user("admin")
+    for steps, code in ((5, 202), (5.0, 202), (5.5, 422), ("5", 422)):
+        r = client.post("/api/v1/jobs", json={"type": "selftest", "params": {"steps": steps}}, headers=admin.headers)
+        assert r.status_code == code, (steps, r.text)
+    job = client.post("/api/v1/jobs", json={"type": "selftest", "params": {"steps": 5.0}}, headers=admin.headers).json()
+    assert job["params"]["steps"] == 5 and isinstance(job["params"]["steps"], int)  # stored as the integer
+
+
+def test_contract_nul_bytes_are_422_not_500(client, factory):
+    admin = factory.user("admin")
+    assert client.get("/api/v1/models?kind=car%00", headers=admin.headers).status_code == 422
+    r = client.post("/api/v1/tokens/revoke", json={"prefix": "tl_abc\u0000def"}, headers=admin.headers)
+    assert r.status_code == 422
+    r = client.post("/api/v1/users", json={"name": "a\u0000b"}, headers=admin.headers)
+    assert r.status_code == 422
+
+
+def test_contract_integer_bounds_are_integers(client):
+    schema = _openapi(client)["components"]["schemas"]["MergeAction"]["properties"]["other_track_id"]
+    assert schema["maximum"] == 2**62 and isinstance(schema["maximum"], int) and isinstance(schema["minimum"], int)
+
+
+def test_contract_job_times_and_messages(client, factory, settings, db):
+    from app.worker import Worker
+
+    op = factory.user("operator")
+    job_id = client.post("/api/v1/jobs", json={"type": "selftest", "params": {"steps": 1}}, headers=op.headers).json()["id"]
+    worker = Worker(settings, db=db)
+    claimed = worker.claim()
+    seen = client.get(f"/api/v1/jobs/{job_id}", headers=op.headers).json()
+    assert worker.worker_id.split(":")[0] not in seen["message"] and claimed is not None
+    worker.run(claimed)
+    seen = client.get(f"/api/v1/jobs/{job_id}", headers=op.headers).json()
+    created, started, finished = (datetime.fromisoformat(seen[k]) for k in ("created_at", "started_at", "finished_at"))
+    assert created <= started <= finished

@@ -40,11 +40,11 @@ def test_hardening_force_reingest_really_reruns(client, factory, db, settings):
 
 def test_hardening_operator_cannot_run_predict_through_finetune(client, factory):
     # defect 2: finetune's `predict: true` queued the admin-only predict job for an operator
-    from tests.app.test_job_policy import _model, _review_one
+    from tests.app.test_job_policy import _model
 
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     op = factory.user("operator")
-    _review_one(client, op)
+    factory.assign(op, seq)
     params = {"sequence_id": seq, "model_id": _model(factory.db), "predict": True}
     r = client.post("/api/v1/jobs", json={"type": "finetune", "params": params}, headers=op.headers)
     assert r.status_code == 403 and "predict" in r.json()["detail"]

@@ -33,22 +33,68 @@ def test_job_policy_operator_params_are_bounded(client, factory, db):
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     model_id = _model(db)
     op = factory.user("operator")
-    _review_one(client, op)
+    factory.assign(op, seq)
     r = _queue(client, op, "finetune", sequence_id=seq, model_id=model_id, epochs=1000, steps_per_epoch=100000)
     assert r.status_code == 403 and "params.epochs" in r.json()["detail"]
+    r = _queue(client, op, "finetune", sequence_id=seq, model_id=model_id, pairs_per_label=100)
+    assert r.status_code == 403 and "params.pairs_per_label" in r.json()["detail"]
     assert _queue(client, op, "finetune", sequence_id=seq, model_id=model_id, epochs=5).status_code == 202
     admin = factory.user("admin")
     assert _queue(client, admin, "finetune", sequence_id=seq, model_id=model_id, epochs=1000).status_code == 202
 
 
-def test_job_policy_operator_only_on_sequences_they_work_on(client, factory, db):
+def test_job_policy_operator_null_where_a_bound_applies_is_403(client, factory, db):
+    # steps_per_epoch: null meant one pass over every pair, whatever the bound
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user("operator")
+    factory.assign(op, seq)
+    r = _queue(client, op, "finetune", sequence_id=seq, model_id=_model(db), steps_per_epoch=None)
+    assert r.status_code == 403 and "params.steps_per_epoch" in r.json()["detail"]
+
+
+def test_job_policy_every_numeric_param_has_an_operator_bound():
+    from typing import get_args
+
+    from app.jobs.registry import job_types
+
+    for jt in job_types():
+        rule = jt.rule_for_operators()
+        if rule is None or jt.operator_rule is None:
+            continue
+        for name, info in jt.params.model_fields.items():
+            kinds = set(get_args(info.annotation)) | {info.annotation}
+            if kinds & {int, float} and bool not in kinds and not name.endswith("_id"):
+                assert name in rule.max_values, (jt.name, name)
+
+
+def test_job_policy_threads_above_the_cores_is_422_for_everyone(client, factory, db):
+    from app.jobs.policy import machine_cores
+
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    admin = factory.user("admin")
+    r = _queue(client, admin, "predict", sequence_id=seq, model_id=_model(db), threads=machine_cores() + 1)
+    assert r.status_code == 422 and "params.threads" in r.text
+    assert _queue(client, admin, "predict", sequence_id=seq, model_id=_model(db), threads=machine_cores()).status_code == 202
+
+
+def test_job_policy_operator_only_on_sequences_an_admin_assigned(client, factory, db):
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     model_id = _model(db)
-    op = factory.user("operator")
+    op, admin = factory.user("operator"), factory.user("admin")
+    _review_one(client, op)  # a lease and a review: no right to queue jobs there
+    client.post("/api/v1/review/next", headers=op.headers)
     r = _queue(client, op, "propose_anchors", sequence_id=seq, model_id=model_id)
     assert r.status_code == 403 and f"sequence {seq}" in r.json()["detail"]
-    _review_one(client, op)
+    r = client.post("/api/v1/assignments", json={"sequence_id": seq, "user_id": op.id}, headers=admin.headers)
+    assert r.status_code == 201, r.text
     assert _queue(client, op, "propose_anchors", sequence_id=seq, model_id=model_id).status_code == 202
+    assert client.get("/api/v1/assignments", headers=op.headers).json()[0]["sequence_id"] == seq
+    assert client.post("/api/v1/assignments", json={"sequence_id": seq, "user_id": op.id},
+                       headers=admin.headers).status_code == 409
+    assert client.post("/api/v1/assignments", json={"sequence_id": seq, "user_id": op.id},
+                       headers=op.headers).status_code == 403
+    assert client.delete(f"/api/v1/assignments/{r.json()['id']}", headers=admin.headers).status_code == 204
+    assert _queue(client, op, "propose_anchors", sequence_id=seq, model_id=model_id).status_code == 403
 
 
 def test_job_policy_operator_cannot_queue_admin_types(client, factory):

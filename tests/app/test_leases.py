@@ -102,3 +102,14 @@ def test_leases_stitch_decision_on_a_leased_track_is_409(client, factory, db):
     r = client.post(f"/api/v1/stitches/{stitch_id}/confirm", json={"version": 1}, headers=second.headers)
     assert r.status_code == 409 and "ann" in r.json()["detail"]
     assert client.post(f"/api/v1/stitches/{stitch_id}/confirm", json={"version": 1}, headers=first.headers).status_code == 200
+
+
+def test_leases_every_409_of_a_lease_reads_the_same(client, factory):
+    """The action routes and `POST /review/{id}/lease` refuse another user's lease in one format."""
+    import re
+
+    first, second, track = _leased(client, factory)
+    by_action = _act(client, second, track["id"], "accept", track["version"]).json()["detail"]
+    by_lease = client.post(f"/api/v1/review/{track['id']}/lease", headers=second.headers).json()["detail"]
+    pattern = rf"^track {track['id']} is leased to ann until \S+Z; an admin may override with override_lease=true$"
+    assert re.match(pattern, by_action) and re.match(pattern, by_lease), (by_action, by_lease)

@@ -62,3 +62,28 @@ def test_migrations_downgrade_to_base_and_back(empty_url):
     with engine.connect() as conn:
         assert MigrationContext.configure(conn).get_current_revision() == head_revision(empty_url)
     engine.dispose()
+
+
+def test_migrations_keep_the_rows_of_rebuilt_tables(empty_url):
+    """Rebuilding `tracks` in batch mode (0009, 0010 on SQLite) keeps the rows that point at it:
+    with SQLite's foreign keys on, DROP TABLE cascaded and emptied `segments`."""
+    upgrade(empty_url, "0008")
+    engine = create_engine(empty_url)
+    with engine.begin() as conn:
+        conn.execute(text("INSERT INTO datasets (id, name, path, created_at) VALUES (1, 'd', '/d', '2026-01-01')"))
+        conn.execute(text("INSERT INTO sequences (id, dataset_id, name, path, format, status, n_frames, created_at) "
+                          "VALUES (1, 1, 's', '/s', 'kitti', 'ready', 1, '2026-01-01')"))
+        conn.execute(text('INSERT INTO frames (id, sequence_id, "index", name, n_points, n_segments, n_samples, artifact) '
+                          "VALUES (1, 1, 0, '0', 1, 1, 1, 'a')"))
+        conn.execute(text("INSERT INTO tracks (id, sequence_id, key, status, first_frame, last_frame, keep_start, keep_end, "
+                          "length, n_samples, n_points, mean_range, version, updated_at) "
+                          "VALUES (1, 1, 7, 'pending', 0, 0, 0, 0, 1, 1, 1, 1.0, 1, '2026-01-01')"))
+        conn.execute(text("INSERT INTO segments (id, sequence_id, frame_id, frame_index, local_id, track_id, n_points, "
+                          "cx, cy, cz, wx, wy, wz, range, valid) VALUES (1, 1, 1, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 1.0, true)"))
+    engine.dispose()
+    upgrade(empty_url)
+    engine = create_engine(empty_url)
+    with engine.connect() as conn:
+        assert conn.execute(text("SELECT count(*) FROM segments")).scalar() == 1
+        assert conn.execute(text("SELECT last_track_key FROM sequences")).scalar() == 7  # the counter starts at the top key
+    engine.dispose()

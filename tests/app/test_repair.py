@@ -337,3 +337,28 @@ def test_repair_split_and_merge_by_an_operator_without_the_lease_409(client, fac
     assert r.status_code == 409 and "ann" in r.json()["detail"]
     assert factory.track(leased["id"]).version == leased["version"] and factory.track(free).version == 1
     _post(client, holder, leased["id"], "split", {"version": leased["version"], "region": HALF})  # the holder may
+
+
+def test_repair_split_after_undo_gets_a_fresh_id_and_key(client, factory):
+    """split -> undo -> split: the second part is a new track (new id, new key, so a new export
+    instance id); an edit sent with the undone track's id and version gets 404, never lands on it."""
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid = factory.track_ids(seq)[-1]  # the highest id and key: SQLite would hand both out again
+    first = _post(client, op, tid, "split", {"version": 1, "region": HALF})["new_track"]
+    _post(client, op, tid, "undo", {"version": 2})
+    second = _post(client, op, tid, "split", {"version": 3, "region": HALF})["new_track"]
+    assert second["id"] > first["id"] and second["key"] > first["key"]
+    _post(client, op, first["id"], "accept", {"version": first["version"]}, status=404)
+    assert factory.track(second["id"]).version == 1
+
+
+def test_repair_merged_track_length_counts_frames_after_truncate(client, factory):
+    """Two tracks seen in the same frames merged: two segments per frame, but length is frames."""
+    seq = factory.ingested_sequence(n_frames=4, n_objects=2)  # object 0 in frames 0-3, object 1 in 1-3
+    op = factory.user()
+    a, b = factory.track_ids(seq)
+    out = _post(client, op, a, "merge", {"version": 1, "other_track_id": b, "other_version": 1})
+    assert out["length"] == 4
+    out = _post(client, op, a, "truncate", {"version": 2, "start": 1, "end": 3})
+    assert out["length"] == 3 and out["n_samples"] == 6

@@ -52,7 +52,9 @@ def register_dataset(
 ) -> DatasetPublic:
     """Register a sequence by its path under a configured data root (admin).
 
-    A path with `..`, outside the roots, or holding a link to outside them is refused with 403; a
+    A path with `..`, outside the roots, or holding a link to outside them (however many hops),
+    a hard link to a file outside them, or a config whose sensor file lies outside is refused
+    with 403; a
     folder registered before with 409 and the existing `sequence_id` (unless `reregister`). With
     `ingest` (default) the ingest job is queued at once; its id is the sequence's `ingest_job_id`.
     """
@@ -73,9 +75,10 @@ def register_dataset(
         from pipeline.config import PipelineConfig
 
         try:
-            PipelineConfig().override(body.config)
+            config = PipelineConfig().override(body.config)
         except TracklabelError as exc:
             raise Invalid(f"config: {exc}") from exc
+        crud.check_sensor_file(config, settings.data_roots)
     try:
         fmt = detect_format(path) if body.format == "auto" else body.format
     except TracklabelError as exc:

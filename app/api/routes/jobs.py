@@ -8,6 +8,7 @@ from sqlalchemy import select
 
 from app import crud
 from app.api.deps import CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
+from app.api.errors import ErrorBody
 from app.api.redact import job_public
 from app.core.errors import Forbidden, Invalid, NotFound
 from app.crud import AuthUser
@@ -89,13 +90,16 @@ def _visible_job(session: SessionDep, job_id: int, user: AuthUser) -> Job:
     return job
 
 
-@router.get("/jobs/{job_id}")
+OTHERS_JOB = {403: {"description": "An operator asks for another user's job.", "model": ErrorBody}}
+
+
+@router.get("/jobs/{job_id}", responses=OTHERS_JOB)
 def read_job(job_id: IdPath, user: CurrentUser, session: SessionDep) -> JobPublic:
     """A job's status, progress, message and result."""
     return job_public(_visible_job(session, job_id, user), user)
 
 
-@router.post("/jobs/{job_id}/cancel", status_code=status.HTTP_202_ACCEPTED)
+@router.post("/jobs/{job_id}/cancel", status_code=status.HTTP_202_ACCEPTED, responses=OTHERS_JOB)
 def cancel_job(job_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> JobPublic:
     """Cancel a queued job, or ask a running one to stop at its next checkpoint."""
     _visible_job(session, job_id, user)

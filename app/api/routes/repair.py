@@ -1,16 +1,22 @@
 """Track repair (issue 22): split a track by a region, merge two tracks, undo either (or any
 other action). Each takes the versions the operator saw: 404 unknown track, 409 stale version,
 sequence not ready, merged track, a refused lease, a region that selects no point or every point,
-or a track merged with itself; 422 a body the schema refuses. Changes are events in the track's log (`GET /tracks/{id}/events`)."""
+or a track merged with itself; 422 a body the schema refuses. Changes are events in the track's log (`GET /tracks/{id}/events`).
+
+A split or merge does its slow part (cutting frames, rendering samples, writing files) in a read
+session and writes in one short transaction (app/repair.py): other operators' actions never wait
+behind it. Races with other writers run the request again (app/api/retry.py), never a 500."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from sqlalchemy.orm import Session
 
-from app import repair
-from app.api.deps import ArtifactsDep, BigIdPath, LeaseGuard, LeaseGuardDep, SettingsDep, WriteSessionDep
+from app import repair, track_ids
+from app.api.deps import ArtifactsDep, BigIdPath, DatabaseDep, LeaseGuardDep, SettingsDep, WriteSessionDep
 from app.core.config import Settings
 from app.core.errors import NotFound
 from app.models import Track
@@ -25,13 +31,17 @@ RESPONSES: dict[int | str, dict[str, str]] = {
 }
 
 
-def _check_lease(session: Session, track_ids: list[int], guard: LeaseGuard) -> None:
-    """Refuse the change when another user holds the lease of one of these tracks (409 naming
-    the holder, app.leases), unless an admin overrides; renews the caller's own leases."""
-    for track_id in track_ids:
-        track = session.get(Track, track_id, with_for_update=True)
-        if track is not None:
-            guard.check(session, track)
+def _write_begun(session: Session) -> float:
+    """Begin the write transaction (SQLite: wait for the write lock here) and return the time:
+    what follows is how long the lock is held, not how long it was waited for."""
+    session.connection()
+    return time.perf_counter()
+
+
+def _write_timing(response: Response, t0: float) -> None:
+    """`Server-Timing: write;dur=<ms>`: how long the write transaction held its locks (SQLite's
+    write lock; on PostgreSQL row locks, from BEGIN on)."""
+    response.headers["Server-Timing"] = f"write;dur={1e3 * (time.perf_counter() - t0):.2f}"
 
 
 def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, track_id: int) -> repair.RepairContext:
@@ -61,16 +71,20 @@ def _selector(session: Session, ctx: repair.RepairContext, track_id: int, body: 
 @router.post("/tracks/{track_id}/split", responses=RESPONSES)
 def split_track(
     track_id: BigIdPath, body: SplitAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
-    artifacts: ArtifactsDep,
+    artifacts: ArtifactsDep, db: DatabaseDep, response: Response,
 ) -> SplitPublic:
     """Cut the track's points inside `region` (world frame) out into a new pending track, in every
     kept frame or in `frame_index` only: a box, a half-space, a top-view prism, a screen lasso, the
     points above a height, or (`predicted`) the whole segments a model classifies as a class. Cut
     segments get new samples; both tracks get new versions."""
-    _check_lease(session, [track_id], guard)
-    ctx = _context(session, settings, artifacts, track_id)
-    selector = _selector(session, ctx, track_id, body)
-    res = repair.split_track(session, ctx, track_id, guard.user, body.version, selector, body.frame_index)
+    with db.read() as read:
+        ctx = _context(read, settings, artifacts, track_id)
+        selector = _selector(read, ctx, track_id, body)
+        plan = repair.plan_split(read, ctx, track_id, guard, body.version, selector, body.frame_index,
+                                 lambda sequence_id: track_ids.reserve(db, sequence_id))
+    t0 = _write_begun(session)
+    res = repair.apply_split(session, plan, guard, ctx)
+    _write_timing(response, t0)
     return SplitPublic(track=TrackPublic.model_validate(res.track), new_track=TrackPublic.model_validate(res.new_track),
                        moved_points=res.moved_points)
 
@@ -78,24 +92,22 @@ def split_track(
 @router.post("/tracks/{track_id}/merge", responses=RESPONSES)
 def merge_tracks(
     track_id: BigIdPath, body: MergeAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
-    artifacts: ArtifactsDep,
+    artifacts: ArtifactsDep, db: DatabaseDep, response: Response,
 ) -> TrackPublic:
     """Join `other_track_id` into this track (one object in two tracks, e.g. both sides of a
     stitch). The other track becomes `merged`; the joined track keeps the review state both
     shared, else it is pending without a class."""
-    _check_lease(session, [track_id, body.other_track_id], guard)
-    ctx = _context(session, settings, artifacts, track_id)
-    track = repair.merge_tracks(session, ctx, track_id, guard.user, body.version, body.other_track_id, body.other_version)
+    with db.read() as read:
+        ctx = _context(read, settings, artifacts, track_id)
+        plan = repair.plan_merge(read, ctx, track_id, guard, body.version, body.other_track_id, body.other_version)
+    t0 = _write_begun(session)
+    track = repair.apply_merge(session, plan, guard, ctx)
+    _write_timing(response, t0)
     return TrackPublic.model_validate(track)
 
 
 @router.post("/tracks/{track_id}/undo", responses=RESPONSES)
-def undo_track(
-    track_id: BigIdPath, body: UndoAction, guard: LeaseGuardDep, session: WriteSessionDep, settings: SettingsDep,
-    artifacts: ArtifactsDep,
-) -> TrackPublic:
+def undo_track(track_id: BigIdPath, body: UndoAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
     """Revert the caller's last not-yet-undone action on this track, a split or merge included
     (409 `nothing to undo` when there is none)."""
-    _check_lease(session, [track_id], guard)
-    ctx = _context(session, settings, artifacts, track_id)
-    return TrackPublic.model_validate(repair.undo(session, ctx, track_id, guard.user, body.version, guard.override))
+    return TrackPublic.model_validate(repair.undo(session, track_id, guard, body.version, guard.override))

@@ -1,7 +1,7 @@
 """the model in the review loop: queue priority, label sources, bulk accepts
 
-Revision ID: 0010
-Revises: 0009
+Revision ID: 0011
+Revises: 0010
 Create Date: 2026-12-06 03:00:00.000000
 """
 
@@ -12,8 +12,8 @@ from collections.abc import Sequence
 import sqlalchemy as sa
 from alembic import op
 
-revision: str = '0010'
-down_revision: str | None = '0009'
+revision: str = '0011'
+down_revision: str | None = '0010'
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
@@ -24,11 +24,18 @@ NEW_ACTIONS = "action IN ('accept', 'discard', 'truncate', 'label', 'undo', 'spl
 def upgrade() -> None:
     # reviewed by hand: the queue's priority starts as the track's points (no prediction yet),
     # accepted classes so far were operators' own reviews
-    with op.batch_alter_table('tracks', schema=None) as batch_op:
+    # the queue orders by priority now, not by samples; a rebuilt SQLite table keeps AUTOINCREMENT
+    # (migration 0010: track ids are never reused)
+    sqlite = op.get_bind().dialect.name == 'sqlite'
+    recreate = {'recreate': 'always', 'table_kwargs': {'sqlite_autoincrement': True}} if sqlite else {}
+    with op.batch_alter_table('tracks', schema=None, **recreate) as batch_op:
         batch_op.add_column(sa.Column('priority', sa.Float(), server_default='0', nullable=False))
         batch_op.add_column(sa.Column('label_source', sa.String(length=16), nullable=True))
         batch_op.create_check_constraint('label_source', "label_source IN ('review', 'bulk')")
+        batch_op.drop_index('ix_tracks_queue')
+        batch_op.drop_index('ix_tracks_status_n_samples')
         batch_op.create_index('ix_tracks_queue_priority', ['sequence_id', 'status', 'priority', 'id'], unique=False)
+        batch_op.create_index('ix_tracks_status_priority', ['status', 'priority', 'id'], unique=False)
     op.execute("UPDATE tracks SET priority = n_points")
     op.execute("UPDATE tracks SET label_source = 'review' WHERE status = 'accepted' AND label IS NOT NULL")
     op.execute("UPDATE labels SET source = 'review' WHERE source = 'track'")
@@ -73,8 +80,13 @@ def downgrade() -> None:
         batch_op.drop_constraint(batch_op.f('ck_annotation_events_action'), type_='check')
         batch_op.create_check_constraint('action', OLD_ACTIONS)
     op.execute("UPDATE labels SET source = 'track' WHERE source = 'review'")
-    with op.batch_alter_table('tracks', schema=None) as batch_op:
+    sqlite = op.get_bind().dialect.name == 'sqlite'
+    recreate = {'recreate': 'always', 'table_kwargs': {'sqlite_autoincrement': True}} if sqlite else {}
+    with op.batch_alter_table('tracks', schema=None, **recreate) as batch_op:
+        batch_op.drop_index('ix_tracks_status_priority')
         batch_op.drop_index('ix_tracks_queue_priority')
+        batch_op.create_index('ix_tracks_queue', ['sequence_id', 'status', 'n_samples', 'id'], unique=False)
+        batch_op.create_index('ix_tracks_status_n_samples', ['status', 'n_samples', 'id'], unique=False)
         batch_op.drop_constraint(batch_op.f('ck_tracks_label_source'), type_='check')
         batch_op.drop_column('label_source')
         batch_op.drop_column('priority')
