@@ -2,8 +2,8 @@
 
 `SecurityHeaders` (outermost ASGI middleware, so that the 413 of `BodyLimit` gets them too):
 `X-Content-Type-Options: nosniff`, `X-Frame-Options: DENY`, `Referrer-Policy: no-referrer`, a
-Content-Security-Policy that lets a JSON answer load nothing (the docs page may load Swagger UI
-from its CDN), and `Cache-Control: no-store` unless the route chose its own (a frame payload is
+Content-Security-Policy that lets a JSON answer load nothing (the docs page loads Swagger UI from
+the API's own docs-assets, app/api/docs.py), and `Cache-Control: no-store` unless the route chose its own (a frame payload is
 `private, max-age=3600`): an answer that carries a new token is never cached.
 
 `FailedAuthLimit`: a client address that presented `limit` invalid tokens within `window_s`
@@ -20,9 +20,8 @@ from collections import deque
 from typing import Any
 
 API_CSP = b"default-src 'none'; frame-ancestors 'none'"
-DOCS_CSP = (b"default-src 'none'; script-src 'unsafe-inline' https://cdn.jsdelivr.net; "
-            b"style-src 'unsafe-inline' https://cdn.jsdelivr.net; img-src data: https://fastapi.tiangolo.com; "
-            b"connect-src 'self'; frame-ancestors 'none'")
+DOCS_CSP = (b"default-src 'none'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+            b"img-src 'self' data:; connect-src 'self'; frame-ancestors 'none'")
 _FIXED = ((b"x-content-type-options", b"nosniff"), (b"x-frame-options", b"DENY"), (b"referrer-policy", b"no-referrer"))
 
 
