@@ -126,3 +126,27 @@ def kitti_seq00_propagated(dest: Path, frames: range = range(60), radius: float 
         lab.tofile(dest / "labels" / f"{i:06d}.label")
     _kitti_metadata(dest, src, frames)
     return dest
+
+
+# The labelled real clips the perception defaults are chosen and checked on, all together
+# (SOURCES.md): SemanticKITTI 00 (a street of parked cars, hedges and walls), 01 (a highway: fast
+# cars both ways) and 02 (a suburban road with vegetation), frames 0-9 of each.
+CLIPS = ("kitti_seq00", "kitti_seq01", "kitti_seq02")
+CLIP_FRAMES = range(10)
+
+
+def labelled_clips(dest: Path, frames: range = CLIP_FRAMES) -> dict[str, Path]:
+    """{clip: KITTI folder} of `frames` of each labelled clip (scans, labels, poses, times and
+    calib linked or cut under `dest`); {} when ../shared is absent."""
+    out = {}
+    for name in CLIPS:
+        src = REAL / name
+        if not (src / "velodyne").is_dir():
+            continue
+        dst = dest / name
+        for sub, ext in (("velodyne", "bin"), ("labels", "label")):
+            for i in frames:
+                _link(dst / sub / f"{i:06d}.{ext}", src / sub / f"{i:06d}.{ext}")
+        _kitti_metadata(dst, src, frames)
+        out[name] = dst
+    return out

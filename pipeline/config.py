@@ -89,6 +89,11 @@ class AssociationConfig(_Section):
     min_overlap: float = 0.3  # share of a segment's points that must vote for its match
     min_score: float = 0.35
     max_centroid_distance: float = 1.5  # metres, for motion-predicted centroid matching
+    # a predicted centroid's gate grows by this share of the distance its track moves in a frame
+    speed_gate: float = Field(default=0.25, ge=0.0)
+    # m/s: the fastest a segment that lands on nothing as a static object may have moved for a
+    # first link by a motion hypothesis (highway traffic; 3 m a frame at 10 Hz)
+    max_speed: float = Field(default=30.0, ge=0.0)
     use_motion_prediction: bool = True
     # reject links whose point counts differ more than this; 2.5 over 2.0 raised recall by 0.9-1.1
     # points on simulated seeds 0-3 (200 frames each) at a precision cost of <= 0.1 point
