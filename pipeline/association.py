@@ -31,9 +31,10 @@ from pipeline.sensors import SensorModel
 
 # At most this many points of a segment vote (an evenly strided subset, its votes scaled to the
 # segment's size): a 0.3 share is then known within a few percent, and a 20k-point wall costs
-# no more than a car.
-VOTE_POINTS = 512
-MOTION_VOTE_POINTS = 256  # the same in each motion-compensated pair
+# no more than a car. 256 and 128 gave the same quality on the three labelled real clips as 512
+# and 256, in two thirds of the time (docs/perception.md).
+VOTE_POINTS = 256
+MOTION_VOTE_POINTS = 128  # the same in each motion-compensated pair
 # First links by a motion hypothesis (`_first_links`), chosen on the three labelled real clips
 # together (docs/perception.md): segments of at least this many points (smaller pieces of foliage
 # and fences reshuffle between frames and found wrong links 2-4 m apart), that a static object
@@ -107,7 +108,7 @@ def _votes(points, order, starts, seg_pixel, pix_range, R, t, beams_asc, n_prev,
     votes = np.zeros((n_curr, n_prev), dtype=np.float64)
     for a in range(n_curr):
         size = starts[a + 1] - starts[a]
-        stride = max(1, size // max_points)
+        stride = max(1, (size + max_points - 1) // max_points)  # at most max_points points
         weight = size / ((size + stride - 1) // stride) if size else 0.0
         for j in range(starts[a], starts[a + 1], stride):
             i = order[j]
@@ -132,7 +133,7 @@ def _pair_votes(points, order, starts, pair_a, pair_b, shift, seg_pixel, pix_ran
         a, b = pair_a[k], pair_b[k]
         tk = t + shift[k]
         size = starts[a + 1] - starts[a]
-        stride = max(1, size // max_points)
+        stride = max(1, (size + max_points - 1) // max_points)  # at most max_points points
         n = 0
         used = 0
         for j in range(starts[a], starts[a + 1], stride):
@@ -339,6 +340,9 @@ def _add_motion_scores(
     # motion votes change the outcome)
     near = dist < gate + 1.5
     near &= (score[:, mv] < config.min_score) | (share[:, mv] < config.strong_share)
+    # pairs the height or the point-count gate turns down anyway cost no votes
+    ratio = blk.n_a[:, None] / blk.n_b[None, mv]
+    near &= (dz <= config.max_height_change) & (ratio <= config.max_point_ratio) & (ratio >= 1.0 / config.max_point_ratio)
     ia, jb = np.nonzero(near)
     if len(ia):
         shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
@@ -357,6 +361,13 @@ def _gate(speed: np.ndarray, dt: float, config: AssociationConfig) -> np.ndarray
     the distance the track moves in dt (a fast car's centroid error grows with its motion: it
     speeds up, brakes, and the visible part of it changes with the view)."""
     return config.max_centroid_distance + config.speed_gate * speed * dt
+
+
+def _unmatched(n: int, matched: np.ndarray, allowed: np.ndarray | None = None) -> np.ndarray:
+    """Sorted indices in [0, n) not in `matched`, and where `allowed` (n,) bool is true."""
+    free = np.ones(n, dtype=bool) if allowed is None else allowed.copy()
+    free[matched] = False
+    return np.flatnonzero(free)
 
 
 def _first_links(
@@ -379,9 +390,7 @@ def _first_links(
     comparable point counts, and FIRST_LINK_MIN_SHARE of a's points landing on b when moved back
     by the centroids' displacement; unique pairs go one-to-one (Hungarian on the
     motion-compensated score). Returns the block rows and columns matched so far."""
-    free_a = np.setdiff1d(np.arange(len(blk.va)), rows)
-    free_b = np.setdiff1d(np.arange(len(blk.vb)), cols)
-    free_a, free_b = free_a[moved[0][free_a]], free_b[moved[1][free_b]]
+    free_a, free_b = _unmatched(len(blk.va), rows, moved[0]), _unmatched(len(blk.vb), cols, moved[1])
     if not (len(free_a) and len(free_b)):
         return rows, cols
     d = cdist(blk.cw_a[free_a, :2], blk.cw_b[free_b, :2])
@@ -429,8 +438,7 @@ def _link_leftovers(
 ) -> None:
     """Link, in place, the segments left unmatched (block rows/cols not in `rows`/`cols`) by world
     centroid, only where the match is mutual and unambiguous."""
-    free_a = np.setdiff1d(np.arange(len(blk.va)), rows)
-    free_b = np.setdiff1d(np.arange(len(blk.vb)), cols)
+    free_a, free_b = _unmatched(len(blk.va), rows), _unmatched(len(blk.vb), cols)
     if not (len(free_a) and len(free_b)):
         return
     d = cdist(blk.cw_a[free_a, :2], blk.cw_b[free_b, :2])

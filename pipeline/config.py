@@ -79,6 +79,10 @@ class SampleConfig(_Section):
     max_height: float = 6.0  # height channel 0..max_height m -> 0..255
     max_range: float = 80.0  # range channel 0..max_range m -> 0..255
     foreground_channel: bool = True  # 4th channel marks the segment's own points
+    # the intensity channel: "sensor" = each point's rank among its sensor's intensities
+    # (`pipeline.intensity`; empty when the sensor has none), "raw" = the values as read (models
+    # trained before per-sensor normalisation; a checkpoint without the field reads as raw)
+    intensity: str = Field(default="sensor", pattern="^(sensor|raw)$")
 
     @property
     def channels(self) -> int:
@@ -146,6 +150,11 @@ class TrainingConfig(_Section):
     # with augment: the share of canvases that lose one random rectangle (a tenth to half the side
     # each way; random erasing): a view with a part missing, as occlusion and over-segmentation cut them
     augment_erase: float = Field(default=0.0, ge=0.0, le=1.0)
+    # the share of canvases whose intensity channel is emptied (the geometry-only input of a
+    # sensor without intensity), and the largest |log2| of a random power on the others'
+    # intensity (another sensor's response): a model that reads intensity but does not need it
+    intensity_drop: float = Field(default=0.0, ge=0.0, le=1.0)
+    intensity_gamma: float = Field(default=0.0, ge=0.0, le=3.0)
     balanced_labels: bool = True  # draw each batch's labels class-uniformly (rare classes as often as common ones)
     transitive_pairs: bool = True  # must-link is transitive: pair a drawn sample with any sample of its track
     # must-link closure: every sample a pair chain joins to a labelled sample is trained on that

@@ -27,6 +27,9 @@ class SensorModel:
 
     elevations_deg: (R,) beam elevations in degrees, descending (row 0 = top beam).
     width: azimuth bins of one revolution (range-image columns).
+    intensity_quantiles: p0..p100 of the sensor's intensities measured on a sequence's first
+    frame (`pipeline.intensity`), () when not measured; sample canvases show intensity by rank
+    among them.
     """
 
     name: str
@@ -35,6 +38,7 @@ class SensorModel:
     frequency_hz: float = 10.0
     min_range: float = 1.0
     max_range: float = 100.0
+    intensity_quantiles: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         el = np.asarray(self.elevations_deg)
@@ -61,6 +65,7 @@ class SensorModel:
             "frequency_hz": self.frequency_hz,
             "min_range": self.min_range,
             "max_range": self.max_range,
+            "intensity_quantiles": list(self.intensity_quantiles),
         }
 
     @classmethod
@@ -72,6 +77,7 @@ class SensorModel:
             frequency_hz=float(d.get("frequency_hz", 10.0)),
             min_range=float(d.get("min_range", 1.0)),
             max_range=float(d.get("max_range", 100.0)),
+            intensity_quantiles=tuple(float(x) for x in d.get("intensity_quantiles", ())),
         )
 
 

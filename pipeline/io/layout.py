@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.io.beams import MIN_RHO, beam_rows, find_beams
+from pipeline.io.beams import MIN_RHO, azimuth_coverage, beam_rows, find_beams
 from pipeline.io.organized import organized_rows, organized_shape, returns
 from pipeline.io.rings import scan_order_rings, segment_medians
 from pipeline.sensors import PRESETS, SensorModel, sensor_from_elevations
@@ -124,7 +124,7 @@ def measured_sensor(
     if width is not None:
         sensor = sensor_from_elevations(name, _elevations(points, rows, n_rows), width)
         return dataclasses.replace(sensor, width=max(8, width))
-    return sensor_from_elevations(name, _elevations(points, rows, n_rows), _per_row_width(rows, n_rows))
+    return sensor_from_elevations(name, _elevations(points, rows, n_rows), _per_row_width(points, rows, n_rows))
 
 
 def _measured_beams(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
@@ -135,9 +135,12 @@ def _measured_beams(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.nda
     return np.minimum.accumulate(np.interp(idx, idx[have], el[have]))
 
 
-def _per_row_width(rows: np.ndarray, n_rows: int) -> int:
-    """Columns of a scan from its points per row (95th percentile: rows lose returns, none gains)."""
-    return int(np.percentile(np.bincount(rows.astype(np.int64), minlength=n_rows), 95))
+def _per_row_width(points: np.ndarray, rows: np.ndarray, n_rows: int) -> int:
+    """Columns of one revolution from a scan's points per row (95th percentile: rows lose returns,
+    none gains) over the share of the revolution the scan covers (a camera-view crop holds a
+    quarter of each row)."""
+    per_row = float(np.percentile(np.bincount(rows.astype(np.int64), minlength=n_rows), 95))
+    return int(round(per_row / max(azimuth_coverage(points), 1e-3)))
 
 
 def known_layout(sensor: SensorModel, xyz: np.ndarray) -> Layout:

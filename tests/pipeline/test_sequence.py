@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,12 @@ from tests.pipeline.test_organized import organize, write_organized_bin
 from tests.pipeline.test_rings import beam_scan
 
 
-def ring_scan(per_ring: int, n_rings: int = 32) -> Scan:
+def ring_scan(per_ring: int, n_rings: int = 32, turn: float = 1.0) -> Scan:
+    """`per_ring` points on each of `n_rings` rings, 10 m away, spread evenly over `turn` of a
+    revolution."""
     ring = np.repeat(np.arange(n_rings), per_ring).astype(np.int16)
-    pts = np.tile(np.float32([10.0, 0.0, 0.0]), (len(ring), 1))
+    az = np.tile(np.arange(per_ring) * (2.0 * np.pi * turn / per_ring), n_rings)
+    pts = np.stack([10.0 * np.cos(az), 10.0 * np.sin(az), np.zeros_like(az)], axis=1).astype(np.float32)
     return Scan(pts, np.zeros(len(ring), np.float32), ring)
 
 
@@ -30,6 +34,14 @@ def test_fit_width_narrows_a_faster_spinning_sensor() -> None:
 
 def test_fit_width_keeps_a_full_sensor() -> None:
     assert fit_width(ring_scan(2100), get_sensor("hdl32e")).width == 2160
+
+
+def test_fit_width_counts_the_columns_of_a_whole_revolution_in_a_partial_scan() -> None:
+    # a quarter of a turn (a camera-view crop) holding 512 points per ring is a 2048-column
+    # sensor, not a 515-column one, named or not
+    assert fit_width(ring_scan(512, 64, turn=0.25), get_sensor("hdl64e")).width == 2048
+    measured = dataclasses.replace(get_sensor("hdl64e"), name="kitti-64beam", width=2048)
+    assert fit_width(ring_scan(512, 64, turn=0.25), measured).width == 2048
 
 
 def test_fit_width_ignores_points_at_the_sensor() -> None:
