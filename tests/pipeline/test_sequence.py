@@ -88,3 +88,21 @@ def test_open_sequence_no_frames_names_the_folder(tmp_path: Path) -> None:
     (tmp_path / "velodyne").mkdir()
     with pytest.raises(DataError, match="velodyne"):
         open_sequence(tmp_path)
+
+
+@pytest.mark.real_data
+@pytest.mark.parametrize("sensor", ["auto", "hdl64e"])
+def test_open_sequence_real_camera_view_crop_keeps_every_points_pixel(real_data: Path, tmp_path: Path, sensor: str) -> None:
+    # KITTI's camera-view crop (the front 90 degrees): fitted as 452 columns for a whole turn,
+    # three quarters of its points shared a pixel with another and lost their own
+    from pipeline.io.semantickitti import read_bin
+    from pipeline.range_image import project
+
+    raw = read_bin(real_data / "kitti_seq00" / "velodyne" / "000000.bin")
+    front = (raw[:, 0] > 0) & (np.abs(raw[:, 1]) < raw[:, 0])
+    (tmp_path / "velodyne").mkdir()
+    raw[front].tofile(tmp_path / "velodyne" / "000000.bin")
+    seq = open_sequence(tmp_path, sensor=sensor)
+    assert seq.sensor.width == 2048
+    scan = seq.source.frame(0)
+    assert project(scan, seq.sensor).owner_mask().mean() > 0.9
