@@ -10,9 +10,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from pipeline.errors import ConfigError
+from pipeline.sensors import check_ego_box
 
 
 class _Section(BaseModel):
@@ -27,6 +28,17 @@ class RangeImageConfig(_Section):
     width: int | None = None  # azimuth bins; None = the sensor preset's width
     min_range: float = 0.5
     max_range: float = 120.0
+    # (x_min, x_max, y_min, y_max, z_min, z_max) metres in the lidar frame: the vehicle's own body,
+    # whose returns are never segmented (label 0). None = the sensor's (a reader may know its
+    # vehicle: nuScenes), () = none
+    ego_box: tuple[float, ...] | None = None
+
+    @field_validator("ego_box")
+    @classmethod
+    def _box(cls, box: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if box is not None:
+            check_ego_box(box, "range_image")
+        return box
 
 
 class GroundConfig(_Section):
