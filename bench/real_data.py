@@ -83,7 +83,10 @@ def _world_points(src: Path, i: int, pose: np.ndarray) -> np.ndarray:
     return xyz @ pose[:3, :3].T + pose[:3, 3]
 
 
-def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: range = range(3)) -> dict[int, np.ndarray]:
+LABELLED_00 = range(10)  # the frames of kitti_seq00 with their own SemanticKITTI labels
+
+
+def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: range = LABELLED_00) -> dict[int, np.ndarray]:
     """SemanticKITTI labels (uint32 per point) for `frames` of kitti_seq00, carried from the
     labelled `sources` through the ground-truth poses: a point takes the label of the nearest
     labelled point within `radius` metres in the world frame, else 0 (unlabelled). Moving objects
@@ -111,8 +114,8 @@ def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: 
 
 def kitti_seq00_propagated(dest: Path, frames: range = range(60), radius: float = 0.15) -> Path | None:
     """A KITTI folder with `frames` of sequence 00 (scans linked): the labelled frames' own labels
-    linked, the others' carried from them through the poses (`propagated_labels`) and written
-    under `dest` (never into ../shared)."""
+    linked, the others' carried from them (`LABELLED_00`) through the poses (`propagated_labels`)
+    and written under `dest` (never into ../shared)."""
     src = REAL / "kitti_seq00"
     if not src.is_dir():
         return None
