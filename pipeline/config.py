@@ -91,7 +91,7 @@ class SampleConfig(_Section):
     max_height: float = 6.0  # height channel 0..max_height m -> 0..255
     max_range: float = 80.0  # range channel 0..max_range m -> 0..255
     foreground_channel: bool = True  # 4th channel marks the segment's own points
-    # the intensity channel: "sensor" = each point's rank among its sensor's intensities
+    # the intensity channel: "sensor" = scaled per sensor, its 95th percentile at 0.5
     # (`pipeline.intensity`; empty when the sensor has none), "raw" = the values as read (models
     # trained before per-sensor normalisation; a checkpoint without the field reads as raw)
     intensity: str = Field(default="sensor", pattern="^(sensor|raw)$")

@@ -82,7 +82,7 @@ def _sensor_warnings(stats: dict[str, Any], quantiles: tuple[float, ...], sample
     median, top = float(np.median(q)), float(q[int(round(0.99 * (len(q) - 1)))])
     if train["p5"] <= median <= train["p95"]:
         return []
-    how = "normalised per sensor (by rank)" if sample_mode == "sensor" else "as they are (this model reads raw values)"
+    how = "scaled per sensor (its 95th percentile to 0.5)" if sample_mode == "sensor" else "as they are (this model reads raw values)"
     return [f"intensity: the input's values (median {median:.3g}, 99th percentile {top:.3g}) lie outside the "
             f"training data's (5th-95th percentile {train['p5']:.3g}-{train['p95']:.3g}); the model sees them {how}"]
 

@@ -243,6 +243,35 @@ class _PredictionWriter:
         }
 
 
+def _summary(seq: str | Path, clf: SegmentClassifier, config: PipelineConfig, opened: Any, smooth_tracks: bool,
+             skipped: list[dict[str, str]], writer: _PredictionWriter, check: _InputCheck, elapsed: float) -> dict[str, Any]:
+    """summary.json of `run_predict` (module docstring)."""
+    summary: dict[str, Any] = {
+        "sequence": str(seq),
+        "model": str(clf.path),
+        "model_classes": list(clf.meta.classes),
+        "sample_size": config.samples.size,
+        "sample_channels": config.samples.channels,
+        "sensor": opened.sensor.name,
+        "sensor_from": opened.sensor_from,
+        "poses": opened.pose_source,
+        "smooth_tracks": smooth_tracks,
+        "frames": writer.frames,
+        "skipped": skipped,
+        **writer.counts(),
+        "seconds": round(elapsed, 3),
+        "seconds_classify": round(writer.classify_s, 3),
+        "seconds_write": round(writer.write_s, 3),
+        "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
+        "warnings": check.warnings or [],
+        "outputs": OUTPUTS,
+    }
+    if writer.evaluate and writer.preds:
+        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
+        summary |= point_accuracy(writer.preds, writer.truths)
+    return summary
+
+
 def point_accuracy(preds: list[np.ndarray], truths: list[np.ndarray]) -> dict[str, float | None]:
     """Share of the labelled points (truth not unlabelled) whose predicted class is their class,
     and the same over the labelled points that are not ground (the classifier's share)."""
@@ -312,29 +341,6 @@ def run_predict(
             writer.flush(pending)
     writer.flush(pending)
     check.finish()
-    elapsed = time.perf_counter() - t0
-    summary: dict[str, Any] = {
-        "sequence": str(seq),
-        "model": str(clf.path),
-        "model_classes": list(clf.meta.classes),
-        "sample_size": config.samples.size,
-        "sample_channels": config.samples.channels,
-        "sensor": sens.name,
-        "sensor_from": opened.sensor_from,
-        "poses": opened.pose_source,
-        "smooth_tracks": smooth_tracks,
-        "frames": writer.frames,
-        "skipped": skipped,
-        **writer.counts(),
-        "seconds": round(elapsed, 3),
-        "seconds_classify": round(writer.classify_s, 3),
-        "seconds_write": round(writer.write_s, 3),
-        "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
-        "warnings": check.warnings or [],
-        "outputs": OUTPUTS,
-    }
-    if writer.evaluate and writer.preds:
-        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
-        summary |= point_accuracy(writer.preds, writer.truths)
+    summary = _summary(seq, clf, config, opened, smooth_tracks, skipped, writer, check, time.perf_counter() - t0)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
