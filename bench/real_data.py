@@ -83,7 +83,10 @@ def _world_points(src: Path, i: int, pose: np.ndarray) -> np.ndarray:
     return xyz @ pose[:3, :3].T + pose[:3, 3]
 
 
-def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: range = range(3)) -> dict[int, np.ndarray]:
+LABELLED_00 = range(10)  # the frames of kitti_seq00 with their own SemanticKITTI labels
+
+
+def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: range = LABELLED_00) -> dict[int, np.ndarray]:
     """SemanticKITTI labels (uint32 per point) for `frames` of kitti_seq00, carried from the
     labelled `sources` through the ground-truth poses: a point takes the label of the nearest
     labelled point within `radius` metres in the world frame, else 0 (unlabelled). Moving objects
@@ -111,8 +114,8 @@ def propagated_labels(frames: range | list[int], radius: float = 0.15, sources: 
 
 def kitti_seq00_propagated(dest: Path, frames: range = range(60), radius: float = 0.15) -> Path | None:
     """A KITTI folder with `frames` of sequence 00 (scans linked): the labelled frames' own labels
-    linked, the others' carried from them through the poses (`propagated_labels`) and written
-    under `dest` (never into ../shared)."""
+    linked, the others' carried from them (`LABELLED_00`) through the poses (`propagated_labels`)
+    and written under `dest` (never into ../shared)."""
     src = REAL / "kitti_seq00"
     if not src.is_dir():
         return None
@@ -126,3 +129,27 @@ def kitti_seq00_propagated(dest: Path, frames: range = range(60), radius: float 
         lab.tofile(dest / "labels" / f"{i:06d}.label")
     _kitti_metadata(dest, src, frames)
     return dest
+
+
+# The labelled real clips the perception defaults are chosen and checked on, all together
+# (SOURCES.md): SemanticKITTI 00 (a street of parked cars, hedges and walls), 01 (a highway: fast
+# cars both ways) and 02 (a suburban road with vegetation), frames 0-9 of each.
+CLIPS = ("kitti_seq00", "kitti_seq01", "kitti_seq02")
+CLIP_FRAMES = range(10)
+
+
+def labelled_clips(dest: Path, frames: range = CLIP_FRAMES) -> dict[str, Path]:
+    """{clip: KITTI folder} of `frames` of each labelled clip (scans, labels, poses, times and
+    calib linked or cut under `dest`); {} when ../shared is absent."""
+    out = {}
+    for name in CLIPS:
+        src = REAL / name
+        if not (src / "velodyne").is_dir():
+            continue
+        dst = dest / name
+        for sub, ext in (("velodyne", "bin"), ("labels", "label")):
+            for i in frames:
+                _link(dst / sub / f"{i:06d}.{ext}", src / sub / f"{i:06d}.{ext}")
+        _kitti_metadata(dst, src, frames)
+        out[name] = dst
+    return out

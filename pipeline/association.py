@@ -4,10 +4,14 @@ For frame t, every point of a valid segment is moved into frame t-1 with the ego
 (`T_prev_curr = inv(T_world_prev) @ T_world_curr`) and projected into t-1's range image. A point
 votes for the t-1 segment owning that pixel when its range agrees with the pixel's range. The link
 score of (a, b) is votes(a -> b) / max(n_a, n_b). Tracks that move (constant-velocity
-state) are also matched by predicted centroid when the overlap is weak. Pairs are solved one-to-one
-with the Hungarian method. Precision beats recall (a wrong link teaches the model a wrong equality),
-so a segment whose votes split between two t-1 segments (a merge) or whose point count jumps is
-left unlinked.
+state) are also matched by predicted centroid when the overlap is weak, within a gate that grows
+with their speed. Pairs are solved one-to-one with the Hungarian method. A segment left over that
+lands on nothing when moved as a static object gets a first link by a motion hypothesis: each
+unmatched t-1 segment within `max_speed` x dt is tried as where it was, and the hypothesis is
+kept only when the segment's points, moved back by it, land on that segment (a car on a highway
+moves 2-3 m a frame, further than its own length from where a static object would be).
+Precision beats recall (a wrong link teaches the model a wrong equality), so a segment whose votes
+split between two t-1 segments (a merge) or whose point count jumps is left unlinked.
 """
 
 from __future__ import annotations
@@ -27,9 +31,20 @@ from pipeline.sensors import SensorModel
 
 # At most this many points of a segment vote (an evenly strided subset, its votes scaled to the
 # segment's size): a 0.3 share is then known within a few percent, and a 20k-point wall costs
-# no more than a car.
-VOTE_POINTS = 512
-MOTION_VOTE_POINTS = 256  # the same in each motion-compensated pair
+# no more than a car. 256 and 128 gave the same quality on the three labelled real clips as 512
+# and 256, in two thirds of the time (docs/perception.md).
+VOTE_POINTS = 256
+MOTION_VOTE_POINTS = 128  # the same in each motion-compensated pair
+# First links by a motion hypothesis (`_first_links`), chosen on the three labelled real clips
+# together (docs/perception.md): segments of at least this many points (smaller pieces of foliage
+# and fences reshuffle between frames and found wrong links 2-4 m apart), that a static object
+# explains under FIRST_LINK_STATIC of, whose points land on their match for at least
+# FIRST_LINK_MIN_SHARE when moved back, and whose best hypothesis no other one reaches within
+# FIRST_LINK_UNIQUE of its score (a row of posts or shrubs fits many).
+FIRST_LINK_MIN_POINTS = 30
+FIRST_LINK_MIN_SHARE = 0.3
+FIRST_LINK_STATIC = 0.3
+FIRST_LINK_UNIQUE = 0.5
 
 
 @dataclass(frozen=True)
@@ -93,7 +108,7 @@ def _votes(points, order, starts, seg_pixel, pix_range, R, t, beams_asc, n_prev,
     votes = np.zeros((n_curr, n_prev), dtype=np.float64)
     for a in range(n_curr):
         size = starts[a + 1] - starts[a]
-        stride = max(1, size // max_points)
+        stride = max(1, (size + max_points - 1) // max_points)  # at most max_points points
         weight = size / ((size + stride - 1) // stride) if size else 0.0
         for j in range(starts[a], starts[a + 1], stride):
             i = order[j]
@@ -118,7 +133,7 @@ def _pair_votes(points, order, starts, pair_a, pair_b, shift, seg_pixel, pix_ran
         a, b = pair_a[k], pair_b[k]
         tk = t + shift[k]
         size = starts[a + 1] - starts[a]
-        stride = max(1, size // max_points)
+        stride = max(1, (size + max_points - 1) // max_points)  # at most max_points points
         n = 0
         used = 0
         for j in range(starts[a], starts[a + 1], stride):
@@ -161,15 +176,17 @@ def moving_votes(
     prev: AssociationFrame,
     T_prev_curr: np.ndarray,
     sensor: SensorModel,
+    by_segment: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """(P,) float64 motion-compensated votes of t segment pairs[:, 0] for t-1 segment pairs[:, 1].
 
     shift_prev: (P, 3) displacement (t-1 lidar frame) added after the ego-motion: minus the
     motion of the t-1 track over dt, so that a moving object's points land where it was.
+    by_segment: `_points_by_segment(seg_point, n_curr)` when the caller has it already.
     """
     if len(pairs) == 0:
         return np.zeros(0, np.float64)
-    order, starts = _points_by_segment(seg_point, n_curr)
+    order, starts = by_segment if by_segment is not None else _points_by_segment(seg_point, n_curr)
     T = np.asarray(T_prev_curr, dtype=np.float64)
     return _pair_votes(
         points, order, starts, pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64),
@@ -186,13 +203,14 @@ def vote_matrix(
     prev: AssociationFrame,
     T_prev_curr: np.ndarray,
     sensor: SensorModel,
+    by_segment: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """(S_t, S_{t-1}) float64 votes: points of each t segment that land on each t-1 segment
     (segments of more than VOTE_POINTS points vote with a subset, scaled)."""
     n_prev = len(prev.n_points)
     if n_curr == 0 or n_prev == 0:
         return np.zeros((n_curr, n_prev), dtype=np.float64)
-    order, starts = _points_by_segment(seg_point, n_curr)
+    order, starts = by_segment if by_segment is not None else _points_by_segment(seg_point, n_curr)
     T = np.asarray(T_prev_curr, dtype=np.float64)
     return _votes(
         points, order, starts, prev.seg_pixel, prev.range, np.ascontiguousarray(T[:3, :3]),
@@ -243,7 +261,8 @@ def associate(
     va, vb = np.flatnonzero(curr.valid), np.flatnonzero(prev.valid)
     if len(va) == 0 or len(vb) == 0:
         return links
-    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor)[np.ix_(va, vb)]
+    by_segment = _points_by_segment(curr_seg_point, n_curr)
+    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor, by_segment)[np.ix_(va, vb)]
     vel_b = prev_velocity[vb]
     blk = _Block(
         va, vb, np.maximum(curr.n_points[va], 1).astype(np.float64), np.maximum(prev.n_points[vb], 1).astype(np.float64),
@@ -251,12 +270,16 @@ def associate(
         max(curr.time - prev.time, 1e-3),
     )
     share = votes / blk.n_a[:, None]  # (A, B) share of a's points voting for b, raised by motion votes
+    # (A,) share of a's points, (B,) of b's, that a static object would explain: a moving object
+    # leaves its place and lands on nothing
+    static_share = share.sum(axis=1)
+    vacated = votes.sum(axis=0) / blk.n_b < FIRST_LINK_STATIC
+    vote_moving = partial(moving_votes, curr_points, curr_seg_point, n_curr, prev=prev,
+                          T_prev_curr=T_prev_curr, sensor=sensor, by_segment=by_segment)
     # 1. overlap, with likely merges left out
     score = _overlap_score(votes, share, blk, config)
     # 2. moving tracks: predicted-centroid matching where the overlap is weak
     if config.use_motion_prediction:
-        vote_moving = partial(moving_votes, curr_points, curr_seg_point, n_curr, prev=prev,
-                              T_prev_curr=T_prev_curr, sensor=sensor)
         _add_motion_scores(score, share, blk, prev.T_world_lidar, vote_moving, config)
     # 3. gates: point counts must be comparable, centroids must be near after ego-motion
     ratio = blk.n_a[:, None] / blk.n_b[None, :]
@@ -266,9 +289,12 @@ def associate(
     ok = score[r, c] >= config.min_score
     links.prev[va[r[ok]]] = vb[c[ok]]
     links.score[va[r[ok]]] = score[r[ok], c[ok]]
-    # 5. objects that start moving (no velocity yet) or move across their own extent
     if config.use_motion_prediction:
-        _link_leftovers(links, blk, ratio, r[ok], c[ok], config)
+        # 5. segments that land on nothing as static objects: a first link by a motion hypothesis
+        rows, cols = _first_links(links, blk, ratio, (static_share < FIRST_LINK_STATIC, vacated), r[ok], c[ok],
+                                  prev.T_world_lidar, vote_moving, config)
+        # 6. objects that start moving (no velocity yet) or move across their own extent
+        _link_leftovers(links, blk, ratio, rows, cols, config)
     return _with_fragments(links, votes, blk.n_a, blk.n_b, va, vb, config.fragment_min_share)
 
 
@@ -304,15 +330,19 @@ def _add_motion_scores(
     mv = np.flatnonzero(moving)
     pred = blk.cw_b[mv] + blk.vel_b[mv] * blk.dt
     dist = cdist(blk.cw_a[:, :2], pred[:, :2])
-    cscore = np.clip(1.0 - dist / config.max_centroid_distance, 0.0, 1.0)
+    gate = _gate(blk.speed[mv], blk.dt, config)[None, :]  # (1, M) metres: wider for faster tracks
+    cscore = np.clip(1.0 - dist / gate, 0.0, 1.0)
     # a moving object keeps its height: a bollard under a crown is not the crown moved
     dz = np.abs(blk.cw_a[:, None, 2] - blk.cw_b[None, mv, 2])
     cscore[dz > config.max_height_change] = 0.0
     # motion-compensated votes: a's points moved back by the b track's own motion, for the pairs
     # whose plain votes leave them under the score or the strong-share gate (only there can
     # motion votes change the outcome)
-    near = dist < config.max_centroid_distance + 1.5
+    near = dist < gate + 1.5
     near &= (score[:, mv] < config.min_score) | (share[:, mv] < config.strong_share)
+    # pairs the height or the point-count gate turns down anyway cost no votes
+    ratio = blk.n_a[:, None] / blk.n_b[None, mv]
+    near &= (dz <= config.max_height_change) & (ratio <= config.max_point_ratio) & (ratio >= 1.0 / config.max_point_ratio)
     ia, jb = np.nonzero(near)
     if len(ia):
         shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
@@ -324,6 +354,71 @@ def _add_motion_scores(
         share[ia[good], mv[jb[good]]] = np.maximum(share[ia[good], mv[jb[good]]], mshare[good])
     sub = score[:, mv]
     score[:, mv] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
+
+
+def _gate(speed: np.ndarray, dt: float, config: AssociationConfig) -> np.ndarray:
+    """(M,) metres a predicted centroid may miss by: max_centroid_distance plus `speed_gate` of
+    the distance the track moves in dt (a fast car's centroid error grows with its motion: it
+    speeds up, brakes, and the visible part of it changes with the view)."""
+    return config.max_centroid_distance + config.speed_gate * speed * dt
+
+
+def _unmatched(n: int, matched: np.ndarray, allowed: np.ndarray | None = None) -> np.ndarray:
+    """Sorted indices in [0, n) not in `matched`, and where `allowed` (n,) bool is true."""
+    free = np.ones(n, dtype=bool) if allowed is None else allowed.copy()
+    free[matched] = False
+    return np.flatnonzero(free)
+
+
+def _first_links(
+    links: Links,
+    blk: _Block,
+    ratio: np.ndarray,
+    moved: tuple[np.ndarray, np.ndarray],
+    rows: np.ndarray,
+    cols: np.ndarray,
+    T_world_prev: np.ndarray,
+    vote_moving: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    config: AssociationConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Link, in place, unmatched t segments to unmatched t-1 segments by a motion hypothesis,
+    where both moved as no static object would: `moved` ((A,) bool, (B,) bool) holds the t
+    segments under FIRST_LINK_STATIC of whose points land on t-1 segments, and the t-1 segments
+    that under FIRST_LINK_STATIC of their size in t points land on (a car has left its place; a
+    reshuffled piece of foliage mostly has not). A pair needs FIRST_LINK_MIN_POINTS each, the
+    t-1 centroid within `max_speed` x dt (+ max_centroid_distance) at the same height,
+    comparable point counts, and FIRST_LINK_MIN_SHARE of a's points landing on b when moved back
+    by the centroids' displacement; unique pairs go one-to-one (Hungarian on the
+    motion-compensated score). Returns the block rows and columns matched so far."""
+    free_a, free_b = _unmatched(len(blk.va), rows, moved[0]), _unmatched(len(blk.vb), cols, moved[1])
+    if not (len(free_a) and len(free_b)):
+        return rows, cols
+    d = cdist(blk.cw_a[free_a, :2], blk.cw_b[free_b, :2])
+    dz = np.abs(blk.cw_a[free_a, None, 2] - blk.cw_b[None, free_b, 2])
+    rat = ratio[np.ix_(free_a, free_b)]
+    reach = config.max_speed * blk.dt + config.max_centroid_distance
+    near = (d <= reach) & (dz <= config.max_height_change) & (rat <= 1.5) & (rat >= 1.0 / 1.5)
+    near &= (blk.n_a[free_a, None] >= FIRST_LINK_MIN_POINTS) & (blk.n_b[None, free_b] >= FIRST_LINK_MIN_POINTS)
+    ia, jb = np.nonzero(near)
+    if len(ia) == 0:
+        return rows, cols
+    a, b = free_a[ia], free_b[jb]
+    shift = -(blk.cw_a[a] - blk.cw_b[b]) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
+    mvotes = vote_moving(np.stack([blk.va[a], blk.vb[b]], axis=1), shift)
+    mscore = np.where(mvotes / blk.n_a[a] >= FIRST_LINK_MIN_SHARE, mvotes / np.maximum(blk.n_a[a], blk.n_b[b]), 0.0)
+    score = np.zeros((len(free_a), len(free_b)))
+    score[ia, jb] = mscore
+    # a hypothesis that another one nearly matches is a repeated structure (fence posts, a row
+    # of shrubs), not a motion
+    if FIRST_LINK_UNIQUE > 0:
+        second_b = np.sort(score, axis=1)[:, -2] if score.shape[1] > 1 else np.zeros(len(score))
+        second_a = np.sort(score, axis=0)[-2] if score.shape[0] > 1 else np.zeros(score.shape[1])
+        score[(second_b[:, None] > FIRST_LINK_UNIQUE * score) | (second_a[None, :] > FIRST_LINK_UNIQUE * score)] = 0.0
+    r, c = linear_sum_assignment(-score)
+    ok = score[r, c] >= config.min_score
+    links.prev[blk.va[free_a[r[ok]]]] = blk.vb[free_b[c[ok]]]
+    links.score[blk.va[free_a[r[ok]]]] = score[r[ok], c[ok]]
+    return np.concatenate([rows, free_a[r[ok]]]), np.concatenate([cols, free_b[c[ok]]])
 
 
 def _apply_gates(score: np.ndarray, share: np.ndarray, ratio: np.ndarray, blk: _Block, config: AssociationConfig) -> None:
@@ -343,8 +438,7 @@ def _link_leftovers(
 ) -> None:
     """Link, in place, the segments left unmatched (block rows/cols not in `rows`/`cols`) by world
     centroid, only where the match is mutual and unambiguous."""
-    free_a = np.setdiff1d(np.arange(len(blk.va)), rows)
-    free_b = np.setdiff1d(np.arange(len(blk.vb)), cols)
+    free_a, free_b = _unmatched(len(blk.va), rows), _unmatched(len(blk.vb), cols)
     if not (len(free_a) and len(free_b)):
         return
     d = cdist(blk.cw_a[free_a, :2], blk.cw_b[free_b, :2])

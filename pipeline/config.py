@@ -10,9 +10,10 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from pipeline.errors import ConfigError
+from pipeline.sensors import check_ego_box
 
 
 class _Section(BaseModel):
@@ -27,6 +28,17 @@ class RangeImageConfig(_Section):
     width: int | None = None  # azimuth bins; None = the sensor preset's width
     min_range: float = 0.5
     max_range: float = 120.0
+    # (x_min, x_max, y_min, y_max, z_min, z_max) metres in the lidar frame: the vehicle's own body,
+    # whose returns are never segmented (label 0). None = the sensor's (a reader may know its
+    # vehicle: nuScenes), () = none
+    ego_box: tuple[float, ...] | None = None
+
+    @field_validator("ego_box")
+    @classmethod
+    def _box(cls, box: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        if box is not None:
+            check_ego_box(box, "range_image")
+        return box
 
 
 class GroundConfig(_Section):
@@ -79,6 +91,10 @@ class SampleConfig(_Section):
     max_height: float = 6.0  # height channel 0..max_height m -> 0..255
     max_range: float = 80.0  # range channel 0..max_range m -> 0..255
     foreground_channel: bool = True  # 4th channel marks the segment's own points
+    # the intensity channel: "sensor" = scaled per sensor, its 95th percentile at 0.5
+    # (`pipeline.intensity`; empty when the sensor has none), "raw" = the values as read (models
+    # trained before per-sensor normalisation; a checkpoint without the field reads as raw)
+    intensity: str = Field(default="sensor", pattern="^(sensor|raw)$")
 
     @property
     def channels(self) -> int:
@@ -89,6 +105,11 @@ class AssociationConfig(_Section):
     min_overlap: float = 0.3  # share of a segment's points that must vote for its match
     min_score: float = 0.35
     max_centroid_distance: float = 1.5  # metres, for motion-predicted centroid matching
+    # a predicted centroid's gate grows by this share of the distance its track moves in a frame
+    speed_gate: float = Field(default=0.25, ge=0.0)
+    # m/s: the fastest a segment that lands on nothing as a static object may have moved for a
+    # first link by a motion hypothesis (highway traffic; 3 m a frame at 10 Hz)
+    max_speed: float = Field(default=30.0, ge=0.0)
     use_motion_prediction: bool = True
     # reject links whose point counts differ more than this; 2.5 over 2.0 raised recall by 0.9-1.1
     # points on simulated seeds 0-3 (200 frames each) at a precision cost of <= 0.1 point
@@ -141,6 +162,11 @@ class TrainingConfig(_Section):
     # with augment: the share of canvases that lose one random rectangle (a tenth to half the side
     # each way; random erasing): a view with a part missing, as occlusion and over-segmentation cut them
     augment_erase: float = Field(default=0.0, ge=0.0, le=1.0)
+    # the share of canvases whose intensity channel is emptied (the geometry-only input of a
+    # sensor without intensity), and the largest |log2| of a random power on the others'
+    # intensity (another sensor's response): a model that reads intensity but does not need it
+    intensity_drop: float = Field(default=0.0, ge=0.0, le=1.0)
+    intensity_gamma: float = Field(default=0.0, ge=0.0, le=3.0)
     balanced_labels: bool = True  # draw each batch's labels class-uniformly (rare classes as often as common ones)
     transitive_pairs: bool = True  # must-link is transitive: pair a drawn sample with any sample of its track
     # must-link closure: every sample a pair chain joins to a labelled sample is trained on that

@@ -25,6 +25,7 @@ from pipeline.scan import Scan
 # LLVM's fast-math without "no NaN / no inf": a point of 1e38 m may overflow to inf in a product,
 # which the full fast-math would treat as undefined.
 FAST_MATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+FIRST_RUN = 6.0  # metres, see `_column_walk`
 
 
 @dataclass(frozen=True)
@@ -52,8 +53,10 @@ def _column_walk(index, points, tan_slope, tan_start, tol, sensor_height, max_ru
     last_z = np.full(w, -sensor_height, dtype=np.float32)
     lim = np.full(w, tan_start, dtype=np.float32)
     # a slope may not accumulate over a long gap without returns (a far car behind an empty
-    # stretch would otherwise look like rising ground); no cap before a column's first ground point
-    cap = np.full(w, np.inf, dtype=np.float32)
+    # stretch would otherwise look like rising ground); before a column's first ground point it
+    # counts over at most FIRST_RUN m from the sensor's foot (a lone return 3 m above the road,
+    # 12 m away, is no ground)
+    cap = np.full(w, FIRST_RUN, dtype=np.float32)
     for r in range(h - 1, -1, -1):
         for c in range(w):
             i = index[r, c]

@@ -180,6 +180,8 @@ class CheckpointMeta:
     classes: tuple[str, ...]
     metrics: dict[str, Any] = field(default_factory=dict)
     training_config: TrainingConfig | None = None
+    # statistics of the training inputs (`pipeline.input_stats`), {} for older checkpoints
+    input_stats: dict[str, Any] = field(default_factory=dict)
 
 
 def save_checkpoint(
@@ -190,8 +192,11 @@ def save_checkpoint(
     metrics: dict[str, Any] | None = None,
     training_config: TrainingConfig | None = None,
     classes: tuple[str, ...] = SAMPLE_CLASSES,
+    input_stats: dict[str, Any] | None = None,
 ) -> Path:
-    """Write a self-describing checkpoint (plain types + tensors, loadable with weights_only)."""
+    """Write a self-describing checkpoint (plain types + tensors, loadable with weights_only);
+    `input_stats`: statistics of the training inputs (`pipeline.input_stats`) that predict
+    compares a sequence's inputs with."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
@@ -202,6 +207,7 @@ def save_checkpoint(
         "training_config": None if training_config is None else training_config.model_dump(mode="json"),
         "classes": list(classes),
         "metrics": metrics or {},
+        "input_stats": input_stats or {},
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
     tmp = path.with_name(path.name + ".tmp")
@@ -228,12 +234,13 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
         meta = CheckpointMeta(
             net=net,
             model_config=ModelConfig.model_validate(payload["model_config"]),
-            sample_config=SampleConfig.model_validate(payload["sample_config"]),
+            sample_config=_sample_config(payload["sample_config"]),
             classes=tuple(payload["classes"]),
             metrics=dict(payload.get("metrics") or {}),
             training_config=None
             if payload.get("training_config") is None
             else _training_config(payload["training_config"]),
+            input_stats=dict(payload.get("input_stats") or {}),
         )
         model = build_model(net)
         model.load_state_dict(payload["state_dict"])
@@ -242,6 +249,12 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     model.to(resolve_device(str(device)) if isinstance(device, str) else device)
     model.eval()
     return model, meta
+
+
+def _sample_config(stored: dict[str, Any]) -> SampleConfig:
+    """A checkpoint's sample config; one written before intensity was normalised per sensor
+    read raw intensities (its model knows no other)."""
+    return SampleConfig.model_validate({"intensity": "raw", **stored})
 
 
 def _training_config(stored: dict[str, Any]) -> TrainingConfig:

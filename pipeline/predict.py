@@ -13,10 +13,19 @@ valid segment and writes::
                                 0 for ground and unlabelled points (not decided by the classifier).
     OUT/segments/NNNNNN.npz     per classified segment: segment (V,) int32 local id, track (V,)
                                 int64 track id, probs (V, K) float16 class probabilities.
-    OUT/summary.json            frames, classified segments, points per class, timings, frames/s
-                                and point IoU per class over the frames that have SemanticKITTI
-                                labels (`frames_scored` says how many; the others are not scored).
+    OUT/summary.json            frames, classified segments, points per class, timings, frames/s,
+                                warnings about inputs unlike the model's training data, and point
+                                IoU per class and point accuracy over the frames that have
+                                SemanticKITTI labels (`frames_scored` says how many; the others
+                                are not scored).
     OUT/config.yaml             the pipeline config used.
+
+The sample canvases show intensity as the model was trained to read it (`SampleConfig.intensity`:
+by rank among the sensor's own intensities, `pipeline.intensity`, or raw); a sensor without
+intensity gives an empty channel, the shipped model's geometry-only input. Inputs that lie
+outside the checkpoint's training statistics (`pipeline.input_stats`: no intensity, intensity on
+another scale, a canvas channel out of range) are reported through `log` and in the summary's
+`warnings`, each naming its channel.
 
 With `smooth_tracks` a segment takes the mean probabilities of its whole track up to and including
 this frame (causal: an online system has not seen the later frames), so a track flickers less.
@@ -36,6 +45,7 @@ import numpy as np
 from pipeline.classes import GROUND, UNLABELLED, to_ours, to_semantickitti
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
+from pipeline.input_stats import input_warnings
 from pipeline.metrics import point_iou
 from pipeline.model import default_model_path, load_checkpoint, predict
 from pipeline.processing import FrameResult, SequenceProcessor
@@ -127,6 +137,33 @@ def predict_frame_classes(fr: FrameResult, probs: np.ndarray) -> FramePrediction
     return FramePrediction(point_class, confidence, sample_seg.astype(np.int32), track, probs)
 
 
+class _InputCheck:
+    """Compares the first `enough` canvases of a sequence (all of them when it has fewer) with
+    the checkpoint's training statistics, once; `warnings` then holds what lies outside."""
+
+    def __init__(self, clf: SegmentClassifier, quantiles: tuple[float, ...], log: Callable[[str], None],
+                 enough: int = 256) -> None:
+        self.clf, self.quantiles, self.log, self.enough = clf, quantiles, log, enough
+        self.parts: list[np.ndarray] = []
+        self.warnings: list[str] | None = None
+
+    def add(self, samples: np.ndarray) -> None:
+        if self.warnings is None:
+            self.parts.append(samples)
+            if sum(len(p) for p in self.parts) >= self.enough:
+                self.finish()
+
+    def finish(self) -> None:
+        if self.warnings is not None:
+            return
+        samples = np.concatenate(self.parts) if self.parts else np.zeros((0, 4, 1, 1), np.uint8)
+        self.warnings = input_warnings(self.clf.meta.input_stats, samples, self.quantiles,
+                                       self.clf.meta.sample_config.intensity)
+        self.parts.clear()
+        for w in self.warnings:
+            self.log(w)
+
+
 class _TrackSmoother:
     """Causal running mean of class probabilities per track id."""
 
@@ -205,6 +242,50 @@ class _PredictionWriter:
         }
 
 
+def _summary(seq: str | Path, clf: SegmentClassifier, config: PipelineConfig, opened: Any, smooth_tracks: bool,
+             skipped: list[dict[str, str]], writer: _PredictionWriter, check: _InputCheck, elapsed: float) -> dict[str, Any]:
+    """summary.json of `run_predict` (module docstring)."""
+    summary: dict[str, Any] = {
+        "sequence": str(seq),
+        "model": str(clf.path),
+        "model_classes": list(clf.meta.classes),
+        "sample_size": config.samples.size,
+        "sample_channels": config.samples.channels,
+        "sensor": opened.sensor.name,
+        "sensor_from": opened.sensor_from,
+        "poses": opened.pose_source,
+        "smooth_tracks": smooth_tracks,
+        "frames": writer.frames,
+        "skipped": skipped,
+        **writer.counts(),
+        "seconds": round(elapsed, 3),
+        "seconds_classify": round(writer.classify_s, 3),
+        "seconds_write": round(writer.write_s, 3),
+        "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
+        "warnings": check.warnings or [],
+        "outputs": OUTPUTS,
+    }
+    if writer.evaluate:
+        summary["frames_scored"] = len(writer.preds)  # the frames that carry labels
+    if writer.evaluate and writer.preds:
+        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
+        summary |= point_accuracy(writer.preds, writer.truths)
+    return summary
+
+
+def point_accuracy(preds: list[np.ndarray], truths: list[np.ndarray]) -> dict[str, float | None]:
+    """Share of the labelled points (truth not unlabelled) whose predicted class is their class,
+    and the same over the labelled points that are not ground (the classifier's share)."""
+    pred, truth = np.concatenate(preds), np.concatenate(truths)
+    labelled = truth != UNLABELLED
+    objects = labelled & (truth != GROUND)
+
+    def share(m: np.ndarray) -> float | None:
+        return round(float(np.mean(pred[m] == truth[m])), 4) if m.any() else None
+
+    return {"point_accuracy": share(labelled), "object_point_accuracy": share(objects)}
+
+
 def run_predict(
     seq: str | Path,
     checkpoint: str | Path | None,
@@ -249,38 +330,18 @@ def run_predict(
         log(f"skipped frame {source.frame_name(i)}: {err}")
 
     writer = _PredictionWriter(clf, out, smooth_tracks, evaluate)
+    check = _InputCheck(clf, sens.intensity_quantiles, log)
     proc = SequenceProcessor(config, sens)
     pending: list[FrameResult] = []
     t0 = time.perf_counter()
     for fr in proc.iter_frames(source, progress=progress, samples=True, poses=pose_arr, on_skip=on_skip):
         clf.check_samples(fr.samples, out)
+        check.add(fr.samples)
         pending.append(fr)
         if len(pending) >= batch_frames or sum(len(f.samples) for f in pending) >= batch_samples:
             writer.flush(pending)
     writer.flush(pending)
-    elapsed = time.perf_counter() - t0
-    summary: dict[str, Any] = {
-        "sequence": str(seq),
-        "model": str(clf.path),
-        "model_classes": list(clf.meta.classes),
-        "sample_size": config.samples.size,
-        "sample_channels": config.samples.channels,
-        "sensor": sens.name,
-        "sensor_from": opened.sensor_from,
-        "poses": opened.pose_source,
-        "smooth_tracks": smooth_tracks,
-        "frames": writer.frames,
-        "skipped": skipped,
-        **writer.counts(),
-        "seconds": round(elapsed, 3),
-        "seconds_classify": round(writer.classify_s, 3),
-        "seconds_write": round(writer.write_s, 3),
-        "frames_per_second": round(writer.frames / elapsed, 2) if elapsed > 0 else None,
-        "outputs": OUTPUTS,
-    }
-    if writer.evaluate:
-        summary["frames_scored"] = len(writer.preds)  # the frames that carry labels
-    if writer.evaluate and writer.preds:
-        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
+    check.finish()
+    summary = _summary(seq, clf, config, opened, smooth_tracks, skipped, writer, check, time.perf_counter() - t0)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -27,7 +27,8 @@ class RangeImage:
     row:   (N,) int16 pixel row of every point of the scan.
     col:   (N,) int32 pixel column of every point of the scan.
     point_range: (N,) float32 range of every point.
-    kept:  (N,) bool, points inside [min_range, max_range] (others have no pixel role).
+    kept:  (N,) bool, points inside [min_range, max_range] and outside the ego box (others have no
+           pixel role).
     """
 
     index: np.ndarray
@@ -99,8 +100,9 @@ def fast_atan2(y, x):  # pragma: no cover - numba
 
 
 @njit(cache=True, parallel=True)
-def _project_kernel(points, ring, height, width, min_range, max_range):  # pragma: no cover - numba
+def _project_kernel(points, ring, height, width, min_range, max_range, box):  # pragma: no cover - numba
     n = points.shape[0]
+    boxed = box.shape[0] == 6
     index = np.full((height, width), -1, dtype=np.int32)
     rimg = np.zeros((height, width), dtype=np.float32)
     col = np.empty(n, dtype=np.int32)
@@ -126,6 +128,8 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
         col[i] = c
         row = ring[i]
         kept[i] = r >= min_range and r <= max_range and row >= 0 and row < height
+        if boxed and box[0] <= x <= box[1] and box[2] <= y <= box[3] and box[4] <= z <= box[5]:
+            kept[i] = False  # the vehicle's own body
     # 2. each pixel keeps its nearest point (serial: points compete for pixels)
     for i in range(n):
         if not kept[i]:
@@ -140,11 +144,13 @@ def _project_kernel(points, ring, height, width, min_range, max_range):  # pragm
 
 
 def project(scan: Scan, sensor: SensorModel, config: RangeImageConfig | None = None) -> RangeImage:
-    """Project `scan` onto an (H, W) range image; H = sensor beams, W = config width or the sensor's."""
+    """Project `scan` onto an (H, W) range image; H = sensor beams, W = config width or the sensor's.
+    Points in the ego box (the config's, else the sensor's) are not kept: the vehicle's own body."""
     config = config or RangeImageConfig()
     height = sensor.n_rings
     width = config.width or sensor.width
+    box = np.asarray(sensor.ego_box if config.ego_box is None else config.ego_box, dtype=np.float32)
     index, rimg, col, rng, kept = _project_kernel(
-        scan.points, scan.ring, height, width, np.float32(config.min_range), np.float32(config.max_range)
+        scan.points, scan.ring, height, width, np.float32(config.min_range), np.float32(config.max_range), box
     )
     return RangeImage(index=index, range=rimg, row=scan.ring, col=col, point_range=rng, kept=kept)

@@ -10,7 +10,8 @@ el_c + (1/2 - (i + 1/2)/S) * 2 atan(h/2 / d)); pixels whose point lies outside t
 Sample layout: uint8 (C, S, S), C = 4 (or 3 without the foreground channel):
     0 height above ground, 0..max_height m -> 0..255 (clipped)
     1 range, 0..max_range m -> 1..255 (0 = empty pixel)
-    2 intensity, 0..1 -> 0..255
+    2 intensity, 0..1 -> 0..255: scaled per sensor (its 95th percentile at 0.5), or the raw value
+      (`SampleConfig.intensity`, `pipeline.intensity`); 0 everywhere when the sensor has none
     3 foreground: 255 on the segment's own points, 0 elsewhere
 """
 
@@ -22,6 +23,7 @@ import numpy as np
 from numba import njit
 
 from pipeline.config import SampleConfig
+from pipeline.intensity import canvas_mode, normalised
 from pipeline.range_image import RangeImage
 from pipeline.scan import Scan
 from pipeline.sensors import SensorModel
@@ -79,7 +81,7 @@ def is_valid(n_points: np.ndarray, distance: np.ndarray, config: SampleConfig) -
 @njit(cache=True)
 def _render(
     index, points, height, rng, intensity, seg_point, centers, seg_ids, rows, cols,
-    half_h, half_w, half_l, max_height, max_range, fg_channel,
+    half_h, half_w, half_l, max_height, max_range, fg_channel, i_mode, i_factor,
 ):  # pragma: no cover - numba
     v_count, size = rows.shape
     channels = 4 if fg_channel else 3
@@ -119,7 +121,7 @@ def _render(
                 out[v, 0, i, j] = np.uint8(hv * 255.0 + 0.5)
                 rv = min(rng[p] / max_range, 1.0)
                 out[v, 1, i, j] = np.uint8(1.0 + rv * 254.0 + 0.5)
-                iv = min(max(intensity[p], 0.0), 1.0)
+                iv = normalised(np.float64(intensity[p]), i_mode, i_factor)
                 out[v, 2, i, j] = np.uint8(iv * 255.0 + 0.5)
                 if fg_channel and seg_point[p] == seg_ids[v]:
                     out[v, 3, i, j] = 255
@@ -177,9 +179,10 @@ def render_segments(
     centers = centroid[seg_ids].astype(np.float64)
     rows, cols = sample_windows(centers, sensor, image.shape[1], config)
     h, w, length = config.cuboid_hwl
+    i_mode, i_factor = canvas_mode(config.intensity, sensor.intensity_quantiles)
     out = _render(
         image.index, scan.points, height.astype(np.float32), image.point_range, scan.intensity, seg_point,
         centers, seg_ids, rows, cols, h / 2.0, w / 2.0, length / 2.0,
-        float(config.max_height), float(config.max_range), config.foreground_channel,
+        float(config.max_height), float(config.max_range), config.foreground_channel, i_mode, i_factor,
     )
     return out

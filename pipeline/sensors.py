@@ -27,6 +27,11 @@ class SensorModel:
 
     elevations_deg: (R,) beam elevations in degrees, descending (row 0 = top beam).
     width: azimuth bins of one revolution (range-image columns).
+    intensity_quantiles: p0..p100 of the sensor's intensities measured on a sequence's first
+    frame (`pipeline.intensity`), () when not measured; sample canvases show intensity by rank
+    among them.
+    ego_box: (x_min, x_max, y_min, y_max, z_min, z_max) metres in the lidar frame: the vehicle
+    the sensor is mounted on, whose returns are no scene (never segmented, label 0); () = none.
     """
 
     name: str
@@ -35,6 +40,8 @@ class SensorModel:
     frequency_hz: float = 10.0
     min_range: float = 1.0
     max_range: float = 100.0
+    intensity_quantiles: tuple[float, ...] = ()
+    ego_box: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         el = np.asarray(self.elevations_deg)
@@ -44,6 +51,7 @@ class SensorModel:
             raise ValueError(f"sensor {self.name}: elevations must be strictly descending (row 0 = top)")
         if self.width < 8:
             raise ValueError(f"sensor {self.name}: width must be >= 8, got {self.width}")
+        check_ego_box(self.ego_box, f"sensor {self.name}")
 
     @property
     def n_rings(self) -> int:
@@ -61,6 +69,8 @@ class SensorModel:
             "frequency_hz": self.frequency_hz,
             "min_range": self.min_range,
             "max_range": self.max_range,
+            "intensity_quantiles": list(self.intensity_quantiles),
+            "ego_box": list(self.ego_box),
         }
 
     @classmethod
@@ -72,7 +82,18 @@ class SensorModel:
             frequency_hz=float(d.get("frequency_hz", 10.0)),
             min_range=float(d.get("min_range", 1.0)),
             max_range=float(d.get("max_range", 100.0)),
+            intensity_quantiles=tuple(float(x) for x in d.get("intensity_quantiles", ())),
+            ego_box=tuple(float(x) for x in d.get("ego_box", ())),
         )
+
+
+def check_ego_box(box: tuple[float, ...], where: str) -> None:
+    """ValueError naming `where` unless `box` is () or (x_min, x_max, y_min, y_max, z_min, z_max)
+    with each minimum below its maximum."""
+    if len(box) == 0:
+        return
+    if len(box) != 6 or any(lo >= hi for lo, hi in zip(box[::2], box[1::2], strict=True)):
+        raise ValueError(f"{where}: ego_box must be (x_min, x_max, y_min, y_max, z_min, z_max), each min < max; got {box}")
 
 
 def _hdl32e() -> SensorModel:

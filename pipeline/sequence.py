@@ -7,9 +7,12 @@
    the user names one, so that its rows follow that sensor's beams;
 2. **sensor**: the flag's preset or Ouster json, else what the reader decided (metadata, a ring
    field, an organized layout, scan order, the elevation histogram; `Sequence.sensor_from`);
-3. **width**: fitted to the first readable frame's points per beam (`fit_width`) unless the data
-   states it (metadata, an organized layout, an Ouster json);
-4. **poses**: `file` (the sequence's own, None without) or `icp` (estimated, `pipeline.odometry`).
+3. **width**: fitted to the first readable frame's points per beam and the share of the
+   revolution it covers (`fit_width`) unless the data states it (metadata, an organized layout,
+   an Ouster json);
+4. **intensity**: the first readable frame's intensity quantiles go with the sensor
+   (`pipeline.intensity`: samples show each point's rank among them);
+5. **poses**: `file` (the sequence's own, None without) or `icp` (estimated, `pipeline.odometry`).
 """
 
 from __future__ import annotations
@@ -21,8 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import DataError
+from pipeline.intensity import measure as measure_intensity
 from pipeline.io import open_reader
-from pipeline.io.beams import MIN_RHO
+from pipeline.io.beams import MIN_RHO, azimuth_coverage
 from pipeline.progress import QUIET, Progress
 from pipeline.scan import Scan, SequenceSource
 from pipeline.sensors import SensorModel
@@ -63,29 +67,39 @@ def fit_width(scan: Scan, sensor: SensorModel) -> SensorModel:
     A sensor spinning faster than its preset (nuScenes runs the HDL-32E at 20 Hz) gives fewer
     points per ring; a too-wide image would leave every other column empty and cut every object
     into slivers. Rings lose returns (sky) but never gain any, so the 95th percentile of the
-    points per ring counts the columns; points within MIN_RHO of the axis are left out (the car,
-    and the placeholders nuScenes writes for missing returns, a quarter of a sweep).
+    points per ring counts the columns of the part of the revolution the scan covers, and over
+    that share (`azimuth_coverage`: KITTI's camera-view crop holds a quarter of a turn) the
+    columns of a revolution; points within MIN_RHO of the axis are left out (the car, and the
+    placeholders nuScenes writes for missing returns, a quarter of a sweep).
     """
     if len(scan) == 0:
         return sensor
     xy = scan.points[:, :2].astype(np.float64)  # float64: float32's largest values overflow hypot
     far = (np.hypot(xy[:, 0], xy[:, 1]) >= MIN_RHO) & (scan.ring >= 0)
     per_ring = np.bincount(scan.ring[far].astype(np.int64), minlength=sensor.n_rings)
-    most = int(np.percentile(per_ring, 95))
+    most = int(np.percentile(per_ring, 95) / max(azimuth_coverage(scan.points[far]), 1e-3))
     if most >= 0.75 * sensor.width or most < 64:
         return sensor
     width = int(np.ceil(most * 1.005))
     return dataclasses.replace(sensor, width=width, frequency_hz=sensor.frequency_hz * sensor.width / width)
 
 
-def _fitted(source: SequenceSource, sensor: SensorModel) -> SensorModel:
-    """`fit_width` on the first of the first three frames that reads."""
+def _first_scan(source: SequenceSource) -> Scan | None:
+    """The first of the first three frames that reads, None when none does (the pipeline skips
+    corrupt frames; the sequence still opens)."""
     for i in range(min(len(source), 3)):
         try:
-            return fit_width(source.frame(i), sensor)
+            return source.frame(i)
         except DataError:
             continue
-    return sensor
+    return None
+
+
+def with_intensity(scan: Scan | None, sensor: SensorModel) -> SensorModel:
+    """The sensor with the intensity quantiles of `scan` (`pipeline.intensity.measure`)."""
+    if scan is None:
+        return sensor
+    return dataclasses.replace(sensor, intensity_quantiles=measure_intensity(scan.points, scan.intensity))
 
 
 def _poses(source: SequenceSource, poses: str, progress: Progress) -> np.ndarray | None:
@@ -108,7 +122,9 @@ def open_sequence(
     if len(source) == 0:
         raise DataError(path, "sequence has no frames")
     stated = source.sensor_from in WIDTH_STATED or str(sensor).endswith(".json")
-    fitted = source.sensor if stated else _fitted(source, source.sensor)
+    first = _first_scan(source)
+    fitted = source.sensor if stated or first is None else fit_width(first, source.sensor)
+    fitted = with_intensity(first, fitted)
     pose_arr = _poses(source, poses, progress)
     origin = "none" if pose_arr is None else poses
     return Sequence(source, fitted, source.sensor_from, pose_arr, origin)

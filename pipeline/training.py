@@ -53,6 +53,7 @@ import torch.nn.functional as F
 from pipeline.classes import SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
 from pipeline.errors import ConfigError, DataError
+from pipeline.input_stats import canvas_stats
 from pipeline.metrics import ClassificationReport, classification_report
 from pipeline.model import (
     NetConfig,
@@ -230,6 +231,18 @@ def augment_batch(x: torch.Tensor, max_shift: int, generator: torch.Generator, e
     return out.permute(0, 3, 1, 2)  # (B, C, S, S), stored NHWC: the network's channels_last, no copy
 
 
+def vary_intensity(x: torch.Tensor, drop: float, gamma: float, generator: torch.Generator) -> torch.Tensor:
+    """(B, C, S, S) float canvases in [0, 1] with the intensity channel (2) emptied in a `drop`
+    share of them (a sensor without intensity: the geometry-only input) and raised to a random
+    power 2^u, u uniform in [-gamma, gamma], in the others (another sensor's response to
+    reflectivity)."""
+    b = x.shape[0]
+    keep = (torch.rand(b, generator=generator) >= drop).to(x.dtype)  # (B,)
+    power = torch.pow(2.0, (torch.rand(b, generator=generator) * 2.0 - 1.0) * gamma)  # (B,)
+    intensity = x[:, 2].clamp_min(0.0).pow(power.to(x.device)[:, None, None]) * keep.to(x.device)[:, None, None]
+    return torch.cat([x[:, :2], intensity[:, None], x[:, 3:]], dim=1)
+
+
 def erase_rectangles(x: torch.Tensor, share: float, generator: torch.Generator) -> torch.Tensor:
     """(B, C, S, S) with `share` of the canvases zeroed inside one random rectangle each, its
     sides a tenth to half of the canvas side (random erasing)."""
@@ -284,6 +297,7 @@ class TrainResult:
     checkpoint: Path | None
     cancelled: bool = False
     metrics: dict[str, Any] = field(default_factory=dict)
+    input_stats: dict[str, Any] = field(default_factory=dict)  # of the training canvases (pipeline.input_stats)
 
     @property
     def train_loss(self) -> np.ndarray:
@@ -638,6 +652,8 @@ class _Stepper:
         x = to_input(self.samples[torch.from_numpy(idx).to(self.device)])  # (m + 2n, C, S, S)
         if cfg.augment:
             x = augment_batch(x, self.max_shift, self.gen, cfg.augment_erase)
+        if cfg.intensity_drop > 0 or cfg.intensity_gamma > 0:
+            x = vary_intensity(x, cfg.intensity_drop, cfg.intensity_gamma, self.gen)
         logits = self.model(x)  # (m + 2n, K)
         pw = self.weights[torch.from_numpy(pi).to(self.device)] if self.use_weights else None  # (n,)
         parts = semi_supervised_loss(logits[:m], self.labels[torch.from_numpy(li).to(self.device)],
@@ -744,12 +760,13 @@ def _train(
             if cancelled:
                 break
     metrics = {"num_labelled": len(data.labelled), "num_pairs": len(data.pairs), "device": str(device)}
-    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir)
+    stats = canvas_stats(data.samples, config.seed)
+    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir, stats)
 
 
 def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: bool, metrics: dict[str, Any],
             config: TrainingConfig, model_config: ModelConfig, sample_config: SampleConfig,
-            checkpoint_dir: str | Path | None) -> TrainResult:
+            checkpoint_dir: str | Path | None, stats: dict[str, Any]) -> TrainResult:
     """Load the selected epoch's weights, gather the metrics, write best.pt / last.pt and plots."""
     history = chosen.history
     selected, how = _select(history, config.loss_threshold)
@@ -774,11 +791,12 @@ def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: boo
     ckpt = None
     if checkpoint_dir is not None and selected >= 0:
         out = Path(checkpoint_dir)
-        ckpt = save_checkpoint(out / "best.pt", model, model_config, sample_config, metrics, config)
+        ckpt = save_checkpoint(out / "best.pt", model, model_config, sample_config, metrics, config, input_stats=stats)
         last = model
         if last_state is not None:
             last = build_model(net)
             last.load_state_dict(last_state)
-        save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config)
+        save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config,
+                        input_stats=stats)
         write_training_plots(out, history, selected, chosen.report, config.loss_threshold)
-    return TrainResult(model, history, selected, how, chosen.report, ckpt, cancelled, metrics)
+    return TrainResult(model, history, selected, how, chosen.report, ckpt, cancelled, metrics, stats)

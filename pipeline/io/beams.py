@@ -100,6 +100,23 @@ def _azimuth_deg(points: np.ndarray) -> np.ndarray:
     return np.mod(np.degrees(np.arctan2(p[:, 1], p[:, 0])), 360.0)
 
 
+COVERAGE_BIN_DEG = 2.0
+
+
+def azimuth_coverage(points: np.ndarray) -> float:
+    """Share of the revolution the (N, 3) cloud covers: 2-degree azimuth bins holding a point at
+    least MIN_RHO from the axis (1.0 for a full scan, about 0.25 for KITTI's 90-degree camera-view
+    crop); 1.0 when no point is that far."""
+    p = np.asarray(points, dtype=np.float64)
+    p = p[np.isfinite(p).all(axis=1)]
+    p = p[np.hypot(p[:, 0], p[:, 1]) >= MIN_RHO]
+    if len(p) == 0:
+        return 1.0
+    n_bins = int(round(360.0 / COVERAGE_BIN_DEG))
+    hit = np.bincount(np.minimum((_azimuth_deg(p) / COVERAGE_BIN_DEG).astype(np.int64), n_bins - 1), minlength=n_bins)
+    return float(np.count_nonzero(hit)) / n_bins
+
+
 def origin_height(points: np.ndarray, seed: int = 0) -> float:
     """The height (m) above the origin from which the cloud's elevation histogram is sharpest."""
     if len(points) > SAMPLE:

@@ -26,13 +26,7 @@ import numpy as np
 from pipeline.errors import DataError
 from pipeline.io.layout import Layout, detect_layout, finite_rows, known_layout
 from pipeline.io.registry import frame_files
-from pipeline.io.semantickitti import (
-    lidar_poses,
-    read_bin,
-    read_calib_tr,
-    read_label,
-    read_matrix_lines,
-)
+from pipeline.io.semantickitti import read_bin, read_label, read_times_file, sequence_poses
 from pipeline.scan import Scan, input_rows_of
 from pipeline.sensors import SensorModel, get_sensor
 
@@ -49,32 +43,6 @@ def _scan_files(path: Path) -> tuple[list[Path], Path]:
     if not files:
         raise DataError(folder, "holds no .bin scans")
     return files, path
-
-
-def _read_poses(path: Path, frames: int, calib: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
-    """(T_world_lidar (F, 4, 4), times (F,) or None) from a KITTI poses file (12 or 13 columns)."""
-    first = next((ln for ln in path.read_text().splitlines() if ln.strip()), "")
-    values = len(first.split())
-    if values not in (12, 13):
-        raise DataError(path, f"expected 12 numbers (3x4 pose) or 13 (time + pose) a line, got {values}")
-    cam = read_matrix_lines(path, values=values)
-    if len(cam) != frames:
-        raise DataError(path, f"has {len(cam)} poses but the sequence has {frames} frames")
-    tr = read_calib_tr(calib) if calib is not None else np.eye(4)
-    times = None
-    if values == 13:
-        times = np.array([float(ln.split()[0]) for ln in path.read_text().splitlines() if ln.strip()])
-    return lidar_poses(cam, tr), times
-
-
-def _read_times(path: Path, frames: int) -> np.ndarray:
-    try:
-        times = np.atleast_1d(np.loadtxt(path, dtype=np.float64))
-    except ValueError as exc:
-        raise DataError(path, f"not a column of numbers: {exc}") from None
-    if times.ndim != 1 or len(times) != frames:
-        raise DataError(path, f"has {times.size} times but the sequence has {frames} frames")
-    return times
 
 
 def _metadata_sensor(root: Path) -> SensorModel | None:
@@ -115,25 +83,19 @@ class KittiSequence:
         self.poses, self.times = self._load_poses(poses, calib)
         times = self.root / "times.txt"
         if self.path.is_dir() and times.is_file():
-            self.times = _read_times(times, len(self._files))
+            self.times = read_times_file(times, len(self._files))
         self._layout = self._pick_layout(sensor)
         self.sensor = self._layout.sensor
 
     def _load_poses(
         self, poses: str | Path | None, calib: str | Path | None
     ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        pose_file = Path(poses) if poses is not None else self.root / "poses.txt"
-        if poses is None and (not self.path.is_dir() or not pose_file.is_file()):
+        if poses is None and not self.path.is_dir():
             return None, None
-        if not pose_file.is_file():
-            raise DataError(pose_file, "no such poses file")
-        calib_file = Path(calib) if calib is not None else self.root / "calib.txt"
-        if calib is not None and not calib_file.is_file():
-            raise DataError(calib_file, "no such calib file")
-        if not calib_file.is_file():
-            calib_file = None
-            self.warnings.append(f"{pose_file}: no calib.txt beside it, poses are taken as T_world_lidar")
-        return _read_poses(pose_file, len(self._files), calib_file)
+        poses_times, warning = sequence_poses(self.root, len(self._files), poses, calib)
+        if warning:
+            self.warnings.append(warning)
+        return poses_times
 
     def _pick_layout(self, sensor: str | SensorModel) -> Layout:
         """The sensor (flag, metadata.json, else found in the first frame) and how rows are read."""

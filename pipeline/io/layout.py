@@ -2,7 +2,8 @@
 
 Decided once per sequence, on its first frame, in this order:
 
-1. **organized layout**: H x W points row by row, zeros where no return (`pipeline.io.organized`);
+1. **organized layout**: H x W points row by row or column by column, zeros where no return
+   (`pipeline.io.organized`);
    rows are the layout's rows and the width is W;
 2. **scan order**: one laser's revolution after the other (KITTI `.bin`; `pipeline.io.rings`);
 3. **elevation histogram**: an unordered cloud's beams from its elevations (`pipeline.io.beams`);
@@ -22,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.io.beams import MIN_RHO, beam_rows, find_beams
-from pipeline.io.organized import organized_rows, organized_shape, returns
+from pipeline.io.beams import MIN_RHO, azimuth_coverage, beam_rows, find_beams
+from pipeline.io.organized import OrganizedShape, organized_rows, organized_shape, returns
 from pipeline.io.rings import scan_order_rings, segment_medians
 from pipeline.sensors import PRESETS, SensorModel, sensor_from_elevations
 
@@ -64,14 +65,14 @@ class Layout:
     sensor:    the sensor model found.
     how:       "organized layout", "scan order", "elevation histogram" or "default"; "given"
                when the sensor came from elsewhere (a flag, metadata).
-    organized: (H, W, top_first) of an organized layout, else None.
+    organized: the shape of an organized layout (`pipeline.io.organized.OrganizedShape`), else None.
     beams_deg: (B,) float64 elevations (descending, degrees, seen from `origin_height` m above the
                origin) that rows are aligned to when the scan order does not show them.
     """
 
     sensor: SensorModel
     how: str
-    organized: tuple[int, int, bool] | None
+    organized: OrganizedShape | None
     beams_deg: np.ndarray
     origin_height: float = 0.0
 
@@ -84,10 +85,8 @@ class Layout:
     def rows(self, points: np.ndarray, kept: np.ndarray) -> np.ndarray:
         """(M,) int16 row (0 = top) of a frame's kept points (M, 3), `kept` (N_input,) the mask
         that picked them from the input rows."""
-        if self.organized is not None:
-            h, w, top_first = self.organized
-            if len(kept) == h * w:
-                return organized_rows(h, w, top_first)[kept]
+        if self.organized is not None and len(kept) == self.organized.height * self.organized.width:
+            return organized_rows(self.organized)[kept]
         return recover_rings(points, self.sensor, self.beams_deg, self.origin_height).ring
 
 
@@ -124,7 +123,7 @@ def measured_sensor(
     if width is not None:
         sensor = sensor_from_elevations(name, _elevations(points, rows, n_rows), width)
         return dataclasses.replace(sensor, width=max(8, width))
-    return sensor_from_elevations(name, _elevations(points, rows, n_rows), _per_row_width(rows, n_rows))
+    return sensor_from_elevations(name, _elevations(points, rows, n_rows), _per_row_width(points, rows, n_rows))
 
 
 def _measured_beams(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.ndarray:
@@ -135,16 +134,19 @@ def _measured_beams(points: np.ndarray, rows: np.ndarray, n_rows: int) -> np.nda
     return np.minimum.accumulate(np.interp(idx, idx[have], el[have]))
 
 
-def _per_row_width(rows: np.ndarray, n_rows: int) -> int:
-    """Columns of a scan from its points per row (95th percentile: rows lose returns, none gains)."""
-    return int(np.percentile(np.bincount(rows.astype(np.int64), minlength=n_rows), 95))
+def _per_row_width(points: np.ndarray, rows: np.ndarray, n_rows: int) -> int:
+    """Columns of one revolution from a scan's points per row (95th percentile: rows lose returns,
+    none gains) over the share of the revolution the scan covers (a camera-view crop holds a
+    quarter of each row)."""
+    per_row = float(np.percentile(np.bincount(rows.astype(np.int64), minlength=n_rows), 95))
+    return int(round(per_row / max(azimuth_coverage(points), 1e-3)))
 
 
 def known_layout(sensor: SensorModel, xyz: np.ndarray) -> Layout:
     """The layout of a sequence whose sensor is given (a flag, metadata): the first frame's (N, 3)
     points only decide whether it is an organized layout of the sensor's beam count."""
     shape = organized_shape(xyz)
-    if shape is not None and shape[0] != sensor.n_rings:
+    if shape is not None and shape.height != sensor.n_rings:
         shape = None
     return Layout(sensor, "given", shape, np.asarray(sensor.elevations_deg))
 
@@ -158,9 +160,9 @@ def _organized(xyz: np.ndarray, name: str) -> Layout | None:
     shape = organized_shape(xyz)
     if shape is None:
         return None
-    h, w, top_first = shape
+    h, w = shape.height, shape.width
     hit = returns(xyz)
-    rows = organized_rows(h, w, top_first)[hit]
+    rows = organized_rows(shape)[hit]
     if not _shown(xyz[hit], rows, h):
         return None
     sensor = measured_sensor(f"{name}-{h}beam", xyz[hit], rows, h, w)

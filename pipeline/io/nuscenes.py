@@ -4,6 +4,8 @@ A single file is a one-frame sequence; a folder of `.pcd.bin` files is a sequenc
 ordered by name (nuScenes names end in the sweep's timestamp in microseconds, which become
 `times`).
 
+The sensor carries the nuScenes car's box (`NUSCENES_EGO_BOX`): its returns are never segmented.
+
 Two conversions to our conventions (docs/conventions.md):
 - nuScenes' lidar frame has x right, y forward; ours has x forward, y left:
   `x_ours = y_nu`, `y_ours = -x_nu`, `z` unchanged.
@@ -27,8 +29,13 @@ from pipeline.sensors import PRESETS, SensorModel, get_sensor
 
 RECORD = 5
 N_RINGS = 32
+# The nuScenes car (a Renault Zoe, 4.08 x 1.73 x 1.56 m) around its LIDAR_TOP, which sits 0.94 m
+# ahead of the rear axle and 1.84 m above the ground, with a margin for the mirrors and the mount:
+# its roof and mount return up to 8,000 points of a sweep (every return of the sample sweep within
+# 3 m of the axis lies in this box), which became 16-60 tracks a frame.
+NUSCENES_EGO_BOX = (-1.8, 2.5, -1.0, 1.0, -2.0, 0.05)
 # nuScenes runs its HDL-32E at 20 Hz: about 1,080 points per ring and revolution.
-NUSCENES_SENSOR = dataclasses.replace(PRESETS["hdl32e"], width=1080, frequency_hz=20.0)
+NUSCENES_SENSOR = dataclasses.replace(PRESETS["hdl32e"], width=1080, frequency_hz=20.0, ego_box=NUSCENES_EGO_BOX)
 _STAMP = re.compile(r"__(\d{16})\.pcd\.bin$")
 
 
@@ -58,6 +65,8 @@ class NuScenesSequence:
             self.sensor = sensor
         else:
             self.sensor = NUSCENES_SENSOR if sensor == "auto" else get_sensor(sensor)
+        if not self.sensor.ego_box:  # whichever beams the user names, the car is nuScenes'
+            self.sensor = dataclasses.replace(self.sensor, ego_box=NUSCENES_EGO_BOX)
         if self.sensor.n_rings != N_RINGS:
             raise DataError(
                 self.path,

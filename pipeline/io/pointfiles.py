@@ -18,7 +18,10 @@ Fields are matched by name (case-insensitive):
 The sensor ("auto") is the preset whose beams match the first frame's rings (count and
 elevations within 1 deg), or a model of that frame's per-ring median elevations; HDL-64E when no
 beams show. A folder's files are frames in the natural order of their names (`2.pcd` before
-`10.pcd`).
+`10.pcd`), named NNNNNN after the number of their name (`7.pcd` is frame `000007`), or after
+their place when a name holds anything but digits. A folder may hold poses as a KITTI sequence
+does (`poses.txt`, 12 or 13 numbers a line, with `calib.txt`'s `Tr`, else taken as
+T_world_lidar; `times.txt`), or take a poses file (and calib) by argument.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from pipeline.errors import DataError
 from pipeline.io.layout import Layout, detect_layout, known_layout, measured_sensor
 from pipeline.io.registry import frame_files
 from pipeline.io.rings import rows_from_ring_field
+from pipeline.io.semantickitti import read_times_file, sequence_poses
 from pipeline.scan import Scan, input_rows_of
 from pipeline.sensors import SensorModel, get_sensor
 
@@ -63,18 +67,33 @@ def _relative_time(values: np.ndarray) -> np.ndarray:
     return t.astype(np.float32)
 
 
+def _frame_names(files: list[Path], suffix: str) -> list[str]:
+    """NNNNNN per file: the number its name holds (`7.pcd` -> `000007`), or its place in the
+    sequence when any name holds anything but digits (or two numbers are equal)."""
+    stems = [f.name[: -len(suffix)] for f in files]
+    if all(s.isdigit() for s in stems) and len({int(s) for s in stems}) == len(stems):
+        return [f"{int(s):06d}" for s in stems]
+    return [f"{i:06d}" for i in range(len(files))]
+
+
 class _PointFileSequence:
     """Files of one suffix read lazily as a `pipeline.scan.SequenceSource` without poses."""
 
     format = ""
     suffix = ""
 
-    def __init__(self, path: str | Path, sensor: str | SensorModel = "auto") -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        sensor: str | SensorModel = "auto",
+        poses: str | Path | None = None,
+        calib: str | Path | None = None,
+    ) -> None:
         self.path = Path(path)
         self._files = self._list_files()
-        self.poses: np.ndarray | None = None
-        self.times: np.ndarray | None = None
+        self._names = _frame_names(self._files, self.suffix)
         self.warnings: list[str] = []
+        self.poses, self.times = self._load_poses(poses, calib)
         first = self._table(0)
         intensity = _field(first[0], INTENSITY_FIELDS)
         self._intensity_scale = 1.0 if intensity is None else _intensity_scale(intensity)
@@ -82,6 +101,20 @@ class _PointFileSequence:
             self.warnings.append(f"{self._files[0]}: no intensity field, intensity set to 0")
         self._layout: Layout | None = None  # None: rows come from a ring field or the PCD's rows
         self.sensor = self._pick_sensor(sensor, first)
+
+    def _load_poses(
+        self, poses: str | Path | None, calib: str | Path | None
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Poses and times from the folder's poses.txt / times.txt or the named files."""
+        root = self.path if self.path.is_dir() else self.path.parent
+        if poses is None and not self.path.is_dir():
+            return None, None
+        (pose_arr, times), warning = sequence_poses(root, len(self._files), poses, calib)
+        if warning:
+            self.warnings.append(warning)
+        if self.path.is_dir() and (root / "times.txt").is_file():
+            times = read_times_file(root / "times.txt", len(self._files))
+        return pose_arr, times
 
     def _list_files(self) -> list[Path]:
         if self.path.is_file():
@@ -155,7 +188,7 @@ class _PointFileSequence:
         return len(self._files)
 
     def frame_name(self, index: int) -> str:
-        return self._files[index].name[: -len(self.suffix)]
+        return self._names[index]
 
     def frame(self, index: int) -> Scan:
         table, height = self._table(index)

@@ -139,6 +139,52 @@ def _merge_fragments(counts: np.ndarray, elevation: np.ndarray) -> np.ndarray:
     return np.unique(target[target], return_inverse=True)[1]
 
 
+def _join_split_rings(target: np.ndarray, seg: np.ndarray, az: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """`target` (S,) with consecutive merged segments joined where one laser's revolution was cut
+    in two (a stray point among its returns wraps the azimuth): the two parts cover different
+    azimuths (at most one, or a tenth, of the 10-degree sectors holding two points of the smaller part hold
+    two of the other; two lasers see the same objects) and together hold no more points than
+    1.15 x the median segment. seg (N,) scan-order segment and az (N,) azimuth of every point,
+    counts (S,) points per segment. Renumbered densely."""
+    found = int(target.max()) + 1
+    if found < 3:
+        return target
+    w = np.bincount(target, weights=counts, minlength=found)
+    small = w[:-1] + w[1:] <= 1.15 * np.median(w)
+    if not small.any():
+        return target
+    sector = np.minimum((az * (36.0 / TWO_PI)).astype(np.int64), 35)
+    occupied = np.bincount(target[seg] * 36 + sector, minlength=found * 36).reshape(found, 36) >= 2
+    both = (occupied[:-1] & occupied[1:]).sum(axis=1)
+    least = np.maximum(np.minimum(occupied[:-1].sum(axis=1), occupied[1:].sum(axis=1)), 1)
+    join = small & (both <= np.maximum(1, 0.1 * least))  # the sector where the cut lies holds both
+    group = np.concatenate([[0], np.cumsum(~join)])  # (found,) new id of each merged segment
+    return group[target]
+
+
+def _repeated_runs(elevation: np.ndarray) -> np.ndarray | None:
+    """(S,) row of each scan-order segment given their mean elevations (S,) (any monotonic
+    measure): its place in its run when the segments run from top to bottom (or back) more than
+    once with the same beams (a scan written twice into one file, frames accumulated), else its
+    own index; None when the runs differ in count or beams (not one sensor's scan order). A
+    restart is a step of more than half the elevation span."""
+    s = len(elevation)
+    d = np.diff(elevation)
+    span = float(elevation.max() - elevation.min()) if s else 0.0
+    restart = np.flatnonzero(np.abs(d) > 0.5 * span) + 1 if s > 2 else np.zeros(0, np.int64)
+    if len(restart) == 0:
+        return np.arange(s)
+    starts = np.concatenate([[0], restart])
+    sizes = np.diff(np.append(starts, s))
+    if np.any(sizes != sizes[0]) or sizes[0] < 2:
+        return None
+    runs = elevation.reshape(len(sizes), sizes[0])
+    spacing = float(np.median(np.abs(np.diff(runs[0]))))
+    if np.max(np.abs(runs - runs[0])) > 0.5 * spacing:
+        return None
+    return np.arange(s) % sizes[0]
+
+
 # More scan-order segments than this are no scan order (an unordered cloud wraps at every point).
 MAX_SEGMENTS = 1024
 
@@ -161,12 +207,16 @@ def scan_order_rings(points: np.ndarray, n_rings: int | None = None) -> tuple[np
         if len(counts) == 0:
             continue
         target = _merge_fragments(counts, elevation)
+        target = _join_split_rings(target, seg, az, counts)
+        merged = np.bincount(target, weights=elevation * counts) / np.bincount(target, weights=counts)
+        repeat = _repeated_runs(merged)
+        if repeat is None:
+            continue
+        target, merged = repeat[target], merged[: int(repeat.max()) + 1]
         found = int(target.max()) + 1
         first_found = first_found or found
         if found < 2 or (n_rings is not None and found != n_rings):
             continue
-        merged = np.bincount(target, weights=elevation * counts, minlength=found) / np.bincount(
-            target, weights=counts, minlength=found)
         d = np.diff(merged)
         if np.mean(d < 0) >= 0.9:
             return target[seg], found

@@ -125,3 +125,53 @@ def write_calib_identity(path: str | Path) -> None:
 
 def write_times(path: str | Path, times: np.ndarray) -> None:
     np.savetxt(path, np.asarray(times, dtype=np.float64), fmt="%.6f")
+
+
+def read_poses_file(path: Path, frames: int, calib: Path | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(T_world_lidar (F, 4, 4), times (F,) or None) from a KITTI poses file (12 or 13 columns)
+    and the `Tr` of `calib` (None = identity: the poses are the lidar's)."""
+    first = next((ln for ln in path.read_text().splitlines() if ln.strip()), "")
+    values = len(first.split())
+    if values not in (12, 13):
+        raise DataError(path, f"expected 12 numbers (3x4 pose) or 13 (time + pose) a line, got {values}")
+    cam = read_matrix_lines(path, values=values)
+    if len(cam) != frames:
+        raise DataError(path, f"has {len(cam)} poses but the sequence has {frames} frames")
+    tr = read_calib_tr(calib) if calib is not None else np.eye(4)
+    times = None
+    if values == 13:
+        times = np.array([float(ln.split()[0]) for ln in path.read_text().splitlines() if ln.strip()])
+    return lidar_poses(cam, tr), times
+
+
+def read_times_file(path: Path, frames: int) -> np.ndarray:
+    """(F,) float64 seconds from a `times.txt` of one time a line."""
+    try:
+        times = np.atleast_1d(np.loadtxt(path, dtype=np.float64))
+    except ValueError as exc:
+        raise DataError(path, f"not a column of numbers: {exc}") from None
+    if times.ndim != 1 or len(times) != frames:
+        raise DataError(path, f"has {times.size} times but the sequence has {frames} frames")
+    return times
+
+
+def sequence_poses(
+    root: Path, frames: int, poses: str | Path | None = None, calib: str | Path | None = None
+) -> tuple[tuple[np.ndarray | None, np.ndarray | None], str | None]:
+    """((T_world_lidar (F, 4, 4) or None, times (F,) or None), warning or None) of a sequence
+    folder `root` of `frames` frames: `poses` (default ROOT/poses.txt, absent = no poses) with
+    `calib` (default ROOT/calib.txt; absent = identity, and a warning). A named file that does
+    not exist is a DataError."""
+    pose_file = Path(poses) if poses is not None else root / "poses.txt"
+    if poses is None and not pose_file.is_file():
+        return (None, None), None
+    if not pose_file.is_file():
+        raise DataError(pose_file, "no such poses file")
+    calib_file = Path(calib) if calib is not None else root / "calib.txt"
+    if calib is not None and not calib_file.is_file():
+        raise DataError(calib_file, "no such calib file")
+    warning = None
+    if not calib_file.is_file():
+        calib_file = None
+        warning = f"{pose_file}: no calib.txt beside it, poses are taken as T_world_lidar"
+    return read_poses_file(pose_file, frames, calib_file), warning

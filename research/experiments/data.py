@@ -257,7 +257,7 @@ SCENE_SOURCES = ("pipeline", "research/simulation", "research/experiments/data.p
 # training keeps the cached scenes
 SAMPLE_CONSUMERS = frozenset({"pipeline/training.py", "pipeline/model.py", "pipeline/finetune.py",
                               "pipeline/anchors.py", "pipeline/predict.py", "pipeline/metrics.py",
-                              "pipeline/plots.py"})
+                              "pipeline/plots.py", "pipeline/input_stats.py"})
 
 
 def code_fingerprint(sources: tuple[str, ...] = SCENE_SOURCES, skip: frozenset[str] = SAMPLE_CONSUMERS) -> str:

@@ -109,3 +109,38 @@ def test_cli_inspect_real_nuscenes_pcd_without_ring_names_32_beams(real_data: Pa
     result = inspect(tmp_path)
     assert result.exit_code == 0, result.stderr
     assert "sensor:  hdl32e (32 beams x " in result.stdout and "from elevation histogram" in result.stdout
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_ouster_bin_stored_column_by_column_is_organized(real_data: Path, tmp_path: Path) -> None:
+    from tests.pipeline.test_organized import column_by_column, ouster_grid
+
+    grid, _ = ouster_grid(real_data)
+    result = inspect(write_organized_bin(tmp_path / "velodyne" / "000000.bin",
+                                         column_by_column(grid, 128, 1024)).parent.parent)
+    assert result.exit_code == 0, result.stderr
+    assert "(128 beams x 1024 columns), from organized layout" in result.stdout
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_scan_written_twice_is_64_beams(real_data: Path, tmp_path: Path) -> None:
+    (tmp_path / "velodyne").mkdir()
+    raw = read_bin(real_data / "kitti_seq00" / "velodyne" / "000000.bin")
+    np.concatenate([raw, raw]).tofile(tmp_path / "velodyne" / "000000.bin")
+    result = inspect(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    assert "sensor:  hdl64e (64 beams x 2048 columns), from scan order" in result.stdout
+
+
+@pytest.mark.real_data
+def test_cli_inspect_real_camera_view_crop_keeps_the_columns_of_a_revolution(real_data: Path, tmp_path: Path) -> None:
+    # KITTI's camera-view crop: the front 90 degrees of an HDL-64E scan, 2048 columns a turn
+    (tmp_path / "velodyne").mkdir()
+    raw = read_bin(real_data / "kitti_seq00" / "velodyne" / "000000.bin")
+    front = (raw[:, 0] > 0) & (np.abs(raw[:, 1]) < raw[:, 0])
+    raw[front].tofile(tmp_path / "velodyne" / "000000.bin")
+    result = inspect(tmp_path)
+    assert result.exit_code == 0, result.stderr
+    assert "sensor:  hdl64e (64 beams x 2048 columns), from scan order" in result.stdout
+    named = runner.invoke(app, ["inspect", str(tmp_path), "--sensor", "hdl64e"])
+    assert "(64 beams x 2048 columns), from user flag" in named.stdout, named.stdout

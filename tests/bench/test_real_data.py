@@ -28,11 +28,10 @@ def test_labels_carried_from_frame_0_agree_with_frames_1_and_2s_own(real_data: P
 def test_propagated_folder_links_own_labels_and_writes_the_others(real_data: Path, tmp_path: Path) -> None:
     from bench.real_data import kitti_seq00_propagated
 
-    # frames 0-9 carry SemanticKITTI's own labels (../shared/data/real/SOURCES.md), 10 on none
-    seq = kitti_seq00_propagated(tmp_path / "k00", frames=range(8, 13), radius=0.2)
+    seq = kitti_seq00_propagated(tmp_path / "k00", frames=range(12), radius=0.2)
     labels = sorted(p.name for p in (seq / "labels").iterdir())
-    assert labels == [f"{i:06d}.label" for i in range(8, 13)]
-    assert (seq / "labels" / "000009.label").is_symlink() and not (seq / "labels" / "000010.label").is_symlink()
-    n12 = len(np.fromfile(seq / "velodyne" / "000012.bin", np.float32)) // 4
-    assert len(np.fromfile(seq / "labels" / "000012.label", np.uint32)) == n12
-    assert len((seq / "poses.txt").read_text().splitlines()) == 5
+    assert labels == [f"{i:06d}.label" for i in range(12)]
+    assert (seq / "labels" / "000009.label").is_symlink() and not (seq / "labels" / "000011.label").is_symlink()
+    n11 = len(np.fromfile(seq / "velodyne" / "000011.bin", np.float32)) // 4
+    assert len(np.fromfile(seq / "labels" / "000011.label", np.uint32)) == n11
+    assert len((seq / "poses.txt").read_text().splitlines()) == 12

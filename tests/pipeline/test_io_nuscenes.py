@@ -65,3 +65,22 @@ def test_nuscenes_real_sweep_row0_is_top(real_data: Path) -> None:
     med = np.array([np.median(el[scan.ring == r]) for r in range(32)])
     assert np.all(np.diff(med) < 0)  # row 0 is the top beam
     assert med[0] == pytest.approx(10.6, abs=0.2) and med[31] == pytest.approx(-30.6, abs=0.2)
+
+
+@pytest.mark.real_data
+def test_nuscenes_ego_vehicle_returns_never_become_tracks(real_data: Path, tmp_path: Path) -> None:
+    # the car's roof and the sensor mount return thousands of points within 3 m of the axis
+    from pipeline.config import PipelineConfig
+    from pipeline.pipeline import run_process
+
+    sweep = next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin"))
+    raw = np.fromfile(sweep, np.float32).reshape(-1, 5)
+    car = np.hypot(raw[:, 0], raw[:, 1]) < 3.0  # nothing but the car lies this near in this sweep
+    labels = {}
+    for name, box in (("default", None), ("no box", ())):
+        config = PipelineConfig().override({"range_image": {"ego_box": box}})
+        run_process(sweep, tmp_path / name, config)
+        labels[name] = np.fromfile(tmp_path / name / "tracks" / f"{sweep.name[:-8]}.label", np.uint32)
+        assert len(labels[name]) == len(raw)
+    assert not labels["default"][car].any()
+    assert len(np.unique(labels["no box"][car])) > 10  # without the car's box its returns made tracks

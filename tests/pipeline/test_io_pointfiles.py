@@ -10,7 +10,7 @@ from pypcd4 import Encoding, PointCloud
 from pipeline.errors import DataError
 from pipeline.io import open_reader
 from pipeline.io.pointfiles import PcdSequence, PlySequence
-from pipeline.io.semantickitti import pack_label
+from pipeline.io.semantickitti import pack_label, write_poses
 from tests.pipeline.test_rings import beam_scan
 
 
@@ -95,7 +95,7 @@ def test_pcd_folder_is_sequence(tmp_path: Path) -> None:
         pts, _ = beam_scan("hdl32e", cols=90, seed=i)
         write_pcd(tmp_path / f"{i:04d}.pcd", xyz_columns(pts))
     seq = open_reader(tmp_path)
-    assert seq.format == "pcd" and len(seq) == 3 and seq.frame_name(2) == "0002"
+    assert seq.format == "pcd" and len(seq) == 3 and seq.frame_name(2) == "000002"
     assert seq.poses is None and any("no intensity" in w for w in seq.warnings)
 
 
@@ -145,7 +145,7 @@ def test_pcd_folder_frames_in_natural_order(tmp_path: Path) -> None:
         pts, _ = beam_scan("vlp16", cols=90, seed=i)
         write_pcd(tmp_path / f"{i}.pcd", xyz_columns(pts + np.float32(i)))
     seq = open_reader(tmp_path)
-    assert [seq.frame_name(k) for k in range(12)] == [str(i) for i in range(12)]
+    assert [seq.frame_name(k) for k in range(12)] == [f"{i:06d}" for i in range(12)]
     assert seq.frame(10).points[0, 0] == pytest.approx(beam_scan("vlp16", cols=90, seed=10)[0][0, 0] + 10)
 
 
@@ -170,3 +170,48 @@ def test_pcd_real_nuscenes_keyframes_without_ring_are_32_beams(real_data: Path, 
     seq = open_sequence(tmp_path)
     assert (seq.sensor.name, seq.sensor.n_rings, seq.sensor_from) == ("hdl32e", 32, "elevation histogram")
     assert 1070 <= seq.sensor.width < 1100  # ~1,080 columns at 20 Hz
+
+
+def test_pcd_folder_of_other_names_names_frames_by_place(tmp_path: Path) -> None:
+    for name in ("scan_b", "scan_a"):
+        pts, _ = beam_scan("vlp16", cols=90)
+        write_pcd(tmp_path / f"{name}.pcd", xyz_columns(pts))
+    assert [open_reader(tmp_path).frame_name(k) for k in range(2)] == ["000000", "000001"]
+
+
+def test_pcd_folder_takes_its_poses_and_times(tmp_path: Path) -> None:
+    for i in range(3):
+        pts, _ = beam_scan("vlp16", cols=90, seed=i)
+        write_pcd(tmp_path / f"{i}.pcd", xyz_columns(pts))
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 0, 3] = [0.0, 0.5, 1.0]
+    write_poses(tmp_path / "poses.txt", poses)
+    (tmp_path / "times.txt").write_text("0.0\n0.1\n0.2\n")
+    seq = open_reader(tmp_path)
+    np.testing.assert_allclose(seq.poses[:, 0, 3], [0.0, 0.5, 1.0])  # no calib.txt: taken as T_world_lidar
+    np.testing.assert_allclose(seq.times, [0.0, 0.1, 0.2])
+    assert any("no calib.txt" in w for w in seq.warnings)
+    (tmp_path / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(DataError, match="poses.txt"):
+        open_reader(tmp_path)  # one pose for three frames
+
+
+@pytest.mark.real_data
+def test_pcd_folder_of_real_scans_with_poses_is_processed_into_linked_tracks(real_data: Path, tmp_path: Path) -> None:
+    # SemanticKITTI 00 frames 0-2 as 0.pcd, 1.pcd, 2.pcd beside the sequence's poses and calib:
+    # outputs are NNNNNN.label, as for a KITTI folder, and the tracks are linked through the poses
+    from pipeline.io.semantickitti import read_bin
+    from pipeline.pipeline import run_process
+
+    src, seq = real_data / "kitti_seq00", tmp_path / "pcd"
+    seq.mkdir()
+    for i in range(3):
+        raw = read_bin(src / "velodyne" / f"{i:06d}.bin")
+        cols = xyz_columns(np.ascontiguousarray(raw[:, :3]))
+        cols["intensity"] = raw[:, 3]
+        write_pcd(seq / f"{i}.pcd", cols)
+    (seq / "poses.txt").write_text("\n".join((src / "poses.txt").read_text().splitlines()[:3]) + "\n")
+    (seq / "calib.txt").write_text((src / "calib.txt").read_text())
+    summary = run_process(seq, tmp_path / "out")
+    assert summary["linked"] and summary["poses"] == "file" and summary["tracks_multi_frame"] > 100
+    assert sorted(p.name for p in (tmp_path / "out" / "tracks").iterdir()) == [f"{i:06d}.label" for i in range(3)]

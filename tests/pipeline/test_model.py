@@ -123,3 +123,18 @@ def test_model_checkpoint_written_with_removed_training_options_still_loads(tmp_
     torch.save(payload, path)
     _, meta = load_checkpoint(path, "cpu")
     assert meta.training_config == TrainingConfig(epochs=3)
+
+
+def test_model_checkpoint_from_before_intensity_normalisation_reads_raw_intensity(tmp_path):
+    # written before per-sensor normalisation: no `intensity` in its sample config, no input
+    # statistics; its model knows raw intensities only
+    model = build_model(_net())
+    stats = {"channels": {"intensity": {"p1": 0.1, "p5": 0.2, "p50": 0.5, "p95": 0.8, "p99": 0.9}}}
+    path = save_checkpoint(tmp_path / "m.pt", model, TINY, SampleConfig(size=16), {}, input_stats=stats)
+    _, meta = load_checkpoint(path, "cpu")
+    assert meta.sample_config.intensity == "sensor" and meta.input_stats == stats
+    payload = torch.load(path, weights_only=True)
+    del payload["sample_config"]["intensity"], payload["input_stats"]
+    torch.save(payload, path)
+    _, meta = load_checkpoint(path, "cpu")
+    assert meta.sample_config.intensity == "raw" and meta.input_stats == {}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +18,12 @@ from tests.pipeline.test_organized import organize, write_organized_bin
 from tests.pipeline.test_rings import beam_scan
 
 
-def ring_scan(per_ring: int, n_rings: int = 32) -> Scan:
+def ring_scan(per_ring: int, n_rings: int = 32, turn: float = 1.0) -> Scan:
+    """`per_ring` points on each of `n_rings` rings, 10 m away, spread evenly over `turn` of a
+    revolution."""
     ring = np.repeat(np.arange(n_rings), per_ring).astype(np.int16)
-    pts = np.tile(np.float32([10.0, 0.0, 0.0]), (len(ring), 1))
+    az = np.tile(np.arange(per_ring) * (2.0 * np.pi * turn / per_ring), n_rings)
+    pts = np.stack([10.0 * np.cos(az), 10.0 * np.sin(az), np.zeros_like(az)], axis=1).astype(np.float32)
     return Scan(pts, np.zeros(len(ring), np.float32), ring)
 
 
@@ -30,6 +34,14 @@ def test_fit_width_narrows_a_faster_spinning_sensor() -> None:
 
 def test_fit_width_keeps_a_full_sensor() -> None:
     assert fit_width(ring_scan(2100), get_sensor("hdl32e")).width == 2160
+
+
+def test_fit_width_counts_the_columns_of_a_whole_revolution_in_a_partial_scan() -> None:
+    # a quarter of a turn (a camera-view crop) holding 512 points per ring is a 2048-column
+    # sensor, not a 515-column one, named or not
+    assert fit_width(ring_scan(512, 64, turn=0.25), get_sensor("hdl64e")).width == 2048
+    measured = dataclasses.replace(get_sensor("hdl64e"), name="kitti-64beam", width=2048)
+    assert fit_width(ring_scan(512, 64, turn=0.25), measured).width == 2048
 
 
 def test_fit_width_ignores_points_at_the_sensor() -> None:
@@ -76,3 +88,21 @@ def test_open_sequence_no_frames_names_the_folder(tmp_path: Path) -> None:
     (tmp_path / "velodyne").mkdir()
     with pytest.raises(DataError, match="velodyne"):
         open_sequence(tmp_path)
+
+
+@pytest.mark.real_data
+@pytest.mark.parametrize("sensor", ["auto", "hdl64e"])
+def test_open_sequence_real_camera_view_crop_keeps_every_points_pixel(real_data: Path, tmp_path: Path, sensor: str) -> None:
+    # KITTI's camera-view crop (the front 90 degrees): fitted as 452 columns for a whole turn,
+    # three quarters of its points shared a pixel with another and lost their own
+    from pipeline.io.semantickitti import read_bin
+    from pipeline.range_image import project
+
+    raw = read_bin(real_data / "kitti_seq00" / "velodyne" / "000000.bin")
+    front = (raw[:, 0] > 0) & (np.abs(raw[:, 1]) < raw[:, 0])
+    (tmp_path / "velodyne").mkdir()
+    raw[front].tofile(tmp_path / "velodyne" / "000000.bin")
+    seq = open_sequence(tmp_path, sensor=sensor)
+    assert seq.sensor.width == 2048
+    scan = seq.source.frame(0)
+    assert project(scan, seq.sensor).owner_mask().mean() > 0.9

@@ -219,6 +219,9 @@ def test_train_separable_blobs_reach_high_accuracy(blob_data, tmp_path):
     np.testing.assert_array_equal(predict(loaded, val.samples[:8]), predict(res.model, val.samples[:8]))
     assert meta.metrics["selected_epoch"] == res.selected_epoch
     assert (tmp_path / "last.pt").is_file()
+    # the checkpoint describes its training canvases, channel by channel, for predict's warnings
+    assert meta.input_stats == res.input_stats and meta.input_stats["canvases"] == len(x)
+    assert set(meta.input_stats["channels"]) <= {"height", "range", "intensity", "foreground"}
 
 
 def test_train_semi_supervised_with_augmentation_runs_both_terms(blob_data):
