@@ -10,7 +10,8 @@ A point's class comes, in this order, from
    give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
    ground estimate took reaches only `ground_radius`, so a road beside a reviewed wall stays road;
 3. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
-   far within `radius` (`predicted`, or `propagated` when that point's class was decided);
+   far within `radius` (`ground_radius` for a point the ground estimate took; `predicted`, or
+   `propagated` when that point's class was decided);
 4. the ground class, for ground points, when asked for (`ground`).
 
 A point none of these reaches keeps no class (`none`), and is counted. Distances are metres.
@@ -174,9 +175,11 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
     hit, row = predicted.lookup(track)
     hit &= ~out.labelled
     out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
-    rest = ~out.labelled & ~ground
-    if rest.any() and out.labelled.any():
-        _take(out, rest, world, NearestLabel(*thin(world, out, rules.voxel)), rules.radius)
+    if (~out.labelled).any() and out.labelled.any():
+        near = NearestLabel(*thin(world, out, rules.voxel))
+        rest = ~out.labelled
+        _take(out, rest & ~ground, world, near, rules.radius)
+        _take(out, rest & ground, world, near, rules.ground_radius)
     if ground_class is not None:
         out.set(~out.labelled & ground, ground_class, SOURCE["ground"], 1.0)
     return out

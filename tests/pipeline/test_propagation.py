@@ -28,7 +28,7 @@ def _frame():
         [3.0, 0, 1],  # no track, far from everything
         [11.25, 0, 1],  # no track, 0.25 m from the predicted bush
         [1.05, 0, 0.95],  # ground point 0.07 m from the car
-        [1.3, 0, 1],  # ground point 0.3 m from the car
+        [1.45, 0, 1],  # ground point 0.45 m from the car, 0.25 m from the point propagated to x = 1.2
     ])
     track = np.array([1, 1, 2, 2, 0, 0, 0, 0, 0])
     ground = np.array([False] * 7 + [True, True])
@@ -74,3 +74,12 @@ def test_propagation_thin_keeps_one_point_per_voxel():
     lab = PointLabels(np.array([1, 1, 2, NONE], np.uint8), np.ones(4, np.uint8), np.ones(4, np.float32))
     kept, kept_lab = thin(pts, lab, 0.05)
     assert len(kept) == 2 and kept_lab.class_.tolist() == [1, 2]
+
+
+def test_propagation_ground_point_takes_a_nearby_prediction_within_the_ground_radius():
+    world = np.array([[10.0, 0, 1], [10.1, 0, 0.9], [10.5, 0, 0.9]])  # a predicted bush, two ground points
+    track, ground = np.array([2, 0, 0]), np.array([False, True, True])
+    predicted = TrackClasses.of([(2, BUSH, SOURCE["predicted"], 0.8)])
+    out = resolve_frame(track, ground, world, TrackClasses.of([]), predicted, None, Rules(), GROUND_CLASS)
+    assert out.class_.tolist() == [BUSH, BUSH, GROUND_CLASS]
+    assert out.source[1] == SOURCE["predicted"]
