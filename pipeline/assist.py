@@ -3,14 +3,12 @@ operator's reviews as they come in, over what the shipped (or the sequence's own
 
 Each sample is described by the CNN's embedding and class probabilities and by its segment's
 size, range and height; a random forest fitted on the samples of reviewed tracks classifies every
-other sample. A forest was chosen over fine-tuning the CNN on the few reviewed tracks because,
-on the shared real clips, it scored pending tracks at least as well and its confidences stayed
-honest (its high-confidence predictions were right about as often as they claimed), which bulk
-accept relies on; and it refits in about a second on 2 cores (docs/effort.md has the
-measurements). Until the reviews show two classes the CNN's own probabilities stand. Once they do,
-the forest alone decides: keeping the CNN's probability for classes no review has shown yet let
-its confident mistakes on real scans override the forest (on the shared clips after 50 reviews:
-0.64 against 0.74 of seq01's points right, 0.62 against 0.67 of seq02's).
+other sample. Until the reviews show two classes the CNN's own probabilities stand; from then on
+the forest alone decides. Measured on the shared real clips (docs/effort.md): the forest scored
+pending tracks at least as well as the CNN fine-tuned on the same reviews and its confident
+predictions were right about as often as they claimed, which bulk accept relies on; letting the
+CNN keep its probability for classes no review has shown, or keeping the CNN until it predicts
+the reviewed tracks worse than the forest, each lost points on some clips.
 
 Tracks the operator discarded teach one more class, `NO_OBJECT` (pieces of ground, noise: what
 operators throw away); a track the head calls so is left out of bulk accepts and of the
@@ -117,10 +115,6 @@ class HeldOutTracks:
     confidence: np.ndarray
     samples: np.ndarray
 
-    def accuracy(self) -> float:
-        """The share of the tracks' samples whose track was predicted right."""
-        return float((self.samples * (self.truth == self.predicted)).sum() / max(self.samples.sum(), 1))
-
     def precision(self, class_index: int, min_confidence: float) -> tuple[float | None, int]:
         """(share right, support) of the held-out tracks predicted `class_index` at or above
         `min_confidence` (None when there is none)."""
@@ -154,35 +148,3 @@ def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.n
     truth[inverse] = labels
     return HeldOutTracks(truth, mean.argmax(axis=1), mean.max(axis=1), counts)
 
-
-def cnn_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, group: np.ndarray) -> HeldOutTracks:
-    """The CNN's own predictions of the reviewed tracks (it never saw them: nothing to hold out)."""
-    labelled, labels, group = (np.asarray(a, np.int64) for a in (labelled, labels, group))
-    tracks, inverse = np.unique(group, return_inverse=True)
-    mean, counts = track_means(_cnn(features, features.probs.shape[1] + 1)[labelled], inverse, len(tracks))
-    truth = np.zeros(len(tracks), np.int64)
-    truth[inverse] = labels
-    return HeldOutTracks(truth, mean.argmax(axis=1), mean.max(axis=1), counts)
-
-
-@dataclass(frozen=True)
-class Head:
-    """What the loop runs: `name` ("cnn" or "forest"), every sample's probabilities (N, K + 1) and
-    the reviewed tracks' held-out predictions it was chosen by."""
-
-    name: str
-    probs: np.ndarray
-    held_out: HeldOutTracks
-
-
-def choose_head(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, group: np.ndarray,
-                seed: int = 0) -> Head:
-    """The forest once it predicts the reviewed tracks (held out) better than the CNN alone, else
-    the CNN: with the first few reviews a forest knows two or three classes and calls everything
-    one of them (on kitti_seq00 after 10 reviews it had 0.72 of the points right against the CNN's
-    0.78), and the reviews themselves say when it has learnt more than that."""
-    cnn = cnn_tracks(features, labelled, labels, group)
-    forest = held_out_tracks(features, labelled, labels, group, seed)
-    if forest is None or forest.accuracy() <= cnn.accuracy():
-        return Head("cnn", _cnn(features, features.probs.shape[1] + 1), cnn)
-    return Head("forest", assist_probs(features, labelled, labels, seed), forest)

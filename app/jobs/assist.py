@@ -6,8 +6,7 @@ operator's reviews so far, and orders the review queue by what a review would co
    are not trained on); the samples of discarded tracks are `no_object`.
 2. Score every sample with the base CNN: the newest model trained on this sequence, else the
    shipped default model (its embedding and class probabilities).
-3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample with it,
-   or with the CNN alone while that predicts the reviewed tracks better (`choose_head`).
+3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
 4. Per track, the mean probability of its kept samples gives its predicted class and confidence,
    and its queue priority (`crud.queue_priority`); the reviewed tracks' held-out predictions give
    the precision a bulk accept's preview shows (`result.held_out`).
@@ -128,8 +127,8 @@ def _kept_group(data: dict[str, Any]) -> tuple[np.ndarray, list[Any]]:
 
 def _held_out_record(held: Any, classes: tuple[str, ...]) -> dict[str, list[Any]] | None:
     """The reviewed tracks' held-out predictions as JSON (crud.bulk_preview reads the precision
-    at any threshold from it); None before any review."""
-    if not len(held.truth):
+    at any threshold from it); None with too few reviews to hold any out."""
+    if held is None:
         return None
     return {"truth": [classes[i] for i in held.truth], "predicted": [classes[i] for i in held.predicted],
             "confidence": [round(float(c), 4) for c in held.confidence]}
@@ -151,7 +150,7 @@ def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndar
 
 
 def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
-    from pipeline.assist import NO_OBJECT, choose_head, track_means
+    from pipeline.assist import NO_OBJECT, assist_probs, held_out_tracks, track_means
 
     t0 = time.perf_counter()
     with ctx.db.read() as s:
@@ -163,15 +162,15 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     ctx.progress(0.6, "fitting the head on the reviews")
     group, tracks = _kept_group(data)
     labelled, labels = _training_labels(data, group, len(cnn_classes))
-    head = choose_head(features, labelled, labels, group[labelled], params.seed)
-    mean, counts = track_means(head.probs, group, len(tracks))
+    probs = assist_probs(features, labelled, labels, params.seed)
+    held = held_out_tracks(features, labelled, labels, group[labelled], params.seed)
+    mean, counts = track_means(probs, group, len(tracks))
     predicted = _write(ctx, tracks, mean, counts, tuple(classes))
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
-            "head": head.name, "held_out_accuracy": round(head.held_out.accuracy(), 4),
-            "held_out": _held_out_record(head.held_out, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
+            "held_out": _held_out_record(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
 
 
 def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int, int]:

@@ -54,14 +54,3 @@ def test_held_out_tracks_leave_whole_tracks_out():
     assert support >= 8 and precision > 0.9
     assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10]) is None  # one class only
 
-
-def test_choose_head_keeps_the_cnn_until_the_forest_predicts_reviews_better():
-    from pipeline.assist import choose_head
-
-    feats, truth = _features()
-    group = np.arange(80) // 4
-    right_cnn = SampleFeatures(feats.embedding, np.eye(4, dtype=np.float32)[truth], feats.stats)
-    assert choose_head(right_cnn, np.arange(80), truth, group).name == "cnn"  # the CNN is already right
-    head = choose_head(feats, np.arange(80), truth, group)  # the CNN says class 2 everywhere
-    assert head.name == "forest" and head.held_out.accuracy() > 0.9
-    assert choose_head(feats, np.arange(4), truth[:4], group[:4]).name == "cnn"  # one track: nothing to hold out
