@@ -214,10 +214,7 @@ def _undo_merge(session: Session, track_id: int, ev: AnnotationEvent, guard: Gua
 
 def repair_context(session: Session, settings: Any, artifacts: ArtifactStore, sequence_id: int) -> RepairContext:
     """The context of a sequence: its sensor, its pipeline config (settings' file + its overrides)."""
-    from app.jobs.ingest import get_backend
-
     seq = session.get(Sequence, sequence_id)
     if seq is None:
         raise NotFound(f"sequence {sequence_id} not found")
-    backend = get_backend()
-    return RepairContext(artifacts, backend, backend.config(settings.pipeline_config, seq.config), seq.sensor)
+    return RepairContext(artifacts, crud.pipeline_config(settings.pipeline_config, seq.config), seq.sensor)

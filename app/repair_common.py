@@ -44,13 +44,21 @@ class Guard(Protocol):
 
 @dataclass(frozen=True)
 class RepairContext:
-    """What a repair needs besides the database: the artifact files, the backend that renders
-    samples (`app.jobs.ingest.IngestBackend`) and the sequence's pipeline config."""
+    """What a repair needs besides the database: the artifact files, the sequence's pipeline
+    config and its sensor as ingest recorded it (`pipeline.resample` re-renders the samples)."""
 
     artifacts: ArtifactStore
-    backend: Any
     config: Any
     sensor: dict[str, Any] | None
+
+    def sensor_model(self) -> Any:
+        """The sequence's `pipeline.sensors.SensorModel`; Conflict when ingest recorded none."""
+        from pipeline.sensors import SensorModel
+
+        if self.sensor is None:
+            raise Conflict("the sequence has no sensor model recorded (ingested before sensors were stored); "
+                           "ingest it again")
+        return SensorModel.from_dict(self.sensor)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -138,18 +146,21 @@ def link_rows(session: Session, track_ids: list[int]) -> list[dict[str, Any]]:
 
 
 def rebuild_links(session: Session, track: Track) -> None:
-    """The track's must-link pairs as ingest makes them: each valid segment with a sample to the
-    previous one, in frame order, scored by the later segment's link score."""
+    """The track's must-link pairs as ingest makes them (`pipeline.links`): its members are its
+    valid segments with a sample, in frame order, each pair scored by the later member's link score."""
+    from pipeline.links import LinkBuilder
+
     session.execute(delete(PairConstraint).where(PairConstraint.track_id == track.id, PairConstraint.kind == "must_link"))
     segs = session.execute(
         select(Segment.id, Segment.link_score)
         .where(Segment.track_id == track.id, Segment.valid.is_(True), Segment.sample_index.is_not(None))
         .order_by(Segment.frame_index, Segment.id)
     ).all()
+    score = {int(r.id): float(r.link_score or 0.0) for r in segs}
     rows = [
-        {"sequence_id": track.sequence_id, "track_id": track.id, "segment_a_id": a.id, "segment_b_id": b.id,
-         "score": float(b.link_score or 0.0), "kind": "must_link"}
-        for a, b in zip(segs, segs[1:], strict=False)
+        {"sequence_id": track.sequence_id, "track_id": track.id, "segment_a_id": a, "segment_b_id": b,
+         "score": score[b], "kind": "must_link"}
+        for a, b in LinkBuilder().chain(track.id, [int(r.id) for r in segs]).tolist()
     ]
     if rows:  # the table, not the entity: the ORM's bulk insert took 5 ms for 70 rows
         session.execute(insert(PairConstraint.__table__), rows)

@@ -2,8 +2,8 @@
 
 Per frame, a segment whose points are all selected moves whole; a cut segment keeps its row for
 the points that stay and gets a new row (a new local id) for the points that go, and both parts'
-statistics and samples are computed again by the pipeline (`pipeline.resample`, reached through
-the ingest backend). The frames' artifacts are rewritten under new names. The event's `detail`
+statistics and samples are computed again by the pipeline (`pipeline.resample`, called
+directly). The frames' artifacts are rewritten under new names. The event's `detail`
 records the files before and after, the segment rows before, the rows created, the constraint
 rows and the track's fields before, so that undo (app/repair.py) puts all of it back.
 
@@ -113,7 +113,9 @@ def _selected_points(ctx: RepairContext, frame: Frame, art: FrameArtifact, track
     if selector.segments is not None:
         return mine & np.isin(art.segment, sorted(selector.segments.get(frame.id, ())))
     if selector.min_height is not None:
-        height = ctx.backend.height(ctx.sensor, ctx.config, art.points, art.intensity)
+        from pipeline import resample
+
+        height = resample.height_above_ground(art.points, art.intensity, ctx.sensor_model(), ctx.config)
         return mine & (height >= selector.min_height)
     pose = pose_of(frame)
     world = art.points[mine].astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
@@ -147,7 +149,9 @@ def _rerendered(ctx: RepairContext, art: FrameArtifact, segment: np.ndarray, ids
     A re-rendered segment keeps its slot, a new one is appended, one that lost its sample gives
     its slot to the last sample: every other segment keeps its `sample_index`, so the write step
     changes a few rows per cut instead of every row after it (on PostgreSQL, one round trip each)."""
-    res = ctx.backend.resample(ctx.sensor, ctx.config, art.points, art.intensity, segment, ids)
+    from pipeline import resample
+
+    res = resample.resample_segments(art.points, art.intensity, segment, ids, ctx.sensor_model(), ctx.config)
     samples, owner = list(art.samples), [int(s) for s in art.sample_segment]
     slot = {local: i for i, local in enumerate(owner)}
     for k, local in enumerate(ids.tolist()):

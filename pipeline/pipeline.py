@@ -20,8 +20,9 @@ import numpy as np
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
+from pipeline.frames import FrameResult
 from pipeline.io import open_reader
-from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.processing import SequenceProcessor
 from pipeline.progress import QUIET, Progress
 from pipeline.sequence import Sequence, open_sequence
 from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
@@ -138,7 +139,7 @@ def _summary(seq: Sequence, proc: SequenceProcessor, builder: TrackBuilder, tall
         "tracks": len(tracks),
         "tracks_multi_frame": int((lengths > 1).sum()),
         "tracks_spanning_all_frames": int((lengths == len(names)).sum()) if names else 0,
-        "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in tracks)),
+        "constraint_pairs": len(builder.pairs),
         "stitches": len(builder.stitches),
         "mean_track_length": float(lengths.mean()),
         "track_statistics": track_statistics(tracks, len(names)),

@@ -45,10 +45,11 @@ import numpy as np
 from pipeline.classes import GROUND, UNLABELLED, to_ours, to_semantickitti
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
+from pipeline.frames import FrameResult
 from pipeline.input_stats import input_warnings
 from pipeline.metrics import point_iou
 from pipeline.model import default_model_path, load_checkpoint, predict
-from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.processing import SequenceProcessor
 from pipeline.progress import QUIET, Progress
 from pipeline.sequence import open_sequence
 

@@ -15,6 +15,7 @@ from app.crud.datasets import (
     check_sensor_file,
     check_tree_inside_roots,
     create_dataset,
+    pipeline_config,
     registered_sequence_id,
     require_ready,
     resolve_registration_path,
@@ -51,6 +52,7 @@ from app.crud.users import (
 )
 
 __all__ = [
+    "pipeline_config",
     "bulk_accept",
     "bulk_preview",
     "list_bulk_actions",

@@ -54,6 +54,14 @@ def check_tree_inside_roots(path: Path, roots: list[Path]) -> DataRoots:
     return data_roots
 
 
+def pipeline_config(settings_path: Path | None, overrides: dict[str, Any] | None) -> Any:
+    """The settings' pipeline config file with a sequence's overrides (ingest and the repairs)."""
+    from pipeline.config import load_config
+
+    cfg = load_config(settings_path)
+    return cfg.override(overrides) if overrides else cfg
+
+
 def check_sensor_file(config: Any, roots: list[Path]) -> None:
     """A pipeline config's sensor file (an Ouster json) must lie under the roots too (403)."""
     name = getattr(getattr(config, "sensor", None), "name", "auto")

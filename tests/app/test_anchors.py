@@ -150,15 +150,10 @@ def test_answers_to_gone_or_decided_proposals_are_404_or_409(client, factory, se
     assert a["track_id"] not in new_tracks and b["track_id"] not in new_tracks  # labelled / discarded left out
     # the sequence re-ingested: every proposal is gone
     factory.queue_ingest(seq, force=True)
-    from app.jobs import ingest
-    from tests.app.fakes import FakeBackend
+    from tests.app.fakes import fake_pipeline
 
-    previous = ingest._backend
-    ingest.set_backend(FakeBackend(n_frames=6, n_objects=4))
-    try:
+    with fake_pipeline(n_frames=6, n_objects=4):
         assert Worker(settings, db=db).run_once()
-    finally:
-        ingest.set_backend(previous)
     assert client.post(f"/api/v1/anchors/{a['id']}/reject", headers=op.headers).status_code == 404
     assert client.post("/api/v1/anchors/2147483647/confirm", headers=op.headers).status_code == 404
     assert client.post("/api/v1/anchors/0/confirm", headers=op.headers).status_code == 422

@@ -4,19 +4,14 @@ from __future__ import annotations
 
 from sqlalchemy import func, select
 
-from app.jobs import ingest
 from app.models import AnnotationEvent, Job, Sequence
 from app.worker import Worker
-from tests.app.fakes import FakeBackend
+from tests.app.fakes import fake_pipeline
 
 
 def _run_worker_with_fake(settings, db, **kw):
-    previous = ingest._backend
-    ingest.set_backend(FakeBackend(**kw))
-    try:
+    with fake_pipeline(**kw):
         return Worker(settings, db=db).run_once()
-    finally:
-        ingest.set_backend(previous)
 
 
 def test_hardening_force_reingest_really_reruns(client, factory, db, settings):

@@ -1,19 +1,19 @@
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 from sqlalchemy import func, select
 
-from app.jobs import ingest
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Track
 from app.worker import Worker
-from tests.app.fakes import FakeBackend, expected_counts
+from tests.app.fakes import FakePipeline, expected_counts, fake_pipeline
 
 
 @pytest.fixture
 def backend():
-    previous = ingest._backend
-    yield lambda **kw: ingest.set_backend(FakeBackend(**kw))
-    ingest.set_backend(previous)
+    with contextlib.ExitStack() as stack:
+        yield lambda **kw: stack.enter_context(fake_pipeline(**kw))
 
 
 def _counts(db, seq_id):
@@ -105,7 +105,7 @@ class _NoSegmentsProcessor:
             yield fr
 
 
-class _NoSegmentsBackend(FakeBackend):
+class _NoSegmentsPipeline(FakePipeline):
     def processor(self, config, sensor):
         return _NoSegmentsProcessor()
 
@@ -114,12 +114,8 @@ def test_ingest_frames_without_segments_ingest_as_empty(factory, db):
     """A scan with no segment used to fail the ingest (IndexError indexing an empty track table)."""
     seq = factory.registered_sequence()
     factory.queue_ingest(seq)
-    previous = ingest.get_backend()
-    ingest.set_backend(_NoSegmentsBackend(n_frames=2))
-    try:
+    with fake_pipeline(_NoSegmentsPipeline(n_frames=2)):
         assert Worker(factory.settings, db=db).run_once()
-    finally:
-        ingest.set_backend(previous)
     with db.read() as s:
         assert s.get(Sequence, seq).status == "ready", factory.last_job_error()
     assert _counts(db, seq) == {"frames": 2, "segments": 0, "tracks": 0, "constraints": 0}

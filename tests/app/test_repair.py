@@ -12,19 +12,16 @@ from sqlalchemy import select
 
 from app import crud
 from app.artifacts import ArtifactStore
-from app.jobs import ingest
 from app.models import Frame, Label, PairConstraint, Segment, Track
-from tests.app.fakes import FakeBackend
+from tests.app.fakes import fake_pipeline
 
 HALF = {"kind": "halfspace", "normal": [1.0, 0.0, 0.0], "offset": 0.0}
 
 
 @pytest.fixture(autouse=True)
 def fake_backend():
-    previous = ingest.get_backend()
-    ingest.set_backend(FakeBackend())
-    yield
-    ingest.set_backend(previous)
+    with fake_pipeline():
+        yield
 
 
 def _post(client, caller, track_id, action, body, status=200):
@@ -164,7 +161,7 @@ def test_repair_split_exports_give_each_part_its_class_and_instance(client, fact
     assert len(rows) == 6  # three frames, each with a sample of either part
     z = np.load(io.BytesIO(client.get("/api/v1/exports/labels", params={"sequence_id": seq, "format": "npz"},
                                       headers=op.headers).content))
-    # re-rendered samples (fake backend: 100 + segment id): segment 0 kept, segment 2 is new
+    # re-rendered samples (fake pipeline: 100 + segment id): segment 0 kept, segment 2 is new
     assert sorted(set(z["samples"][:, 0, 0, 0].tolist())) == [100, 102]
     constraints = client.get("/api/v1/exports/constraints", params={"sequence_id": seq}, headers=op.headers)
     assert {int(r.split('"track_id": ')[1].split(",")[0]) for r in constraints.text.splitlines()} == {tid, new["id"]}

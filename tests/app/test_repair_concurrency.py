@@ -22,9 +22,8 @@ from sqlalchemy import func, select
 
 from app import crud
 from app.artifacts import ArtifactStore
-from app.jobs import ingest
 from app.models import AnnotationEvent, Frame, Segment, Sequence, Track
-from tests.app.fakes import FakeBackend
+from tests.app.fakes import fake_pipeline
 
 STORM_SECONDS = float(os.environ.get("TRACKLABEL_TEST_STORM_SECONDS", "5"))
 OPERATORS = 6
@@ -32,10 +31,8 @@ OPERATORS = 6
 
 @pytest.fixture(autouse=True)
 def fake_backend():
-    previous = ingest.get_backend()
-    ingest.set_backend(FakeBackend())
-    yield
-    ingest.set_backend(previous)
+    with fake_pipeline():
+        yield
 
 
 def _action(c: httpx.Client, rng: random.Random, tracks: list[int], mine: list[int]) -> tuple[str, httpx.Response, int]:

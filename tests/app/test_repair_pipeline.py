@@ -29,15 +29,17 @@ def _ingest(client, factory, settings, db, simulated):
 def test_repair_pipeline_resample_reproduces_ingest_samples(client, factory, settings, db, simulated):
     """Re-rendering an unchanged frame's segments gives the samples ingest stored (the range
     image and ground rebuilt from the stored points match those of ingest)."""
-    from app.jobs.ingest import get_backend
+    from pipeline.config import PipelineConfig
+    from pipeline.resample import resample_segments
+    from pipeline.sensors import SensorModel
 
     seq = _ingest(client, factory, settings, db, simulated)
     with db.read() as s:
         rel = s.scalars(select(Frame.artifact).where(Frame.sequence_id == seq).order_by(Frame.index)).first()
         sensor = s.get(Sequence, seq).sensor
     z = np.load(settings.data_dir / "artifacts" / rel)
-    backend = get_backend()
-    res = backend.resample(sensor, backend.config(None, None), z["points"], z["intensity"], z["segment"], z["sample_segment"])
+    res = resample_segments(z["points"], z["intensity"], z["segment"], z["sample_segment"], SensorModel.from_dict(sensor),
+                            PipelineConfig())
     assert res.table.valid.all()
     same = np.array([np.array_equal(res.samples[k], z["samples"][k]) for k in range(len(z["samples"]))])
     assert same.all(), f"{int((~same).sum())} of {len(same)} samples differ"
