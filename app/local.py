@@ -161,13 +161,13 @@ def latest_model(db: Database) -> Path:
 
 
 def export_semantickitti(db: Database, settings: Settings, seq: Sequence, out: Path, options: Any) -> list[Path]:
-    """The REST export's SemanticKITTI labels (app.exports, `options`: ExportOptions), unpacked
+    """The REST export's SemanticKITTI labels (app.services.exports, `options`: ExportOptions), unpacked
     under `out` as sequences/<name>/labels/NNNNNN.label and summary.json (+ chunk_map.json past
     65,535 tracks); the files written."""
     import tarfile
 
     from app.artifacts import ArtifactStore
-    from app.exports import semantickitti_tar
+    from app.services.exports import semantickitti_tar
     from app.services.point_labels import point_label_plan
 
     with db.read() as s:

@@ -7,8 +7,8 @@ from typing import Any
 from sqlalchemy import DateTime, Integer, String, bindparam, delete, func, insert, select
 from sqlalchemy.orm import Session
 
-from app import leases
-from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound, check_version
+from app.crud import leases
 from app.crud.datasets import require_ready
 from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
@@ -72,7 +72,7 @@ def apply_action(
     """Apply one review action if `version` is current; write its event; commit.
 
     Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
-    user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
+    user's running lease -> LeaseHeld (409; see app.crud.leases). The caller's own lease is renewed by
     `lease_seconds`.
     """
     track = _track_for_review(session, track_id, user, action, version, override_lease, lease_seconds)
@@ -114,8 +114,7 @@ def _track_for_review(
         raise NotFound(f"track {track_id} not found")
     require_ready(session, track.sequence_id, "tracks can be reviewed once it is ready")
     leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
-    if track.version != version:
-        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    check_version("track", track_id, version, track.version)
     if track.status == "merged" and action != "undo":
         raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
     return track

@@ -29,8 +29,8 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.config import Settings
 from app.core.db import Database
+from app.crud.model_versions import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.context import JobContext
-from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
 from app.models import AnnotationEvent, Frame, Job, Label, ModelVersion, Segment, Sequence, Track

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from sqlalchemy import func, select, update
 
-from app.jobs import models_util
+from app.crud import model_versions
 from app.models import AnchorEvent, AnchorProposal, AnnotationEvent, Job, Label, ModelVersion, Segment, Track
 from app.worker import Worker
 from tests.app.fakes import SAMPLE_SHAPE
@@ -29,7 +29,7 @@ def model_id(db, tmp_path: Path) -> int:
     sc = SampleConfig(size=SAMPLE_SHAPE[1], foreground_channel=SAMPLE_SHAPE[0] == 4)
     path = save_checkpoint(tmp_path / "pre" / "best.pt", get_model(mc, sc), mc, sc, {"note": "untrained"})
     with db.write() as s:
-        mv = models_util.register_model_version(s, name="pretrained", kind="train", path=path)
+        mv = model_versions.register_model_version(s, name="pretrained", kind="train", path=path)
         s.commit()
         return mv.id
 

@@ -7,7 +7,7 @@ import pytest
 from sqlalchemy import select
 
 from app import crud
-from app.jobs.models_util import register_model_version
+from app.crud.model_versions import register_model_version
 from app.models import Job, Track
 from app.worker import Worker
 

@@ -6,7 +6,7 @@ import tarfile
 
 import numpy as np
 
-from app.exports import MAX_INSTANCE, _instances
+from app.services.exports import MAX_INSTANCE, _instances
 
 
 def _act(client, caller, track_id, action, version, **body):
@@ -140,7 +140,7 @@ def test_exports_stats_count_reviews_and_labels(client, factory):
 
 def test_exports_jsonl_streams_many_rows_a_chunk():
     # defect 10 of issue 23: one chunk per row made 8k rows take 1.35-2.4 s
-    from app.exports import JSONL_CHUNK_ROWS, jsonl
+    from app.services.exports import JSONL_CHUNK_ROWS, jsonl
 
     rows = [{"id": i, "score": 0.5} for i in range(2 * JSONL_CHUNK_ROWS + 1)]
     chunks = list(jsonl(rows))
@@ -149,7 +149,7 @@ def test_exports_jsonl_streams_many_rows_a_chunk():
 
 
 def test_exports_constraint_lines_match_the_row_dicts(client, factory, db):
-    from app.exports import constraint_lines, constraint_rows, constraints_jsonl
+    from app.services.exports import constraint_lines, constraint_rows, constraints_jsonl
 
     factory.ingested_sequence(n_frames=5, n_objects=3)
     with db.read() as s:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from sqlalchemy import select
 
-from app.jobs.models_util import load_training_set, register_model_version
+from app.crud.model_versions import load_training_set, register_model_version
 from app.models import Job, ModelVersion, Track
 from app.worker import Worker
 
@@ -176,7 +176,7 @@ def test_predict_job_sample_size_mismatch_fails_clearly(client, factory, setting
 def test_train_job_split_by_track_leaves_validation_tracks_pairs_out():
     import numpy as np
 
-    from app.jobs.models_util import TrainingSet
+    from app.crud.model_versions import TrainingSet
     from app.jobs.train import TrainParams, _JobData, _split
     from pipeline.config import SampleConfig
     from pipeline.training import TrainingData

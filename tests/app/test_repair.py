@@ -168,7 +168,7 @@ def test_repair_split_exports_give_each_part_its_class_and_instance(client, fact
 
 
 def test_repair_split_training_set_sees_both_parts(client, factory, settings):
-    from app.jobs.models_util import load_training_set
+    from app.crud.model_versions import load_training_set
 
     seq = factory.ingested_sequence(n_frames=3, n_objects=1)
     op = factory.user()
@@ -289,7 +289,7 @@ def test_repair_split_by_predicted_class_moves_whole_segments(client, factory, d
     """An untrained model still answers deterministically: the segments it calls `car` go."""
     import torch
 
-    from app.jobs import models_util
+    from app.crud import model_versions
     from pipeline.classes import SAMPLE_CLASSES
     from pipeline.config import ModelConfig, SampleConfig
     from pipeline.model import get_model, load_checkpoint, predict, save_checkpoint
@@ -300,7 +300,7 @@ def test_repair_split_by_predicted_class_moves_whole_segments(client, factory, d
     sc = SampleConfig(size=SAMPLE_SHAPE[1], foreground_channel=True)
     path = save_checkpoint(tmp_path / "m.pt", get_model(mc, sc), mc, sc)
     with db.write() as s:
-        model_id = models_util.register_model_version(s, name="m", kind="train", path=path).id
+        model_id = model_versions.register_model_version(s, name="m", kind="train", path=path).id
         s.commit()
     seq = factory.ingested_sequence(n_frames=5, n_objects=1)
     op = factory.user()

@@ -12,8 +12,8 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query
 
-from app import anchors
 from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.crud import anchors
 from app.schemas import (
     AnchorCorrect,
     AnchorEventPublic,

@@ -8,9 +8,9 @@ from typing import Annotated
 from fastapi import APIRouter, Query, status
 from sqlalchemy import select
 
-from app import audits
 from app.api.deps import AuditorUser, IdPath, LeaseGuardDep, SessionDep, WriteSessionDep
 from app.core.errors import Forbidden
+from app.crud import audits
 from app.models import Audit
 from app.schemas import AuditCorrect, AuditPublic, AuditSample, AuditStatus
 from pipeline.classes import SAMPLE_CLASSES

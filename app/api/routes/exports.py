@@ -5,11 +5,13 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
-from app import audits, crud, exports
+from app import crud
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
 from app.core.errors import NotFound
+from app.crud import audits
 from app.models import Sequence
 from app.schemas import ProgressStats
+from app.services import exports
 from app.services.point_labels import ExportOptions, point_label_plan
 from pipeline.propagation import Rules
 

@@ -1,16 +1,16 @@
 """Track repair: split a track by a region of its points, merge two tracks, and undo either.
 
 A split moves the track's points inside a region (world frame; every kept frame or one frame)
-to a new pending track (app/repair_split.py); a merge moves every segment of one track into
-the other (app/repair_merge.py). Both rewrite the frames' artifact files under new names
+to a new pending track (app/services/repair_split.py); a merge moves every segment of one track into
+the other (app/services/repair_merge.py). Both rewrite the frames' artifact files under new names
 (`ArtifactStore.frame_relpath(..., revision)`) and record in the event's `detail` what they
 changed: the artifact file of each frame before and after, the segment rows before, the
 constraint rows before and the tracks' fields before. Undo puts all of it back (the old
 artifact files were never touched), so the original rows and files come back exactly; the track
-a split created is deleted, and its id and key are never given again (app/track_ids.py).
+a split created is deleted, and its id and key are never given again (app/crud/track_ids.py).
 
 Each runs its slow part with no lock held, then writes in one short transaction that locks
-tracks in id order, then frames in id order (app/repair_common.py).
+tracks in id order, then frames in id order (app/services/repair_common.py).
 
 Rules: each track's `version` must be current (stale -> Conflict), its sequence ready; a region
 that selects no point, or every point in the kept range -> NotApplicable; a merged track takes
@@ -27,7 +27,7 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import ArtifactStore
-from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound, StaleVersion
 from app.models import (
     AnchorProposal,
     AnnotationEvent,
@@ -39,7 +39,7 @@ from app.models import (
     Stitch,
     Track,
 )
-from app.repair_common import (
+from app.services.repair_common import (
     SEGMENT_FIELDS,
     Guard,
     RepairContext,
@@ -50,8 +50,8 @@ from app.repair_common import (
     restore_links,
     update_segments,
 )
-from app.repair_merge import MergePlan, apply_merge, plan_merge
-from app.repair_split import Selector, SplitPlan, SplitResult, apply_split, plan_split
+from app.services.repair_merge import MergePlan, apply_merge, plan_merge
+from app.services.repair_split import Selector, SplitPlan, SplitResult, apply_split, plan_split
 
 GEOMETRY_ACTIONS = ("split", "merge")
 
@@ -65,7 +65,7 @@ def predicted_selector(session: Session, ctx: RepairContext, track_id: int, mode
                        record: dict[str, Any]) -> Selector:
     """The track's kept segments that model `model_id` classifies as `class_name` (whole
     segments: a split in time, e.g. the frames where a tracked person merged into a wall)."""
-    from app.jobs.models_util import get_model_version
+    from app.crud.model_versions import get_model_version
     from pipeline.errors import DataError
     from pipeline.model import load_checkpoint, predict
 
@@ -189,13 +189,11 @@ def _undo_merge(session: Session, track_id: int, ev: AnnotationEvent, guard: Gua
     md = main_ev.detail or {}
     expected = {main_ev.track_id: main_ev.version_after, other_ev.track_id: other_ev.version_after}
     if expected.get(track_id) != version:
-        raise Conflict(f"stale version {version}: track {track_id} has changed since the merge")
+        raise StaleVersion(f"stale version {version}: track {track_id} has changed since the merge")
     try:
         tracks = lock_tracks(session, expected, guard)
-    except Conflict as exc:
-        if "stale version" not in exc.detail:
-            raise
-        raise Conflict(f"{exc.detail}; it has changed since the merge: undo its later actions first") from None
+    except StaleVersion as exc:
+        raise StaleVersion(f"{exc.detail}; it has changed since the merge: undo its later actions first") from None
     a, b = tracks[main_ev.track_id], tracks[other_ev.track_id]
     _lock_frames_after(session, md["frames"])
     states = {a.id: crud.review_state(a), b.id: crud.review_state(b)}

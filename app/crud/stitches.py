@@ -15,9 +15,9 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app import crud, leases
-from app.core.errors import Conflict, NotFound
-from app.crud import AuthUser
+from app import crud
+from app.core.errors import NotFound, check_version
+from app.crud import AuthUser, leases
 from app.models import Stitch, Track, utcnow
 
 DECISIONS = {"confirm": "confirmed", "reject": "rejected"}
@@ -59,13 +59,12 @@ def decide_stitch(
 ) -> Stitch:
     """Confirm or reject a stitch decided on `version` and commit. Unknown -> NotFound; stale
     version or a sequence that is not ready -> Conflict; either track leased to someone else ->
-    LeaseHeld (app.leases)."""
+    LeaseHeld (app.crud.leases)."""
     st = session.scalars(select(Stitch).where(Stitch.id == stitch_id).with_for_update()).first()
     if st is None:
         raise NotFound(f"stitch {stitch_id} not found")
     crud.require_ready(session, st.sequence_id, "stitches can be decided once it is ready")
-    if version != st.version:
-        raise Conflict(f"stale version {version}: stitch {stitch_id} is at version {st.version}")
+    check_version("stitch", stitch_id, version, st.version)
     now = utcnow()
     for track in session.scalars(
         select(Track).where(Track.id.in_((st.track_a_id, st.track_b_id))).order_by(Track.id).with_for_update()

@@ -5,10 +5,10 @@ the points that stay and gets a new row (a new local id) for the points that go,
 statistics and samples are computed again by the pipeline (`pipeline.resample`, called
 directly). The frames' artifacts are rewritten under new names. The event's `detail`
 records the files before and after, the segment rows before, the rows created, the constraint
-rows and the track's fields before, so that undo (app/repair.py) puts all of it back.
+rows and the track's fields before, so that undo (app/services/repair.py) puts all of it back.
 
 `plan_split` does the slow part with no lock held and `apply_split` writes it in one short
-transaction (app/repair_common.py).
+transaction (app/services/repair_common.py).
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.artifacts import FrameArtifact
 from app.core.errors import Conflict, NotApplicable
+from app.crud.track_ids import TrackIds
 from app.models import Frame, Segment, Track, utcnow
-from app.repair_common import (
+from app.services.repair_common import (
     SEGMENT_FIELDS,
     Guard,
     RepairContext,
@@ -44,7 +45,6 @@ from app.repair_common import (
     update_segments,
     write_revision,
 )
-from app.track_ids import TrackIds
 
 STAT_FIELDS = ("n_points", "cx", "cy", "cz", "wx", "wy", "wz", "range", "valid", "sample_index")
 _ROW_COLUMNS = [Segment.id, Segment.local_id, *(getattr(Segment, f) for f in SEGMENT_FIELDS)]

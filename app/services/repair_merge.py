@@ -4,7 +4,7 @@ The joined track keeps the review state both shared, else it is pending without 
 kept range covers both. The other track becomes `merged`. The frames that hold the other track
 get new artifact files with its points renumbered (the slow step, `plan_merge`, no lock held);
 `apply_merge` locks both tracks in id order, whichever direction the merge goes, and writes the
-rows in one short transaction (app/repair_common.py).
+rows in one short transaction (app/services/repair_common.py).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.errors import Conflict, NotApplicable
 from app.models import Frame, PairConstraint, Segment, Track
-from app.repair_common import (
+from app.services.repair_common import (
     Guard,
     RepairContext,
     add_event,

@@ -1,4 +1,4 @@
-"""What the track repairs (app/repair.py) share: their context, the row helpers of the write
+"""What the track repairs (app/services/repair.py) share: their context, the row helpers of the write
 step, and the locks.
 
 Every repair runs in two steps. The slow part (reading frames, cutting segments, rendering
@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import ArtifactStore, FrameArtifact
-from app.core.errors import Conflict, NotFound, Retry
+from app.core.errors import Conflict, NotFound, Retry, check_version
 from app.crud import AuthUser
 from app.models import AnnotationEvent, Frame, PairConstraint, Segment, Track, utcnow
 
@@ -70,8 +70,7 @@ def read_track(session: Session, track_id: int, version: int) -> Track:
     if track is None:
         raise NotFound(f"track {track_id} not found")
     crud.require_ready(session, track.sequence_id, "tracks can be changed once it is ready")
-    if track.version != version:
-        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    check_version("track", track_id, version, track.version)
     return track
 
 
@@ -106,8 +105,7 @@ def lock_tracks(session: Session, versions: dict[int, int], guard: Guard) -> dic
         if track is None:
             raise NotFound(f"track {track_id} not found")
         guard.check(session, track)
-        if track.version != versions[track_id]:
-            raise Conflict(f"stale version {versions[track_id]}: track {track_id} is at version {track.version}")
+        check_version("track", track_id, versions[track_id], track.version)
     for track in rows:
         crud.require_ready(session, track.sequence_id, "tracks can be changed once it is ready")
     return tracks
