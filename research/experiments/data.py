@@ -248,7 +248,9 @@ SCENE_SOURCES = ("pipeline", "research/simulation", "research/experiments/data.p
 # pipeline modules that only consume samples (training, inference, their reports): no module that
 # makes a scene imports them (tests/research/test_simulation.py checks), so a change to the
 # training keeps the cached scenes
-SAMPLE_CONSUMERS = frozenset({"pipeline/training.py", "pipeline/model.py", "pipeline/finetune.py",
+SAMPLE_CONSUMERS = frozenset({*(f"pipeline/training/{m}.py" for m in ("__init__", "augment", "data", "loop", "loss", "plots",
+                                                                         "sampling", "split")),
+                              "pipeline/model.py", "pipeline/finetune.py",
                               "pipeline/anchors.py", "pipeline/predict.py", "pipeline/metrics.py",
                               "pipeline/plots.py", "pipeline/input_stats.py"})
 
