@@ -183,15 +183,14 @@ def predict(
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     if model is not None and str(model) == "latest" and not model.is_file():
         model = _latest_model()
         typer.echo(f"model: {model}")
-    summary = run_predict(
-        seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
-        smooth_tracks=smooth_tracks, progress=TqdmProgress(), log=lambda m: typer.echo(f"warning: {m}", err=True),
-    )
+    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks)
+    summary = run_predict(seq, model, out, options, load_config(config), progress=TqdmProgress(),
+                          log=lambda m: typer.echo(f"warning: {m}", err=True))
     seg = summary["segments_classified"]
     typer.echo(
         f"{summary['frames']} frames, {sum(seg.values())} segments classified "

@@ -251,7 +251,7 @@ SCENE_SOURCES = ("pipeline", "research/simulation", "research/experiments/data.p
 SAMPLE_CONSUMERS = frozenset({*(f"pipeline/training/{m}.py" for m in ("__init__", "augment", "data", "loop", "loss", "plots",
                                                                          "sampling", "split")),
                               "pipeline/model.py", "pipeline/finetune.py",
-                              "pipeline/anchors.py", "pipeline/predict.py", "pipeline/metrics.py",
+                              "pipeline/anchors.py", "pipeline/predict.py", "pipeline/prediction_files.py", "pipeline/metrics.py",
                               "pipeline/plots.py", "pipeline/input_stats.py"})
 
 
