@@ -23,7 +23,9 @@ from app.crud.datasets import (
 )
 from app.crud.jobs import cancel_job, create_job
 from app.crud.review import (
+    REVIEW_ACTIONS,
     REVIEW_FIELDS,
+    ReviewAction,
     apply_action,
     initial_review_state,
     last_undoable_event,
@@ -91,6 +93,8 @@ __all__ = [
     "apply_action",
     "last_undoable_event",
     "refresh_labels",
+    "REVIEW_ACTIONS",
+    "ReviewAction",
     "REVIEW_FIELDS",
     "lease_next_track",
     "lease_track",

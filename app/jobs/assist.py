@@ -35,9 +35,10 @@ from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
 from app.models import AnnotationEvent, Frame, Job, Label, ModelVersion, Segment, Sequence, Track
 from app.schemas import JsonModel
+from app.services.repair import GEOMETRY_ACTIONS
 
 # the review actions that bring the model something new (bulk accepts are its own predictions)
-REVIEW_ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
+REVIEW_ACTIONS = (*crud.REVIEW_ACTIONS, *GEOMETRY_ACTIONS)  # what an operator did by hand
 
 
 class AssistParams(JsonModel):

@@ -110,3 +110,15 @@ def test_review_queue_serves_priority_first_or_size_first(client, factory, db):
         s.commit()
     assert _next(client, factory.user()).json()["id"] == ids[1]
     assert _next(client, factory.user(), order="size").json()["id"] == ids[0]
+
+
+def test_review_every_declared_action_is_a_stored_action_with_a_route_or_the_repairs_undo(client):
+    """A review action declared in `crud.REVIEW_ACTIONS` is one the events table accepts and has
+    its POST route (undo's is the repair's)."""
+    from app import crud
+    from app.models import ACTIONS
+
+    assert set(crud.REVIEW_ACTIONS) <= set(ACTIONS)
+    paths = client.get("/api/v1/openapi.json").json()["paths"]
+    for name in crud.REVIEW_ACTIONS:
+        assert "post" in paths[f"/api/v1/tracks/{{track_id}}/{name}"], name
