@@ -4,7 +4,7 @@ event log replays to its state and every frame's artifact agrees with the segmen
 
 The storm lasts TRACKLABEL_TEST_STORM_SECONDS (default 5; the issue's acceptance run uses 60):
 
-    TRACKLABEL_TEST_STORM_SECONDS=60 .venv/bin/pytest tests/app/test_repair_concurrency.py
+    TRACKLABEL_TEST_STORM_SECONDS=60 .venv/bin/pytest tests/app/services/test_repair_concurrency.py
 """
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ def test_hardening_force_reingest_really_reruns(client, factory, db, settings):
 
 def test_hardening_operator_cannot_run_predict_through_finetune(client, factory):
     # defect 2: finetune's `predict: true` queued the admin-only predict job for an operator
-    from tests.app.test_job_policy import _model
+    from tests.app.jobs.test_job_policy import _model
 
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     op = factory.user("operator")
