@@ -20,6 +20,14 @@ from pipeline.progress import TqdmProgress
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
 
 
+# options several commands share
+SeqArg = Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")]
+OutOpt = Annotated[Path, typer.Option("--out", help="Output folder.")]
+SensorOpt = Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")]
+PosesOpt = Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")]
+ConfigOpt = Annotated[Path | None, typer.Option(help="YAML file of config overrides.")]
+
+
 def _version(value: bool) -> None:
     if value:
         from pipeline import __version__
@@ -66,7 +74,7 @@ def simulate(
 def inspect(
     path: Annotated[Path, typer.Argument(help="A sequence folder or a LiDAR file.")],
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    sensor: SensorOpt = "auto",
 ) -> None:
     """Print format, sensor (beams x columns, and how it was decided), frame count, points per
     frame, poses and class histogram."""
@@ -93,14 +101,14 @@ def inspect(
 @app.command()
 @friendly_errors
 def process(
-    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
-    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    seq: SeqArg,
+    out: OutOpt,
+    sensor: SensorOpt = "auto",
+    poses: PosesOpt = "file",
     workers: Annotated[int, typer.Option(min=1, help="Processes for the per-frame stages.")] = 1,
     samples: Annotated[bool, typer.Option("--samples", help="Also write the samples as .npz.")] = False,
     size: Annotated[int | None, typer.Option(help="Sample canvas size (default from config).")] = None,
-    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+    config: ConfigOpt = None,
 ) -> None:
     """Segment, sample and associate a sequence: OUT/tracks/*.label, tracks.json, summary.json."""
     from pipeline.config import load_config
@@ -143,17 +151,17 @@ def evaluate(
 @app.command()
 @friendly_errors
 def predict(
-    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    seq: SeqArg,
+    out: OutOpt,
     model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training, or latest: the "
                                                "newest model trained in the data folder; default: the model shipped "
                                                "with tracklabel (trained on the simulated campus).")] = None,
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
-    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    sensor: SensorOpt = "auto",
+    poses: PosesOpt = "file",
     size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
     smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
-    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+    config: ConfigOpt = None,
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config
@@ -328,7 +336,7 @@ def demo(
 def label(
     seq: Annotated[Path, typer.Argument(help="Your recording: a sequence folder or LiDAR file, any supported format.")],
     poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them (KISS-ICP).")] = "file",
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    sensor: SensorOpt = "auto",
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
     name: Annotated[str | None, typer.Option(help="Sequence name (default: the folder's).")] = None,
     data_dir: DataDir = None,
@@ -395,7 +403,7 @@ def train(
 @friendly_errors
 def export(
     seq: Annotated[str, typer.Argument(help="A sequence registered by `tracklabel label`: its path or id.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    out: OutOpt,
     data_dir: DataDir = None,
     include_ground: Annotated[bool, typer.Option(help="Write the ground class on the remaining ground points.")] = False,
     reviewed_only: Annotated[bool, typer.Option(help="Only the reviewed tracks' points (no bulk accepts, "

@@ -261,10 +261,17 @@ def load_config(path: str | Path | None = None) -> PipelineConfig:
     if path is None:
         return PipelineConfig()
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{p}: cannot read config: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: config must be a mapping of sections")
+    data = read_yaml_mapping(p, "config must be a mapping of sections")
     return _validate(merge_nested(PipelineConfig().model_dump(), data), str(p))
+
+
+def read_yaml_mapping(path: Path, not_a_mapping: str) -> dict:
+    """A YAML file's top-level mapping (empty file: {}); ConfigError naming the file when it
+    cannot be read or parsed, or with `not_a_mapping` when it holds something else."""
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read config: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: {not_a_mapping}")
+    return data

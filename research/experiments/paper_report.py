@@ -10,29 +10,6 @@ import numpy as np
 
 from pipeline.classes import SAMPLE_CLASSES
 
-SETTINGS: tuple[str, ...] = (  # the issue's: the paper's five and automatic constraints
-    "baseline_min",
-    "constraint30",
-    "constraint60",
-    "constraint100",
-    "baseline_max",
-    "constraint100_auto",
-)
-ABLATIONS: tuple[str, ...] = (  # the extensions' ablations and oracle diagnostics (`--config paper-ablations`)
-    "constraint100_tracks_only",
-    "constraint100_paper_pairs",
-    "constraint100_no_mask",
-    "constraint100_no_closure",
-    "constraint100_paper_batch",
-    "constraint100_closure_only",
-    "constraint100_sample_closure",
-    "constraint100_no_unknown",
-    "oracle_objects20",
-    "oracle_object_constraints",
-)
-ADAPT_SETTINGS: tuple[str, ...] = ("adapt_constraints_only", "adapt_constraints_only_balance")
-LABELS_ONLY: frozenset[str] = frozenset({"baseline_min", "baseline_max", "oracle_objects20"})  # N = 0 settings
-
 METHOD = {"baseline_min": "sup.", "baseline_max": "sup.", "oracle_objects20": "sup. (oracle)",
           "oracle_object_constraints": "semi-sup. (oracle)"}
 TEST_SEED_OFFSET = 1000

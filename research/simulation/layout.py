@@ -40,6 +40,13 @@ GARDEN_FENCE_P = 0.5  # hedge stretches with a fence behind the sidewalk (planti
 STRETCH_TYPES = ("avenue", "frontage", "hedges", "bays", "lot", "open")
 STRETCH_P = (0.2, 0.17, 0.15, 0.26, 0.12, 0.10)
 BAY_WIDTH = 2.3
+# per tree style, the ranges of (crown radius, crown height, crown base, trunk radius), metres
+TREE_SHAPES = {
+    "young": ((0.9, 1.6), (1.6, 2.8), (1.6, 2.4), (0.06, 0.11)),
+    "conifer": ((1.2, 2.2), (4.0, 8.0), (0.6, 1.6), (0.12, 0.25)),
+    "wide": ((3.2, 5.0), (3.5, 6.0), (2.4, 3.6), (0.25, 0.42)),
+    "default": ((2.0, 3.4), (3.0, 5.5), (2.0, 3.4), (0.14, 0.3)),
+}
 
 
 @dataclass(frozen=True)
@@ -239,34 +246,8 @@ class Layout(Buildings):
     def tree(self, xy: np.ndarray, style: str | None = None) -> bool:
         rng = self.rng
         style = style or str(rng.choice(list(self.style.tree_styles)))
-        if style == "young":
-            radius, height, base, rt = (
-                rng.uniform(0.9, 1.6),
-                rng.uniform(1.6, 2.8),
-                rng.uniform(1.6, 2.4),
-                rng.uniform(0.06, 0.11),
-            )
-        elif style == "conifer":
-            radius, height, base, rt = (
-                rng.uniform(1.2, 2.2),
-                rng.uniform(4.0, 8.0),
-                rng.uniform(0.6, 1.6),
-                rng.uniform(0.12, 0.25),
-            )
-        elif style == "wide":
-            radius, height, base, rt = (
-                rng.uniform(3.2, 5.0),
-                rng.uniform(3.5, 6.0),
-                rng.uniform(2.4, 3.6),
-                rng.uniform(0.25, 0.42),
-            )
-        else:
-            radius, height, base, rt = (
-                rng.uniform(2.0, 3.4),
-                rng.uniform(3.0, 5.5),
-                rng.uniform(2.0, 3.4),
-                rng.uniform(0.14, 0.3),
-            )
+        ranges = TREE_SHAPES.get(style, TREE_SHAPES["default"])
+        radius, height, base, rt = (rng.uniform(lo, hi) for lo, hi in ranges)  # drawn in this order
         if not self.free(self.disc(xy, max(0.6, 0.45 * radius)), min_clear=0.3):
             return False
         self.mark(self.disc(xy, rt + 0.5))
