@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from pipeline.classes import NUM_SAMPLE_CLASSES
 from pipeline.errors import ConfigError
 from pipeline.sensors import check_ego_box
 
@@ -124,7 +125,7 @@ class AssociationConfig(_Section):
 
 
 class ModelConfig(_Section):
-    num_classes: int = 7
+    num_classes: int = NUM_SAMPLE_CLASSES  # the class table, pipeline.classes
     width: int = 32  # channels of the first conv block
     max_width: int = 128  # channel cap of later blocks (width doubles per block)
     depth: int = 4  # conv blocks

@@ -22,13 +22,12 @@ from app.schemas import (
     AnchorPublic,
     AnchorStatus,
     AnchorSummary,
+    ClassName,
 )
 from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["anchors"])
 
-ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
-assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
 BIG = 2**31 - 1
 ANSWER_RESPONSES: dict[int | str, dict[str, str]] = {
