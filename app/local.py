@@ -80,7 +80,7 @@ def find_sequence(db: Database, ref: str) -> Sequence:
 
 def queue_job(db: Database, job_type: str, params: dict[str, Any], user: int | None) -> int:
     """Validate and queue a job as an admin's REST call would (prepare, admin priority)."""
-    from app.jobs.ingest import note_queued
+    from app.crud.ingest_rows import note_queued
     from app.jobs.registry import get_job_type, load_job_types
 
     load_job_types()

@@ -17,8 +17,11 @@ import numpy as np
 from sqlalchemy import case, insert, select, update
 from sqlalchemy.orm import Session
 
+from app.core.errors import Conflict, NotFound
+from app.crud.bulk_load import clear_sequence_rows
+from app.crud.datasets import sequence_stats
 from app.crud.review_queue import queue_priority
-from app.models import Frame, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
+from app.models import Frame, Job, PairConstraint, Segment, Sequence, Stitch, Track, utcnow
 from pipeline.links import LinkBuilder
 
 
@@ -219,3 +222,61 @@ def _finite(value: Any) -> float | None:
         return None
     v = float(value)
     return v if math.isfinite(v) else None
+
+
+def begin_ingest(s: Session, sequence_id: int, job_id: int, force: bool) -> tuple[str, str, Any] | dict[str, Any]:
+    """Roll back what an earlier attempt wrote and mark the sequence `ingesting` by `job_id`:
+    its (path, format, config overrides); or, when this job already finished it before a crash,
+    the ingest's result. NotFound / Conflict (ready, not `force`)."""
+    seq = s.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    if seq.status == "ready" and seq.ingest_job_id == job_id:
+        return {"sequence_id": seq.id, **sequence_stats(s, seq)}
+    if seq.status == "ready" and not force:
+        raise Conflict(f"sequence {seq.id} is already ingested; pass force=true to redo it")
+    clear_sequence_rows(s, seq.id)
+    seq.status, seq.n_frames, seq.ingest_job_id = "ingesting", 0, job_id
+    return seq.path, seq.format, seq.config
+
+
+def record_source(s: Session, sequence_id: int, fmt: str, sensor: dict[str, Any]) -> None:
+    """The format and sensor model ingest found (a repair re-renders samples with that sensor)."""
+    s.execute(update(Sequence).where(Sequence.id == sequence_id).values(format=fmt, sensor=sensor))
+
+
+def mark_failed(s: Session, sequence_id: int) -> None:
+    s.execute(update(Sequence).where(Sequence.id == sequence_id).values(status="failed"))
+
+
+def active_ingest_job(s: Session, sequence_id: int) -> int | None:
+    """The id of a queued or running ingest job of a sequence, if any."""
+    for job_id, params in s.execute(
+        select(Job.id, Job.params).where(Job.type == "ingest", Job.status.in_(("queued", "running")))
+    ).all():
+        if isinstance(params, dict) and params.get("sequence_id") == sequence_id:
+            return int(job_id)
+    return None
+
+
+def note_queued(s: Session, sequence_id: int, job_id: int) -> None:
+    """Point a sequence that is not ingested yet at its queued ingest job (`ingest_job_id`).
+
+    A ready sequence keeps the id of the job that made it until the forced re-ingest starts:
+    `begin_ingest` reads "ready with my job id" as "I finished before a crash" and returns at once,
+    so pointing a ready sequence at a queued job would turn `force` into a no-op."""
+    seq = s.get(Sequence, sequence_id)
+    if seq is not None and seq.status != "ready":
+        seq.ingest_job_id = job_id
+
+
+def check_can_ingest(s: Session, sequence_id: int, force: bool) -> None:
+    """The sequence exists, is not being ingested already, and is not ready unless `force`."""
+    seq = s.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    active = active_ingest_job(s, sequence_id)
+    if active is not None:
+        raise Conflict(f"sequence {sequence_id} already has ingest job {active}")
+    if seq.status == "ready" and not force:
+        raise Conflict(f"sequence {sequence_id} is already ingested; pass force=true to redo it")

@@ -17,7 +17,14 @@ from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, Label, Segment, Track, utcnow
-from app.schemas.tracks import AcceptAction, ActionBase, DiscardAction, LabelAction, TruncateAction, UndoAction
+from app.schemas.tracks import (
+    AcceptAction,
+    ActionBase,
+    DiscardAction,
+    LabelAction,
+    TruncateAction,
+    UndoAction,
+)
 
 REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end", "label_source")
 

@@ -18,17 +18,14 @@ from typing import Any
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.artifacts import FrameArtifact
-from app.core.errors import Conflict, NotFound
-from app.crud.ingest_rows import IngestRows
+from app.crud.ingest_rows import IngestRows, begin_ingest, check_can_ingest, mark_failed, record_source
 from app.data_roots import GuardedSource
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
-from app.models import Job, Sequence
 from app.schemas import IngestPoses, JsonModel
 
 
@@ -43,17 +40,11 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     from pipeline import processing, sequence
 
     with ctx.db.write() as s:
-        seq = s.get(Sequence, params.sequence_id)
-        if seq is None:
-            raise NotFound(f"sequence {params.sequence_id} not found")
-        if seq.status == "ready" and seq.ingest_job_id == ctx.job_id:
-            return {"sequence_id": seq.id, **crud.sequence_stats(s, seq)}  # done before a crash; idempotent
-        if seq.status == "ready" and not params.force:
-            raise Conflict(f"sequence {seq.id} is already ingested; pass force=true to redo it")
-        crud.clear_sequence_rows(s, seq.id)
-        seq.status, seq.n_frames, seq.ingest_job_id = "ingesting", 0, ctx.job_id
-        path, fmt, overrides = seq.path, seq.format, seq.config
+        start = begin_ingest(s, params.sequence_id, ctx.job_id, params.force)
         s.commit()
+    if isinstance(start, dict):
+        return start  # done before a crash; idempotent
+    path, fmt, overrides = start
     ctx.artifacts.remove_sequence(params.sequence_id)
     ctx.progress(0.0, "opening the sequence")
 
@@ -65,8 +56,7 @@ def run_ingest(ctx: JobContext, params: IngestParams) -> dict[str, Any]:
     opened = sequence.open_sequence(path, fmt, sensor=config.sensor.name, poses=params.poses)
     source = GuardedSource(opened.source, data_roots)
     with ctx.db.write() as s:
-        s.execute(update(Sequence).where(Sequence.id == params.sequence_id)
-                  .values(format=source.format, sensor=opened.sensor.to_dict()))
+        record_source(s, params.sequence_id, source.format, opened.sensor.to_dict())
         s.commit()
 
     rows = IngestRows(params.sequence_id)
@@ -152,42 +142,13 @@ def _write_artifact(ctx: JobContext, rows: IngestRows, fr: Any) -> str:
 def on_ingest_stop(ctx: JobContext, params: IngestParams, reason: str) -> None:
     """A failed or cancelled ingest leaves the sequence `failed` (its next ingest rolls back)."""
     with ctx.db.write() as s:
-        s.execute(update(Sequence).where(Sequence.id == params.sequence_id).values(status="failed"))
+        mark_failed(s, params.sequence_id)
         s.commit()
 
 
-def active_ingest_job(s: Session, sequence_id: int) -> int | None:
-    """The id of a queued or running ingest job of a sequence, if any."""
-    for job_id, params in s.execute(
-        select(Job.id, Job.params).where(Job.type == "ingest", Job.status.in_(("queued", "running")))
-    ).all():
-        if isinstance(params, dict) and params.get("sequence_id") == sequence_id:
-            return int(job_id)
-    return None
-
-
-def note_queued(s: Session, sequence_id: int, job_id: int) -> None:
-    """Point a sequence that is not ingested yet at its queued ingest job (`ingest_job_id`).
-
-    A ready sequence keeps the id of the job that made it until the forced re-ingest starts:
-    `run_ingest` reads "ready with my job id" as "I finished before a crash" and returns at once,
-    so pointing a ready sequence at a queued job would turn `force` into a no-op."""
-    seq = s.get(Sequence, sequence_id)
-    if seq is not None and seq.status != "ready":
-        seq.ingest_job_id = job_id
-
-
 def prepare_ingest(s: Session, params: IngestParams) -> None:
-    """Checked when an ingest job is created: the sequence exists, is not being ingested already,
-    and is not ready unless `force`."""
-    seq = s.get(Sequence, params.sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {params.sequence_id} not found")
-    active = active_ingest_job(s, params.sequence_id)
-    if active is not None:
-        raise Conflict(f"sequence {params.sequence_id} already has ingest job {active}")
-    if seq.status == "ready" and not params.force:
-        raise Conflict(f"sequence {params.sequence_id} is already ingested; pass force=true to redo it")
+    """Checked when an ingest job is created (`crud.ingest_rows.check_can_ingest`)."""
+    check_can_ingest(s, params.sequence_id, params.force)
 
 
 register(

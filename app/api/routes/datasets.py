@@ -7,8 +7,8 @@ from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
 from app.core.errors import Conflict, Invalid, NotFound
 from app.crud import AuthUser
+from app.crud.ingest_rows import note_queued
 from app.jobs import policy
-from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
 from app.models import Dataset, Job, Sequence
 from app.schemas import (

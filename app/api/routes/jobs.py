@@ -54,7 +54,7 @@ def create_job(body: JobCreate, user: CurrentUser, session: WriteSessionDep, set
     priority = policy.authorize(session, user, jt, params, settings)
     job = crud.create_job(session, jt.name, params.model_dump(mode="json"), user.id, priority)
     if jt.name == "ingest":
-        from app.jobs.ingest import note_queued
+        from app.crud.ingest_rows import note_queued
 
         note_queued(session, params.sequence_id, job.id)
     session.commit()
