@@ -5,7 +5,6 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 from pydantic import Field
-from sqlalchemy import select
 
 from app import crud
 from app.api.deps import (
@@ -18,7 +17,7 @@ from app.api.deps import (
     WriteSessionDep,
 )
 from app.core.errors import NotFound
-from app.models import Frame, Segment
+from app.crud.frames import segment_sample_ref
 from app.schemas import (
     ActionBase,
     ClassName,
@@ -143,13 +142,9 @@ def segment_sample(
     import cv2
     import numpy as np
 
-    row = session.execute(
-        select(Segment.sample_index, Frame.artifact).join(Frame, Frame.id == Segment.frame_id).where(Segment.id == segment_id)
-    ).first()
-    if row is None or row.sample_index is None:
-        raise NotFound(f"segment {segment_id} has no sample")
-    samples = artifacts.read_arrays(row.artifact, ("samples",))["samples"]
-    sample = samples[row.sample_index]  # (C, S, S)
+    rel, sample_index = segment_sample_ref(session, segment_id)
+    samples = artifacts.read_arrays(rel, ("samples",))["samples"]
+    sample = samples[sample_index]  # (C, S, S)
     if channel is not None:
         if channel >= len(sample):
             raise NotFound(f"sample has {len(sample)} channels")
