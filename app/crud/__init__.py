@@ -15,13 +15,18 @@ from app.crud.datasets import (
     check_sensor_file,
     check_tree_inside_roots,
     create_dataset,
+    dataset_sequences,
+    get_dataset,
+    get_sequence,
+    list_datasets,
+    list_sequences,
     pipeline_config,
     registered_sequence_id,
     require_ready,
     resolve_registration_path,
     sequence_stats,
 )
-from app.crud.jobs import cancel_job, create_job
+from app.crud.jobs import cancel_job, create_job, get_job, list_jobs
 from app.crud.review import (
     REVIEW_ACTIONS,
     REVIEW_FIELDS,
@@ -54,6 +59,13 @@ from app.crud.users import (
 )
 
 __all__ = [
+    "dataset_sequences",
+    "get_dataset",
+    "get_sequence",
+    "list_datasets",
+    "list_sequences",
+    "get_job",
+    "list_jobs",
     "pipeline_config",
     "bulk_accept",
     "bulk_preview",

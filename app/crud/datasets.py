@@ -128,3 +128,32 @@ def check_ready(sequence_id: int, status: str | None, then: str) -> None:
 def require_ready(session: Session, sequence_id: int, then: str) -> None:
     """`check_ready` on the sequence's stored status (None when it does not exist)."""
     check_ready(sequence_id, session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": sequence_id}), then)
+
+
+def list_datasets(session: Session) -> list[Dataset]:
+    return list(session.scalars(select(Dataset).order_by(Dataset.id)).all())
+
+
+def get_dataset(session: Session, dataset_id: int) -> Dataset:
+    ds = session.get(Dataset, dataset_id)
+    if ds is None:
+        raise NotFound(f"dataset {dataset_id} not found")
+    return ds
+
+
+def dataset_sequences(session: Session, dataset_id: int) -> list[Sequence]:
+    return list(session.scalars(select(Sequence).where(Sequence.dataset_id == dataset_id).order_by(Sequence.id)).all())
+
+
+def list_sequences(session: Session, status: str | None = None) -> list[Sequence]:
+    q = select(Sequence).order_by(Sequence.id)
+    if status is not None:
+        q = q.where(Sequence.status == status)
+    return list(session.scalars(q).all())
+
+
+def get_sequence(session: Session, sequence_id: int) -> Sequence:
+    seq = session.get(Sequence, sequence_id)
+    if seq is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    return seq

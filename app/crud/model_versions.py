@@ -77,6 +77,14 @@ def register_model_version(
     return mv
 
 
+def list_model_versions(session: Session, kind: str | None, limit: int, offset: int) -> list[ModelVersion]:
+    """Registered models, newest first (of one `kind` when given)."""
+    q = select(ModelVersion).order_by(ModelVersion.id.desc()).limit(limit).offset(offset)
+    if kind is not None:
+        q = q.where(ModelVersion.kind == kind)
+    return list(session.scalars(q).all())
+
+
 def get_model_version(session: Session, model_id: int) -> ModelVersion:
     mv = session.get(ModelVersion, model_id)
     if mv is None:
