@@ -51,14 +51,18 @@ from app.crud.users import (
     AuthUser,
     create_token,
     create_user,
+    get_user,
     get_user_by_name,
     list_tokens,
+    list_users,
     revoke_tokens,
     set_user_active,
     user_for_token,
 )
 
 __all__ = [
+    "get_user",
+    "list_users",
     "dataset_sequences",
     "get_dataset",
     "get_sequence",

@@ -148,3 +148,13 @@ def bulk_error(session: Session, sequence_id: int | None) -> dict[str, Any]:
     overall = rate(sum(v["corrected"] for v in per_class.values()), sum(v["audited"] for v in per_class.values()))
     return {"bulk_tracks": sum(accepted.values()), "bulk_tracks_per_class": accepted, "per_class": per_class,
             "overall": overall}
+
+
+def list_audits(session: Session, status: str | None, sequence_id: int | None, limit: int, offset: int) -> list[Audit]:
+    """Audits, oldest first (of one status and sequence when given)."""
+    q = select(Audit).order_by(Audit.id).limit(limit).offset(offset)
+    if status is not None:
+        q = q.where(Audit.status == status)
+    if sequence_id is not None:
+        q = q.where(Audit.sequence_id == sequence_id)
+    return list(session.scalars(q).all())

@@ -120,3 +120,14 @@ def list_tokens(session: Session, user_id: int) -> list[ApiToken]:
     if session.get(User, user_id) is None:
         raise NotFound(f"user {user_id} not found")
     return list(session.scalars(select(ApiToken).where(ApiToken.user_id == user_id).order_by(ApiToken.id)).all())
+
+
+def list_users(session: Session) -> list[User]:
+    return list(session.scalars(select(User).order_by(User.id)).all())
+
+
+def get_user(session: Session, user_id: int) -> User:
+    user = session.get(User, user_id)
+    if user is None:
+        raise NotFound(f"user {user_id} not found")
+    return user

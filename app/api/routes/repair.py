@@ -15,11 +15,10 @@ import numpy as np
 from fastapi import APIRouter, Response
 from sqlalchemy.orm import Session
 
+from app import crud
 from app.api.deps import ArtifactsDep, BigIdPath, DatabaseDep, LeaseGuardDep, SettingsDep, WriteSessionDep
 from app.core.config import Settings
-from app.core.errors import NotFound
 from app.crud import track_ids
-from app.models import Track
 from app.schemas import MergeAction, SplitAction, SplitPublic, TrackPublic, UndoAction
 from app.services import repair
 
@@ -46,9 +45,7 @@ def _write_timing(response: Response, t0: float) -> None:
 
 
 def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, track_id: int) -> repair.RepairContext:
-    track = session.get(Track, track_id)
-    if track is None:
-        raise NotFound(f"track {track_id} not found")
+    track = crud.get_track(session, track_id)
     return repair.repair_context(session, settings, artifacts, track.sequence_id)
 
 
