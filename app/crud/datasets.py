@@ -9,6 +9,7 @@ from sqlalchemy import bindparam, func, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
+from app.crud.rows import get_or_404
 from app.data_roots import DataRoots, sensor_file
 from app.models import Dataset, Frame, PairConstraint, Sequence, Track
 
@@ -135,10 +136,7 @@ def list_datasets(session: Session) -> list[Dataset]:
 
 
 def get_dataset(session: Session, dataset_id: int) -> Dataset:
-    ds = session.get(Dataset, dataset_id)
-    if ds is None:
-        raise NotFound(f"dataset {dataset_id} not found")
-    return ds
+    return get_or_404(session, Dataset, dataset_id, "dataset")
 
 
 def dataset_sequences(session: Session, dataset_id: int) -> list[Sequence]:
@@ -153,7 +151,4 @@ def list_sequences(session: Session, status: str | None = None) -> list[Sequence
 
 
 def get_sequence(session: Session, sequence_id: int) -> Sequence:
-    seq = session.get(Sequence, sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {sequence_id} not found")
-    return seq
+    return get_or_404(session, Sequence, sequence_id, "sequence")

@@ -6,6 +6,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import NotFound
+from app.crud.rows import get_or_404
 from app.models import Frame, Segment, Sequence
 
 
@@ -22,10 +23,7 @@ def list_frames(session: Session, sequence_id: int, limit: int, offset: int) -> 
 
 
 def get_frame(session: Session, frame_id: int) -> Frame:
-    frame = session.get(Frame, frame_id)
-    if frame is None:
-        raise NotFound(f"frame {frame_id} not found")
-    return frame
+    return get_or_404(session, Frame, frame_id, "frame")
 
 
 def frame_artifact(session: Session, frame_id: int) -> str:

@@ -8,6 +8,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, NotFound
+from app.crud.rows import get_or_404
 from app.models import Job, utcnow
 
 
@@ -55,7 +56,4 @@ def list_jobs(session: Session, status: str | None, job_type: str | None, create
 
 
 def get_job(session: Session, job_id: int) -> Job:
-    job = session.get(Job, job_id)
-    if job is None:
-        raise NotFound(f"job {job_id} not found")
-    return job
+    return get_or_404(session, Job, job_id, "job")

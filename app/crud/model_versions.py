@@ -25,6 +25,7 @@ from app import crud
 from app.artifacts import ArtifactMissing, ArtifactStore
 from app.core.config import Settings
 from app.core.errors import Conflict, Invalid, NotFound
+from app.crud.rows import get_or_404
 from app.models import Frame, ModelVersion, Segment, Sequence, utcnow
 
 if TYPE_CHECKING:
@@ -86,10 +87,7 @@ def list_model_versions(session: Session, kind: str | None, limit: int, offset: 
 
 
 def get_model_version(session: Session, model_id: int) -> ModelVersion:
-    mv = session.get(ModelVersion, model_id)
-    if mv is None:
-        raise NotFound(f"model {model_id} not found")
-    return mv
+    return get_or_404(session, ModelVersion, model_id, "model")
 
 
 @dataclass(frozen=True)

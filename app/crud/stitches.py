@@ -18,6 +18,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.errors import NotFound, check_version
 from app.crud import AuthUser, leases
+from app.crud.rows import get_or_404
 from app.models import Stitch, Track, utcnow
 
 DECISIONS = {"confirm": "confirmed", "reject": "rejected"}
@@ -47,10 +48,7 @@ def list_stitches(
 
 
 def get_stitch(session: Session, stitch_id: int) -> Stitch:
-    st = session.get(Stitch, stitch_id)
-    if st is None:
-        raise NotFound(f"stitch {stitch_id} not found")
-    return st
+    return get_or_404(session, Stitch, stitch_id, "stitch")
 
 
 def decide_stitch(

@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Invalid, NotFound
 from app.core.security import hash_token, new_token, token_display_prefix
+from app.crud.rows import get_or_404
 from app.models import ROLES, ApiToken, User, utcnow
 
 
@@ -127,7 +128,4 @@ def list_users(session: Session) -> list[User]:
 
 
 def get_user(session: Session, user_id: int) -> User:
-    user = session.get(User, user_id)
-    if user is None:
-        raise NotFound(f"user {user_id} not found")
-    return user
+    return get_or_404(session, User, user_id, "user")
