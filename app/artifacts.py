@@ -83,7 +83,7 @@ class ArtifactStore:
 
     def frame_relpath(self, sequence_id: int, index: int, revision: str | None = None) -> str:
         """`seq_<id>/<index>.npz`; a frame rewritten by a track split or merge gets a new file,
-        `<index>.<revision>.npz`, and the old one stays for undo (app/repair.py)."""
+        `<index>.<revision>.npz`, and the old one stays for undo (app/services/repair.py)."""
         suffix = "" if revision is None else f".{revision}"
         return f"seq_{sequence_id:06d}/{index:06d}{suffix}.npz"
 

@@ -5,45 +5,27 @@ Library errors (`pipeline.errors.TracklabelError`) become a one-line message and
 
 from __future__ import annotations
 
-import functools
 import os
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, TypeVar
+from typing import Annotated
 
 import typer
 
+from app.cli_common import fail, friendly_errors
+from app.cli_experiment import experiment_app
+from app.cli_users import db_app, user_app
 from pipeline.progress import TqdmProgress
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
-F = TypeVar("F", bound=Callable[..., object])
 
 
-def fail(message: str) -> None:
-    """Print a one-line error to stderr and exit with code 2."""
-    typer.echo(f"error: {message}", err=True)
-    raise typer.Exit(code=2)
-
-
-def friendly_errors(func: F) -> F:
-    """Turn the library's own errors into `fail(...)` instead of a traceback."""
-
-    @functools.wraps(func)
-    def wrapper(*args: object, **kwargs: object) -> object:
-        from app.core.errors import ServiceError
-        from pipeline.errors import TracklabelError
-
-        try:
-            return func(*args, **kwargs)
-        except ServiceError as exc:  # a check of the service, met by a local command
-            fail(exc.detail)
-        except (TracklabelError, KeyError, FileNotFoundError) as exc:
-            msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-            fail(str(msg))
-        return None
-
-    return wrapper  # type: ignore[return-value]
+# options several commands share
+SeqArg = Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")]
+OutOpt = Annotated[Path, typer.Option("--out", help="Output folder.")]
+SensorOpt = Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")]
+PosesOpt = Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")]
+ConfigOpt = Annotated[Path | None, typer.Option(help="YAML file of config overrides.")]
 
 
 def _version(value: bool) -> None:
@@ -92,7 +74,7 @@ def simulate(
 def inspect(
     path: Annotated[Path, typer.Argument(help="A sequence folder or a LiDAR file.")],
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    sensor: SensorOpt = "auto",
 ) -> None:
     """Print format, sensor (beams x columns, and how it was decided), frame count, points per
     frame, poses and class histogram."""
@@ -119,14 +101,14 @@ def inspect(
 @app.command()
 @friendly_errors
 def process(
-    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
-    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    seq: SeqArg,
+    out: OutOpt,
+    sensor: SensorOpt = "auto",
+    poses: PosesOpt = "file",
     workers: Annotated[int, typer.Option(min=1, help="Processes for the per-frame stages.")] = 1,
     samples: Annotated[bool, typer.Option("--samples", help="Also write the samples as .npz.")] = False,
     size: Annotated[int | None, typer.Option(help="Sample canvas size (default from config).")] = None,
-    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+    config: ConfigOpt = None,
 ) -> None:
     """Segment, sample and associate a sequence: OUT/tracks/*.label, tracks.json, summary.json."""
     from pipeline.config import load_config
@@ -169,29 +151,28 @@ def evaluate(
 @app.command()
 @friendly_errors
 def predict(
-    seq: Annotated[Path, typer.Argument(help="A sequence folder or LiDAR file.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    seq: SeqArg,
+    out: OutOpt,
     model: Annotated[Path | None, typer.Option("--model", help="A checkpoint (.pt) written by training, or latest: the "
                                                "newest model trained in the data folder; default: the model shipped "
                                                "with tracklabel (trained on the simulated campus).")] = None,
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
-    poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them.")] = "file",
+    sensor: SensorOpt = "auto",
+    poses: PosesOpt = "file",
     size: Annotated[int | None, typer.Option(help="Sample size; must match the model (default: the model's).")] = None,
     smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
-    config: Annotated[Path | None, typer.Option(help="YAML file of config overrides.")] = None,
+    config: ConfigOpt = None,
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     if model is not None and str(model) == "latest" and not model.is_file():
         model = _latest_model()
         typer.echo(f"model: {model}")
-    summary = run_predict(
-        seq, model, out, load_config(config), size=size, sensor=sensor, poses=poses, device=device,
-        smooth_tracks=smooth_tracks, progress=TqdmProgress(), log=lambda m: typer.echo(f"warning: {m}", err=True),
-    )
+    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks)
+    summary = run_predict(seq, model, out, options, load_config(config), progress=TqdmProgress(),
+                          log=lambda m: typer.echo(f"warning: {m}", err=True))
     seg = summary["segments_classified"]
     typer.echo(
         f"{summary['frames']} frames, {sum(seg.values())} segments classified "
@@ -205,256 +186,9 @@ def predict(
         typer.echo("no frame has labels: nothing scored")
 
 
-# ----------------------------------------------------------------------------- experiments
-experiment_app = typer.Typer(no_args_is_help=True, help="Experiments on simulated scenes: the paper's tables, fine-tuning, the default model.")
 app.add_typer(experiment_app, name="experiment")
-
-
-ConfigNames = Annotated[list[str] | None, typer.Option(
-    "--config", help="A named config of research/configs (e.g. paper-full, paper-ablations, paper-smoke) or a "
-    "YAML file of overrides; repeatable, applied in order.")]
-ConfigSets = Annotated[list[str] | None, typer.Option(
-    "--set", help="KEY=VALUE override after the configs, e.g. frames=400 or training.threads=1; repeatable.")]
-
-
-@experiment_app.command("paper")
-@friendly_errors
-def experiment_paper(
-    out: Annotated[Path, typer.Option("--out", help="Folder for paper.md/json/png.")] = Path("data/experiments/paper"),
-    config: ConfigNames = None,
-    set_: ConfigSets = None,
-    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
-) -> None:
-    """Reproduce the paper's Tables 7 and 8 on simulated data: its five settings, automatic
-    constraints and the constraints-only adaptation to D (Fig. 12); with --config paper-ablations
-    also the extensions' ablations and oracle diagnostics."""
-    from research.configs import load_experiment_config
-    from research.experiments.paper import PaperConfig, run_paper
-
-    cfg = load_experiment_config(PaperConfig, config or (), set_ or ())
-    doc = run_paper(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
-    typer.echo((out / "paper.md").read_text())
-    typer.echo(f"written: {out / 'paper.md'}, {out / 'paper.json'}, {out / 'paper_train.png'}, {out / 'paper_test.png'}"
-               f" ({doc['seconds']['total']:.0f} s)")
-
-
-@experiment_app.command("levers")
-@friendly_errors
-def experiment_levers(
-    out: Annotated[Path, typer.Option("--out", help="Folder for levers.md/json/png.")] = Path("data/experiments/levers"),
-    config: ConfigNames = None,
-    set_: ConfigSets = None,
-    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
-) -> None:
-    """Why constraint100 trails baseline_max: each lever (a change of its training) scored on the
-    validation objects, and which components of the must-link graph carry the wrong pull
-    (fields: research/experiments/levers.py LeversConfig, e.g. --set paper.seed=7301)."""
-    from research.configs import load_experiment_config
-    from research.experiments.levers import LeversConfig, run_levers
-
-    cfg = load_experiment_config(LeversConfig, config or (), set_ or ())
-    doc = run_levers(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
-    typer.echo((out / "levers.md").read_text())
-    typer.echo(f"written: {out / 'levers.md'}, {out / 'levers.json'}, {out / 'levers.png'} ({doc['seconds']:.0f} s)")
-
-
-@experiment_app.command("spread")
-@friendly_errors
-def experiment_spread(
-    runs: Annotated[list[Path], typer.Argument(help="Output folders of `tracklabel experiment paper` runs.")],
-    out: Annotated[Path, typer.Option("--out", help="Folder for spread.md/json/png.")] = Path("data/experiments/spread"),
-) -> None:
-    """Each target of the paper experiment as the mean and range over several runs (scene seed,
-    label draw, training seed)."""
-    from research.experiments.spread import markdown, write_spread
-
-    missing = [str(r) for r in runs if not (r / "paper.json").is_file()]
-    if missing:
-        raise typer.BadParameter(f"no paper.json in {', '.join(missing)}")
-    typer.echo(markdown(write_spread(out, list(runs))))
-
-
-@experiment_app.command("finetune")
-@friendly_errors
-def experiment_finetune(
-    out: Annotated[Path, typer.Option("--out", help="Folder for finetune.md/json/png.")] = Path("data/experiments/finetune"),
-    config: ConfigNames = None,
-    set_: ConfigSets = None,
-    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default OUT/cache).")] = None,
-) -> None:
-    """The paper's Table 10 on a simulated new scene: baseline_min, constraint100, constraint100 +
-    fine-tuning and baseline_max, and each anchor strategy's F against the confirmations
-    (fields: research/experiments/finetune.py FinetuneExperimentConfig, e.g. --set budgets=[2,5])."""
-    from research.configs import load_experiment_config
-    from research.experiments.finetune import FinetuneExperimentConfig, run_finetune_experiment
-
-    cfg = load_experiment_config(FinetuneExperimentConfig, config or (), set_ or ())
-    doc = run_finetune_experiment(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
-    typer.echo((out / "finetune.md").read_text())
-    typer.echo(f"written: {out / 'finetune.md'}, {out / 'finetune.json'}, {out / 'finetune_f.png'}, "
-               f"{out / 'finetune_curve.png'}, {out / 'finetune_curve.json'} ({doc['seconds']['total']:.0f} s)")
-
-
-@experiment_app.command("default-model")
-@friendly_errors
-def experiment_default_model(
-    out: Annotated[Path, typer.Option("--out", help="Checkpoint to write (the shipped one: pipeline/models/default.pt).")] = Path("data/default_model/default.pt"),
-    config: ConfigNames = None,
-    set_: ConfigSets = None,
-    cache: Annotated[Path | None, typer.Option(help="Cache of processed scenes (default data/default_model_cache).")] = None,
-) -> None:
-    """Train the default model on the simulated campus with the product's training (the model
-    `predict` and anchor proposals use when none is given); writes OUT and OUT's .json summary."""
-    import json
-
-    from research.configs import load_experiment_config
-    from research.experiments.default_model import DefaultModelConfig, build_default_model
-
-    cfg = load_experiment_config(DefaultModelConfig, config or (), set_ or ())
-    summary = build_default_model(out, cfg, cache=cache, progress=TqdmProgress(), log=lambda m: typer.echo(m, err=True))
-    typer.echo(json.dumps(summary, indent=1))
-
-
-# ----------------------------------------------------------------------------- service (app/)
-db_app = typer.Typer(no_args_is_help=True, help="Database migrations.")
-user_app = typer.Typer(no_args_is_help=True, help="Operators, admins and their tokens.")
 app.add_typer(db_app, name="db")
 app.add_typer(user_app, name="user")
-
-
-def _service_call(fn: Callable[[], object]) -> object:
-    """Run a service operation; its ServiceErrors become a one-line message and exit code 2."""
-    from app.core.errors import ServiceError
-
-    try:
-        return fn()
-    except ServiceError as exc:
-        fail(exc.detail)
-    return None
-
-
-@db_app.command("upgrade")
-@friendly_errors
-def db_upgrade(
-    revision: Annotated[str, typer.Option(help="Target revision.")] = "head",
-    wait: Annotated[float, typer.Option(help="Seconds to wait for the database to come up.")] = 0.0,
-) -> None:
-    """Wait for the database (TRACKLABEL_DATABASE_URL), then upgrade it to `revision`."""
-    from app.core.config import get_settings
-    from app.core.db import make_engine, wait_for_db
-    from app.core.migrate import upgrade
-
-    settings = get_settings()
-    if wait > 0:
-        engine = make_engine(settings.db_url)
-        wait_for_db(engine, timeout_s=wait)
-        engine.dispose()
-    upgrade(settings.db_url, revision)
-    typer.echo(f"database at {revision}")
-
-
-@db_app.command("downgrade")
-@friendly_errors
-def db_downgrade(revision: Annotated[str, typer.Argument(help="Target revision, e.g. base or -1.")]) -> None:
-    """Downgrade the database to `revision`."""
-    from app.core.config import get_settings
-    from app.core.migrate import downgrade
-
-    downgrade(get_settings().db_url, revision)
-    typer.echo(f"database at {revision}")
-
-
-def _user_db():  # -> (Settings, Database), the database upgraded first
-    from app.core.config import get_settings
-    from app.core.db import Database
-    from app.core.migrate import upgrade
-
-    settings = get_settings()
-    upgrade(settings.db_url)
-    return settings, Database.from_settings(settings)
-
-
-ExpiresDays = Annotated[
-    float | None, typer.Option(help="Days the token is valid (default: TRACKLABEL_TOKEN_EXPIRY_DAYS, 90).")
-]
-
-
-@user_app.command("add")
-@friendly_errors
-def user_add(
-    name: Annotated[str, typer.Argument(help="User name.")],
-    role: Annotated[str, typer.Option(help="operator, reviewer or admin.")] = "operator",
-    expires_days: ExpiresDays = None,
-) -> None:
-    """Create a user and print their bearer token (shown once; only its hash is stored)."""
-    from app import crud
-
-    settings, db = _user_db()
-    days = expires_days or settings.token_expiry_days
-    with db.write() as s:
-        result = _service_call(lambda: crud.create_user(s, name, role, expires_days=days))
-    db.dispose()
-    assert isinstance(result, tuple)
-    typer.echo(result[1])
-
-
-@user_app.command("token")
-@friendly_errors
-def user_token(name: Annotated[str, typer.Argument(help="User name.")], expires_days: ExpiresDays = None) -> None:
-    """Issue another token for a user and print it (shown once)."""
-    from app import crud
-
-    settings, db = _user_db()
-    days = expires_days or settings.token_expiry_days
-    with db.write() as s:
-        token = _service_call(lambda: crud.create_token(s, crud.get_user_by_name(s, name).id, None, days))
-    db.dispose()
-    typer.echo(token)
-
-
-@user_app.command("revoke")
-@friendly_errors
-def user_revoke(
-    name: Annotated[str | None, typer.Argument(help="Revoke every live token of this user.")] = None,
-    token_prefix: Annotated[str | None, typer.Option(help="Revoke the live tokens starting with this (>= 6 chars).")] = None,
-) -> None:
-    """Revoke tokens: all of a user's, or those starting with --token-prefix. Refused from the next request on."""
-    from app import crud
-
-    if (name is None) == (token_prefix is None):
-        fail("give a user NAME or --token-prefix, not both")
-    _, db = _user_db()
-    with db.write() as s:
-        if name is not None:
-            n = _service_call(lambda: crud.revoke_tokens(s, user_id=crud.get_user_by_name(s, name).id))
-        else:
-            n = _service_call(lambda: crud.revoke_tokens(s, prefix=token_prefix))
-    db.dispose()
-    typer.echo(f"revoked {n} token(s)")
-
-
-def _set_active(name: str, active: bool) -> None:
-    from app import crud
-
-    _, db = _user_db()
-    with db.write() as s:
-        _service_call(lambda: crud.set_user_active(s, crud.get_user_by_name(s, name).id, active))
-    db.dispose()
-    typer.echo(f"{name} {'enabled' if active else 'disabled'}")
-
-
-@user_app.command("disable")
-@friendly_errors
-def user_disable(name: Annotated[str, typer.Argument(help="User name.")]) -> None:
-    """Deactivate a user: all their tokens are refused from the next request on."""
-    _set_active(name, False)
-
-
-@user_app.command("enable")
-@friendly_errors
-def user_enable(name: Annotated[str, typer.Argument(help="User name.")]) -> None:
-    """Reactivate a disabled user."""
-    _set_active(name, True)
 
 
 @app.command()
@@ -602,7 +336,7 @@ def demo(
 def label(
     seq: Annotated[Path, typer.Argument(help="Your recording: a sequence folder or LiDAR file, any supported format.")],
     poses: Annotated[str, typer.Option(help="file: the sequence's own poses; icp: estimate them (KISS-ICP).")] = "file",
-    sensor: Annotated[str, typer.Option(help="auto, a preset (hdl32e, hdl64e, vlp16) or an Ouster json.")] = "auto",
+    sensor: SensorOpt = "auto",
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
     name: Annotated[str | None, typer.Option(help="Sequence name (default: the folder's).")] = None,
     data_dir: DataDir = None,
@@ -669,7 +403,7 @@ def train(
 @friendly_errors
 def export(
     seq: Annotated[str, typer.Argument(help="A sequence registered by `tracklabel label`: its path or id.")],
-    out: Annotated[Path, typer.Option("--out", help="Output folder.")],
+    out: OutOpt,
     data_dir: DataDir = None,
     include_ground: Annotated[bool, typer.Option(help="Write the ground class on the remaining ground points.")] = False,
     reviewed_only: Annotated[bool, typer.Option(help="Only the reviewed tracks' points (no bulk accepts, "

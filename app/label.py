@@ -110,7 +110,7 @@ def _register(db: Database, src: Source, admin_id: int, log: Callable[[str], Non
 def _ingest(settings: Settings, db: Database, seq_id: int, src: Source, log: Callable[[str], None],
             progress: Progress) -> dict[str, Any]:
     """Queue the ingest (or pick up one queued before) and run it here; {} when it is ready."""
-    from app.jobs.ingest import active_ingest_job
+    from app.crud.ingest_rows import active_ingest_job
 
     with db.read() as s:
         seq = s.get(Sequence, seq_id)

@@ -80,7 +80,7 @@ def find_sequence(db: Database, ref: str) -> Sequence:
 
 def queue_job(db: Database, job_type: str, params: dict[str, Any], user: int | None) -> int:
     """Validate and queue a job as an admin's REST call would (prepare, admin priority)."""
-    from app.jobs.ingest import note_queued
+    from app.crud.ingest_rows import note_queued
     from app.jobs.registry import get_job_type, load_job_types
 
     load_job_types()
@@ -161,13 +161,13 @@ def latest_model(db: Database) -> Path:
 
 
 def export_semantickitti(db: Database, settings: Settings, seq: Sequence, out: Path, options: Any) -> list[Path]:
-    """The REST export's SemanticKITTI labels (app.exports, `options`: ExportOptions), unpacked
+    """The REST export's SemanticKITTI labels (app.services.exports, `options`: ExportOptions), unpacked
     under `out` as sequences/<name>/labels/NNNNNN.label and summary.json (+ chunk_map.json past
     65,535 tracks); the files written."""
     import tarfile
 
     from app.artifacts import ArtifactStore
-    from app.exports import semantickitti_tar
+    from app.services.exports import semantickitti_tar
     from app.services.point_labels import point_label_plan
 
     with db.read() as s:

@@ -39,7 +39,7 @@ NAMING_CONVENTION = {
 BigId = BigInteger().with_variant(Integer(), "sqlite")
 
 ROLES = ("operator", "reviewer", "admin")  # reviewer: audits accepted tracks (migration 0008)
-# merged: the track's segments were joined into another track (app/repair.py); undo brings them back
+# merged: the track's segments were joined into another track (app/services/repair.py); undo brings them back
 TRACK_STATUSES = ("pending", "accepted", "discarded", "merged")
 SEQUENCE_STATUSES = ("registered", "ingesting", "ready", "failed")
 JOB_STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
@@ -117,7 +117,7 @@ class Sequence(Base):
     config: Mapped[dict[str, Any] | None] = mapped_column(JSON)  # pipeline overrides for ingest
     status: Mapped[str] = mapped_column(String(16), default="registered")
     n_frames: Mapped[int] = mapped_column(Integer, default=0)
-    # migration 0010: the highest track key handed out (app/track_ids.py); a split's new track
+    # migration 0010: the highest track key handed out (app/crud/track_ids.py); a split's new track
     # takes the next one under this row's lock, so a key is never given twice, even after undo
     last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
@@ -323,7 +323,7 @@ class AnnotationEvent(Base):
     reverts_event_id: Mapped[int | None] = mapped_column(ForeignKey("annotation_events.id", ondelete="SET NULL"))
     # migration 0009: what a split or merge changed beyond the review state (frames' artifact
     # files before and after, segment rows, constraint rows, the other track), so that undo
-    # restores it exactly and the log can be replayed (app/repair.py)
+    # restores it exactly and the log can be replayed (app/services/repair.py)
     detail: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 

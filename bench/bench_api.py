@@ -72,6 +72,7 @@ def load_database(url: str, artifact_dir: Path, n_tracks: int, n_frames: int, po
     from app.core.db import Database
     from app.core.migrate import upgrade
     from app.models import Dataset, Frame, PairConstraint, Segment, Sequence, Track, utcnow
+    from pipeline.links import LinkBuilder
 
     upgrade(url)
     db = Database.from_url(url)
@@ -133,9 +134,10 @@ def load_database(url: str, artifact_dir: Path, n_tracks: int, n_frames: int, po
         seg_ids = [r["id"] for r in seg_rows]
         pos = 0
         for tid, n in zip(track_ids, length, strict=True):
-            for k in range(1, int(n)):
-                pair_rows.append({"sequence_id": seq.id, "track_id": tid, "segment_a_id": seg_ids[pos + k - 1],
-                                  "segment_b_id": seg_ids[pos + k], "score": 0.9, "kind": "must_link"})
+            # the track's pairs as ingest forms them (every segment here has a sample)
+            for a, b in LinkBuilder().chain(tid, seg_ids[pos : pos + int(n)]).tolist():
+                pair_rows.append({"sequence_id": seq.id, "track_id": tid, "segment_a_id": a, "segment_b_id": b,
+                                  "score": 0.9, "kind": "must_link"})
             pos += int(n)
         s.execute(insert(PairConstraint), pair_rows)
         crud.analyze_tables(s)  # as ingest does

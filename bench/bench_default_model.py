@@ -71,13 +71,13 @@ def score_checkpoint(checkpoint: Path | None = None) -> dict:
     shipped default) on kitti_seq00 frames 0-9 (and others); {"skipped": ...} when the real data
     is absent."""
     from pipeline.model import DEFAULT_MODEL
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     with tempfile.TemporaryDirectory() as tmp:
         seq = kitti_seq00(Path(tmp) / "k00", frames=LABELLED)
         if seq is None:
             return {"skipped": f"{REAL / 'kitti_seq00'} is absent"}
-        summary = run_predict(seq, checkpoint, Path(tmp) / "pred", device="cpu")
+        summary = run_predict(seq, checkpoint, Path(tmp) / "pred", PredictOptions(device="cpu"))
         iou = summary["point_iou"]
         result = {
             "model": summary["model"],
@@ -129,20 +129,20 @@ def _xyz_pcd(dest: Path) -> Path:
 def robustness(checkpoint: Path | None, tmp: Path, as_recorded: dict) -> dict:
     """Point accuracy on frames 0-9 with intensity as recorded, zeroed and scaled by 0.01, and the
     class shares on other sensors' inputs (module docstring, 3)."""
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     out: dict = {"as_recorded": {k: as_recorded[k] for k in ("point_accuracy", "object_point_accuracy", "warnings")}}
     for name, factor in (("zeroed", 0.0), ("scaled_0.01", 0.01)):
-        s = run_predict(_rescaled(tmp / name, factor), checkpoint, tmp / f"pred_{name}", device="cpu")
+        s = run_predict(_rescaled(tmp / name, factor), checkpoint, tmp / f"pred_{name}", PredictOptions(device="cpu"))
         out[name] = {k: s[k] for k in ("point_accuracy", "object_point_accuracy", "warnings")}
         base = as_recorded["object_point_accuracy"]
         out[name]["object_accuracy_kept"] = round(s["object_point_accuracy"] / base, 3) if base else None
     ouster = REAL / "ouster" / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap"
     try:
-        out["ouster_os1_128"] = _class_share(run_predict(ouster, checkpoint, tmp / "pred_ouster", device="cpu"))
+        out["ouster_os1_128"] = _class_share(run_predict(ouster, checkpoint, tmp / "pred_ouster", PredictOptions(device="cpu")))
     except Exception as exc:  # noqa: BLE001 - ouster-sdk is an optional extra
         out["ouster_os1_128"] = {"skipped": str(exc)}
-    out["nuscenes_xyz_pcd"] = _class_share(run_predict(_xyz_pcd(tmp / "xyz"), checkpoint, tmp / "pred_xyz", device="cpu"))
+    out["nuscenes_xyz_pcd"] = _class_share(run_predict(_xyz_pcd(tmp / "xyz"), checkpoint, tmp / "pred_xyz", PredictOptions(device="cpu")))
     return out
 
 

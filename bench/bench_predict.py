@@ -1,4 +1,4 @@
-"""Online inference throughput: `tracklabel predict` (pipeline.predict.run_predict) in frames/s.
+"""Online inference throughput: `tracklabel predict` (pipeline.pipeline.run_predict) in frames/s.
 
 Simulates 100 frames (30 with --quick) of seed 0 into a temporary folder, writes an untrained
 checkpoint of the default model at S=64 (speed does not depend on the weights) and runs the
@@ -16,7 +16,7 @@ import torch
 
 from pipeline.config import ModelConfig, SampleConfig
 from pipeline.model import get_model, save_checkpoint
-from pipeline.predict import run_predict
+from pipeline.pipeline import PredictOptions, run_predict
 from research.simulation import simulate_sequence
 
 TARGET_FPS = 10.0
@@ -27,7 +27,7 @@ def _run(seq: Path, ckpt: Path, out: Path, device: str, threads: int) -> dict:
     if threads:
         torch.set_num_threads(threads)
     try:
-        s = run_predict(seq, ckpt, out, device=device, evaluate=False)
+        s = run_predict(seq, ckpt, out, PredictOptions(device=device, evaluate=False))
     finally:
         torch.set_num_threads(before)
     return {
@@ -50,7 +50,7 @@ def run(out_dir: Path, quick: bool = False) -> dict:
         simulate_sequence(seq, frames=frames, seed=0)
         samples = SampleConfig(size=64)
         ckpt = save_checkpoint(tmp_path / "m.pt", get_model(ModelConfig(), samples), ModelConfig(), samples)
-        run_predict(seq, ckpt, tmp_path / "warm", evaluate=False)  # torch start-up, numba caches
+        run_predict(seq, ckpt, tmp_path / "warm", PredictOptions(evaluate=False))  # torch start-up, numba caches
         runs = [_run(seq, ckpt, tmp_path / "o1", "cpu", 0), _run(seq, ckpt, tmp_path / "o2", "cpu", 1)]
         if torch.cuda.is_available():
             runs.append(_run(seq, ckpt, tmp_path / "o3", "cuda", 0))

@@ -15,7 +15,7 @@ import numpy as np
 
 SAMPLE_CLASSES: tuple[str, ...] = ("person", "car", "cyclist", "trunk", "bush", "building", "unknown")
 NUM_SAMPLE_CLASSES = len(SAMPLE_CLASSES)  # K = 7
-GROUND = 7
+GROUND = NUM_SAMPLE_CLASSES  # 7: the point class after the sample classes
 UNLABELLED = 255
 POINT_CLASSES: tuple[str, ...] = (*SAMPLE_CLASSES, "ground")
 CLASS_INDEX: dict[str, int] = {name: i for i, name in enumerate(POINT_CLASSES)}

@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from pipeline.classes import NUM_SAMPLE_CLASSES
 from pipeline.errors import ConfigError
 from pipeline.sensors import check_ego_box
 
@@ -124,7 +125,7 @@ class AssociationConfig(_Section):
 
 
 class ModelConfig(_Section):
-    num_classes: int = 7
+    num_classes: int = NUM_SAMPLE_CLASSES  # the class table, pipeline.classes
     width: int = 32  # channels of the first conv block
     max_width: int = 128  # channel cap of later blocks (width doubles per block)
     depth: int = 4  # conv blocks
@@ -261,10 +262,17 @@ def load_config(path: str | Path | None = None) -> PipelineConfig:
     if path is None:
         return PipelineConfig()
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{p}: cannot read config: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: config must be a mapping of sections")
+    data = read_yaml_mapping(p, "config must be a mapping of sections")
     return _validate(merge_nested(PipelineConfig().model_dump(), data), str(p))
+
+
+def read_yaml_mapping(path: Path, not_a_mapping: str) -> dict:
+    """A YAML file's top-level mapping (empty file: {}); ConfigError naming the file when it
+    cannot be read or parsed, or with `not_a_mapping` when it holds something else."""
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read config: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: {not_a_mapping}")
+    return data

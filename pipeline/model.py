@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from pipeline.classes import SAMPLE_CLASSES
+from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
 from pipeline.errors import ConfigError, DataError
 
@@ -39,7 +39,7 @@ class NetConfig:
 
     in_channels: int = 4  # C: 3 (height, range, intensity) or 4 (+ foreground mask)
     size: int = 64  # S: canvas side; any S divisible by 2**depth works (global pooling)
-    num_classes: int = 7  # K
+    num_classes: int = NUM_SAMPLE_CLASSES  # K
     width: int = 32  # channels of the first block
     max_width: int = 128  # channel cap of later blocks
     depth: int = 4  # conv blocks, each halving the resolution

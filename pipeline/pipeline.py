@@ -1,6 +1,7 @@
 """The only module that joins the algorithm to the dataset loaders.
 
-`run_process` opens a sequence (`pipeline.sequence.open_sequence`: reader, sensor, width, poses),
+`run_predict` classifies a sequence's segments with a trained checkpoint (`pipeline.predict`)
+and writes the files of `pipeline.prediction_files`. `run_process` opens a sequence (`pipeline.sequence.open_sequence`: reader, sensor, width, poses),
 runs the SequenceProcessor and writes `OUT/tracks/NNNNNN.label` (one uint32 per input point,
 docs/conventions.md), `OUT/tracks.json`, `OUT/summary.json`, `OUT/config.yaml` and, with samples
 on, `OUT/samples/NNNNNN.npz`. `evaluate_folder` scores such an output against the sequence's
@@ -20,8 +21,9 @@ import numpy as np
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
+from pipeline.frames import FrameResult
 from pipeline.io import open_reader
-from pipeline.processing import FrameResult, SequenceProcessor
+from pipeline.processing import SequenceProcessor
 from pipeline.progress import QUIET, Progress
 from pipeline.sequence import Sequence, open_sequence
 from pipeline.tracks import TrackBuilder, read_tracks, track_statistics
@@ -138,7 +140,7 @@ def _summary(seq: Sequence, proc: SequenceProcessor, builder: TrackBuilder, tall
         "tracks": len(tracks),
         "tracks_multi_frame": int((lengths > 1).sum()),
         "tracks_spanning_all_frames": int((lengths == len(names)).sum()) if names else 0,
-        "constraint_pairs": int(sum(max(0, len(t.frames) - 1) for t in tracks)),
+        "constraint_pairs": len(builder.pairs),
         "stitches": len(builder.stitches),
         "mean_track_length": float(lengths.mean()),
         "track_statistics": track_statistics(tracks, len(names)),
@@ -191,3 +193,79 @@ def evaluate_folder(seq: str | Path, out: str | Path, progress: Progress = QUIET
     stitches = np.asarray([st["tracks"] for st in doc.get("stitches", [])], np.int64).reshape(-1, 2)
     result["stitches"] = evaluate_stitches(frames, stitches)
     return result
+
+
+@dataclass(frozen=True)
+class PredictOptions:
+    """How `run_predict` reads the sequence and runs the model.
+
+    size: the sample size asked for on the command line (None = the model's); a mismatch with the
+    checkpoint is a DataError. evaluate: compute point IoU when the sequence carries labels.
+    smooth_tracks: average class probabilities along each track (causal). The samples of up to
+    `batch_frames` frames (or `batch_samples` samples) go through the CNN in one forward pass.
+    """
+
+    size: int | None = None
+    sensor: str = "auto"
+    poses: str = "file"
+    fmt: str = "auto"
+    device: str = "auto"
+    smooth_tracks: bool = False
+    evaluate: bool = True
+    batch_frames: int = 8
+    batch_samples: int = 512
+
+
+def run_predict(
+    seq: str | Path,
+    checkpoint: str | Path | None,
+    out: str | Path,
+    options: PredictOptions = PredictOptions(),
+    config: PipelineConfig | None = None,
+    progress: Progress = QUIET,
+    log: Callable[[str], None] | None = None,
+) -> dict:
+    """Classify every valid segment of a sequence and write per-frame labels (the files of
+    `pipeline.prediction_files`); returns the summary. checkpoint: None = the shipped default
+    model (`pipeline.model.default_model_path`)."""
+    from pipeline.model import default_model_path
+    from pipeline.predict import InputCheck, SegmentClassifier, model_sample_config
+    from pipeline.prediction_files import PredictionWriter, prediction_summary
+
+    log = log or (lambda _m: None)
+    o = options
+    # 1. the model, the config its samples need, the sequence and the output folder
+    clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, o.device)
+    config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, o.size)
+    out = Path(out)
+    opened = open_sequence(seq, o.fmt, o.sensor if o.sensor != "auto" else config.sensor.name, o.poses, progress)
+    if opened.poses is None and o.smooth_tracks:
+        log("no poses: tracks are single frames, --smooth-tracks has no effect")
+    for sub in ("labels", "confidence", "segments"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    config.dump(out / "config.yaml")
+    skipped: list[dict[str, str]] = []
+
+    def on_skip(i: int, err: DataError) -> None:
+        skipped.append({"frame": opened.source.frame_name(i), "error": str(err)})
+        log(f"skipped frame {opened.source.frame_name(i)}: {err}")
+
+    # 2. classify the frames' samples a few frames at a time and write their files
+    writer = PredictionWriter(clf, out, o.smooth_tracks, o.evaluate)
+    check = InputCheck(clf, opened.sensor.intensity_quantiles, log)
+    pending: list[FrameResult] = []
+    t0 = time.perf_counter()
+    for fr in SequenceProcessor(config, opened.sensor).iter_frames(
+            opened.source, progress=progress, samples=True, poses=opened.poses, on_skip=on_skip):
+        clf.check_samples(fr.samples, out)
+        check.add(fr.samples)
+        pending.append(fr)
+        if len(pending) >= o.batch_frames or sum(len(f.samples) for f in pending) >= o.batch_samples:
+            writer.flush(pending)
+    writer.flush(pending)
+    check.finish()
+    # 3. the summary
+    summary = prediction_summary(seq, clf, config, opened, o.smooth_tracks, skipped, writer, check,
+                                 time.perf_counter() - t0)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary

@@ -30,80 +30,14 @@ import numpy as np
 from pipeline.association import AssociationFrame, associate
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
+from pipeline.frames import FrameResult, FrameSegments
 from pipeline.ground import estimate_ground
 from pipeline.progress import QUIET, Progress
 from pipeline.range_image import project
-from pipeline.samples import SegmentTable, render_samples, segment_table
+from pipeline.samples import render_samples, segment_table
 from pipeline.scan import Scan, SequenceSource
 from pipeline.segmentation import segment
 from pipeline.sensors import SensorModel
-
-
-@dataclass(frozen=True)
-class FrameSegments(SegmentTable):
-    """SegmentTable plus tracking, arrays of length S.
-
-    centroid_world: (S, 3) float64 (lidar centroid when there are no poses);
-    track_id: (S,) int64 global track id >= 1 for valid segments, 0 for the others;
-    link_score: (S,) float32 score of the link to the previous frame, NaN where a track starts.
-    """
-
-    centroid_world: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
-    track_id: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
-    link_score: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """Everything the pipeline knows of one frame.
-
-    segment: (N,) int32 local segment id per point, -1 = ground / unsegmented.
-    ground: (N,) bool; height: (N,) float32 metres above ground.
-    seg_pixel: (H, W) int32 segment id per range-image pixel, -1 = none.
-    samples: (V, C, S, S) uint8 of the valid segments; sample_segment: (V,) int32 their segment ids.
-    fragments: (E, 2) int32 (segment of this frame, segment of the previous frame) pairs of
-    fragments of one object that are not track links (see `association.Links`); fragment_share: (E,).
-    """
-
-    index: int
-    name: str
-    scan: Scan
-    segment: np.ndarray
-    ground: np.ndarray
-    height: np.ndarray
-    seg_pixel: np.ndarray
-    range_pixels: np.ndarray
-    segments: FrameSegments
-    samples: np.ndarray
-    sample_segment: np.ndarray
-    T_world_lidar: np.ndarray | None
-    time: float
-    timings_ms: dict[str, float]
-    fragments: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2), np.int32))
-    fragment_share: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.float32))
-
-    def track_labels(self) -> np.ndarray:
-        """(N,) uint32 track id per point: 0 for ground, unsegmented points and invalid segments."""
-        out = np.zeros(len(self.segment), dtype=np.uint32)
-        m = self.segment >= 0
-        out[m] = self.segments.track_id[self.segment[m]].astype(np.uint32)
-        return out
-
-
-@dataclass(frozen=True)
-class _FrameCore:
-    index: int
-    name: str
-    scan: Scan
-    segment: np.ndarray
-    ground: np.ndarray
-    height: np.ndarray
-    seg_pixel: np.ndarray
-    range_pixels: np.ndarray
-    table: SegmentTable
-    samples: np.ndarray
-    sample_segment: np.ndarray
-    timings_ms: dict[str, float]
 
 
 def _only_valid(ids: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -122,8 +56,8 @@ def _one_thread_per_worker() -> None:
 
 def process_scan(
     scan: Scan, sensor: SensorModel, config: PipelineConfig, index: int = 0, name: str = "", samples: bool = True
-) -> _FrameCore:
-    """Steps 1–5 for one scan (no association)."""
+) -> FrameResult:
+    """Steps 1–5 for one scan: a FrameResult whose tracking fields are still empty."""
     t0 = time.perf_counter()
     image = project(scan, sensor, config.range_image)
     t1 = time.perf_counter()
@@ -148,9 +82,10 @@ def process_scan(
     }
     # segmentation takes the feet of objects back from the ground band
     ground = g.ground & (seg.point < 0)
-    return _FrameCore(
-        index, name, scan, seg.point, ground, g.height, valid_pixel.astype(np.int32), image.range, table,
-        canv, canv_seg, timings,
+    return FrameResult(
+        index, name, scan, seg.point, ground, g.height, valid_pixel.astype(np.int32), image.range,
+        FrameSegments(n_points=table.n_points, centroid=table.centroid, range=table.range, valid=table.valid),
+        canv, canv_seg, timings_ms=timings,
     )
 
 
@@ -161,7 +96,7 @@ class _Spilled:
     path: str
 
 
-def _load_and_process(args: tuple) -> _FrameCore | DataError:
+def _load_and_process(args: tuple) -> FrameResult | DataError:
     source, index, sensor, config, samples, spill_dir = args
     try:
         scan = source.frame(index)
@@ -183,7 +118,7 @@ def _load_and_process(args: tuple) -> _FrameCore | DataError:
     return core
 
 
-def _ordered(pool: ProcessPoolExecutor, jobs: list[tuple], ahead: int) -> Iterator[_FrameCore | DataError]:
+def _ordered(pool: ProcessPoolExecutor, jobs: list[tuple], ahead: int) -> Iterator[FrameResult | DataError]:
     """`_load_and_process` over `jobs` on `pool`, results in job order, at most `ahead` frames in
     flight or waiting (the workers may not run arbitrarily far ahead of the association, each
     finished frame holds its scan and canvases)."""
@@ -203,7 +138,7 @@ def _ordered(pool: ProcessPoolExecutor, jobs: list[tuple], ahead: int) -> Iterat
             fut.cancel()
 
 
-def _unspill(core: _FrameCore) -> _FrameCore:
+def _unspill(core: FrameResult) -> FrameResult:
     if not isinstance(core.samples, _Spilled):
         return core
     path = core.samples.path
@@ -300,14 +235,14 @@ class SequenceProcessor:
 
     def _track(
         self,
-        core: _FrameCore,
+        core: FrameResult,
         T: np.ndarray | None,
         t_s: float,
         prev: AssociationFrame | None,
         prev_tracks: np.ndarray,
         prev_vel: np.ndarray,
     ) -> tuple[FrameResult, AssociationFrame, np.ndarray, np.ndarray]:
-        table = core.table
+        table = core.segments
         n = len(table)
         cw = table.centroid.astype(np.float64)
         if T is not None:
@@ -340,9 +275,8 @@ class SequenceProcessor:
             n_points=table.n_points, centroid=table.centroid, range=table.range, valid=table.valid,
             centroid_world=cw, track_id=track_id, link_score=score,
         )
-        fr = FrameResult(
-            core.index, core.name, core.scan, core.segment, core.ground, core.height, core.seg_pixel,
-            core.range_pixels, segs, core.samples, core.sample_segment, T, t_s, dict(core.timings_ms),
-            fragments, fragment_share,
+        fr = dataclasses.replace(
+            core, segments=segs, T_world_lidar=T, time=t_s, timings_ms=dict(core.timings_ms), fragments=fragments,
+            fragment_share=fragment_share,
         )
         return fr, curr, track_id, vel

@@ -11,7 +11,8 @@
 Consecutive frames of a track are must-link constraint pairs. A stitch joins two tracks whose
 segments are pieces of one object that split, merged or reshuffled between frames (the
 association's fragment links: `links` of them, the largest shared-point `share`); once an operator
-confirms that both tracks show one object, its fragment links are must-link pairs too.
+confirms that both tracks show one object, its fragment links are must-link pairs too. Both come
+from `pipeline.links.LinkBuilder`.
 """
 
 from __future__ import annotations
@@ -22,26 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.processing import FrameResult
-
-
-def fragment_track_pairs(
-    fragments: np.ndarray, share: np.ndarray, track_id: np.ndarray, prev_track_id: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A frame's fragment links as stitches: (links (K, 2), track pairs (K, 2) int64 with the
-    smaller id first, share (K,)) of the links whose two segments lie in two different tracks.
-
-    fragments: (E, 2) (segment of this frame, segment of the previous one); share: (E,);
-    track_id / prev_track_id: (S,) / (S',) track id per segment of each frame, <= 0 = none.
-    """
-    frag = np.asarray(fragments, np.int64).reshape(-1, 2)
-    share = np.asarray(share, np.float64)
-    inside = (frag[:, 0] < len(track_id)) & (frag[:, 1] < len(prev_track_id))
-    frag, share = frag[inside], share[inside]
-    ta = np.asarray(track_id, np.int64)[frag[:, 0]]
-    tb = np.asarray(prev_track_id, np.int64)[frag[:, 1]]
-    kept = (ta > 0) & (tb > 0) & (ta != tb)
-    return frag[kept], np.sort(np.stack([ta[kept], tb[kept]], axis=1), axis=1), share[kept]
+from pipeline.frames import FrameResult
+from pipeline.links import LinkBuilder
 
 
 @dataclass
@@ -66,16 +49,21 @@ class TrackBuilder:
     def __init__(self) -> None:
         self.tracks: dict[int, Track] = {}
         self.stitches: dict[tuple[int, int], list[float]] = {}  # (track a, track b), a < b -> [links, share]
-        self._prev_track_id = np.zeros(0, np.int64)
+        # (track id, frame i, frame i+1, link score) for every link, in frame order
+        self.pairs: list[tuple[int, int, int, float]] = []
+        self._links = LinkBuilder()
 
     def add(self, fr: FrameResult) -> None:
         seg = fr.segments
-        _, pairs, share = fragment_track_pairs(fr.fragments, fr.fragment_share, seg.track_id, self._prev_track_id)
-        for (a, b), sh in zip(pairs.tolist(), share.tolist(), strict=True):
+        track_id = np.asarray(seg.track_id, np.int64)
+        links = self._links.add(track_id, track_id > 0, np.full(len(track_id), fr.index), fr.fragments,
+                                fr.fragment_share)
+        for (a, b), sh in zip(links.stitch.tolist(), links.share.tolist(), strict=True):
             st = self.stitches.setdefault((a, b), [0, 0.0])
             st[0] += 1
             st[1] = max(st[1], sh)
-        self._prev_track_id = np.asarray(seg.track_id, np.int64)
+        for tid, (fa, fb), k in zip(links.track.tolist(), links.pairs.tolist(), links.later.tolist(), strict=True):
+            self.pairs.append((tid, fa, fb, float(seg.link_score[k])))
         kept = np.flatnonzero(seg.track_id > 0)
         # rounded here, once per frame, as tracks.json stores them
         centroids = np.round(np.asarray(seg.centroid_world, np.float64)[kept], 3).tolist()
@@ -90,14 +78,6 @@ class TrackBuilder:
             tr.frames.append(fr.index)
             tr.points.append(n)
             tr.centroids.append(centroid)
-
-    def constraint_pairs(self) -> list[tuple[int, int, int, float]]:
-        """(track id, frame i, frame i+1, link score) for every link."""
-        return [
-            (t.id, t.frames[k], t.frames[k + 1], t.scores[k])
-            for t in self.tracks.values()
-            for k in range(len(t.frames) - 1)
-        ]
 
     def write(self, path: str | Path, linked: bool, frame_names: list[str]) -> None:
         data = {

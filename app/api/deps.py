@@ -11,11 +11,11 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
-from app import crud, leases
+from app import crud
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
-from app.crud import AuthUser
+from app.crud import AuthUser, leases
 from app.models import Track, utcnow
 
 MAX_ID = 2**31 - 1  # INTEGER primary keys (users, datasets, sequences, frames, jobs)
@@ -117,7 +117,7 @@ AuditorUser = Annotated[AuthUser, Depends(require_auditor)]
 
 @dataclass(frozen=True)
 class LeaseGuard:
-    """The caller, their explicit lease override and the lease length: what `app.leases.check`
+    """The caller, their explicit lease override and the lease length: what `app.crud.leases.check`
     needs besides the session and the locked track. A route that changes a track takes
     `guard: LeaseGuardDep` and calls `guard.check(session, track)`."""
 

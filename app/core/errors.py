@@ -24,6 +24,16 @@ class Conflict(ServiceError):
     status_code = 409
 
 
+class StaleVersion(Conflict):
+    """The request was made on a version of a row that has changed since: 409."""
+
+
+def check_version(kind: str, row_id: int, expected: int, current: int) -> None:
+    """The one stale-version check of tracks and stitches: StaleVersion unless `expected` is `current`."""
+    if expected != current:
+        raise StaleVersion(f"stale version {expected}: {kind} {row_id} is at version {current}")
+
+
 class Invalid(ServiceError):
     """A well-formed request that names something impossible (unknown class, bad frame range)."""
 

@@ -9,6 +9,7 @@ from sqlalchemy import bindparam, func, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Forbidden, Invalid, NotFound
+from app.crud.rows import get_or_404
 from app.data_roots import DataRoots, sensor_file
 from app.models import Dataset, Frame, PairConstraint, Sequence, Track
 
@@ -52,6 +53,14 @@ def check_tree_inside_roots(path: Path, roots: list[Path]) -> DataRoots:
     data_roots = DataRoots.of(roots)
     data_roots.check_tree(path)
     return data_roots
+
+
+def pipeline_config(settings_path: Path | None, overrides: dict[str, Any] | None) -> Any:
+    """The settings' pipeline config file with a sequence's overrides (ingest and the repairs)."""
+    from pipeline.config import load_config
+
+    cfg = load_config(settings_path)
+    return cfg.override(overrides) if overrides else cfg
 
 
 def check_sensor_file(config: Any, roots: list[Path]) -> None:
@@ -120,3 +129,26 @@ def check_ready(sequence_id: int, status: str | None, then: str) -> None:
 def require_ready(session: Session, sequence_id: int, then: str) -> None:
     """`check_ready` on the sequence's stored status (None when it does not exist)."""
     check_ready(sequence_id, session.connection().scalar(_SEQUENCE_STATUS, {"sequence_id": sequence_id}), then)
+
+
+def list_datasets(session: Session) -> list[Dataset]:
+    return list(session.scalars(select(Dataset).order_by(Dataset.id)).all())
+
+
+def get_dataset(session: Session, dataset_id: int) -> Dataset:
+    return get_or_404(session, Dataset, dataset_id, "dataset")
+
+
+def dataset_sequences(session: Session, dataset_id: int) -> list[Sequence]:
+    return list(session.scalars(select(Sequence).where(Sequence.dataset_id == dataset_id).order_by(Sequence.id)).all())
+
+
+def list_sequences(session: Session, status: str | None = None) -> list[Sequence]:
+    q = select(Sequence).order_by(Sequence.id)
+    if status is not None:
+        q = q.where(Sequence.status == status)
+    return list(session.scalars(q).all())
+
+
+def get_sequence(session: Session, sequence_id: int) -> Sequence:
+    return get_or_404(session, Sequence, sequence_id, "sequence")

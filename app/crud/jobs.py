@@ -8,6 +8,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, NotFound
+from app.crud.rows import get_or_404
 from app.models import Job, utcnow
 
 
@@ -39,3 +40,20 @@ def cancel_job(session: Session, job_id: int, by: str = "") -> Job:
         raise Conflict(f"job {job_id} is already {job.status}")
     session.commit()
     return job
+
+
+def list_jobs(session: Session, status: str | None, job_type: str | None, created_by: int | None, limit: int,
+              offset: int) -> list[Job]:
+    """Jobs, newest first; `created_by`: only that user's (None: everyone's)."""
+    q = select(Job).order_by(Job.id.desc()).limit(limit).offset(offset)
+    if status is not None:
+        q = q.where(Job.status == status)
+    if job_type is not None:
+        q = q.where(Job.type == job_type)
+    if created_by is not None:
+        q = q.where(Job.created_by_id == created_by)
+    return list(session.scalars(q).all())
+
+
+def get_job(session: Session, job_id: int) -> Job:
+    return get_or_404(session, Job, job_id, "job")

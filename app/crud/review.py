@@ -1,19 +1,30 @@
-"""Review actions on a track (accept, discard, label, truncate, undo) and the labels they materialise."""
+"""Review actions on a track (`REVIEW_ACTIONS`: accept, discard, label, truncate, undo) and the labels
+they materialise."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from sqlalchemy import DateTime, Integer, String, bindparam, delete, func, insert, select
 from sqlalchemy.orm import Session
 
-from app import leases
-from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
+from app.core.errors import Conflict, Invalid, NotApplicable, NotFound, check_version
+from app.crud import leases
 from app.crud.datasets import require_ready
 from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, Label, Segment, Track, utcnow
+from app.schemas.tracks import (
+    AcceptAction,
+    ActionBase,
+    DiscardAction,
+    LabelAction,
+    TruncateAction,
+    UndoAction,
+)
 
 REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end", "label_source")
 
@@ -62,22 +73,21 @@ def apply_action(
     action: str,
     version: int,
     *,
-    label: str | None = None,
-    start: int | None = None,
-    end: int | None = None,
     sample_classes: tuple[str, ...] = (),
     override_lease: bool = False,
     lease_seconds: float | None = None,
+    **fields: Any,
 ) -> Track:
-    """Apply one review action if `version` is current; write its event; commit.
+    """Apply one review action (`REVIEW_ACTIONS`; `fields`: its body's fields, e.g. `label`) if
+    `version` is current; write its event; commit.
 
     Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
-    user's running lease -> LeaseHeld (409; see app.leases). The caller's own lease is renewed by
+    user's running lease -> LeaseHeld (409; see app.crud.leases). The caller's own lease is renewed by
     `lease_seconds`.
     """
     track = _track_for_review(session, track_id, user, action, version, override_lease, lease_seconds)
     before = review_state(track)
-    after, reverts = _review_after(session, track, user, action, before, label, start, end, sample_classes)
+    after, reverts = _review_after(session, track, user, action, before, fields, sample_classes)
     if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
         _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
@@ -114,57 +124,102 @@ def _track_for_review(
         raise NotFound(f"track {track_id} not found")
     require_ready(session, track.sequence_id, "tracks can be reviewed once it is ready")
     leases.check(session, track, user, utcnow(), override=override_lease, renew_seconds=lease_seconds)
-    if track.version != version:
-        raise Conflict(f"stale version {version}: track {track_id} is at version {track.version}")
+    check_version("track", track_id, version, track.version)
     if track.status == "merged" and action != "undo":
         raise Conflict(f"track {track_id} was merged into another track; undo the merge first")
     return track
 
 
+@dataclass
+class ReviewStep:
+    """What an action's rule sees: the locked track, the caller, the review state it changes in
+    place (`after`, a copy of the state before) and the action's fields from its request body."""
+
+    session: Session
+    track: Track
+    user: AuthUser
+    after: dict[str, Any]
+    fields: dict[str, Any]
+    sample_classes: tuple[str, ...]
+
+
+def _accept(step: ReviewStep) -> None:
+    step.after["status"] = "accepted"
+    step.after["label_source"] = None if step.after["label"] is None else "review"
+
+
+def _discard(step: ReviewStep) -> None:
+    step.after["status"] = "discarded"
+    step.after["label_source"] = None
+
+
+def _label(step: ReviewStep) -> None:
+    label = step.fields.get("label")
+    if label not in step.sample_classes:
+        raise Invalid(f"unknown class {label!r}; valid: {', '.join(step.sample_classes)}")
+    step.after["label"] = label
+    step.after["status"] = "accepted"  # labelling a track is accepting it with that class
+    step.after["label_source"] = "review"
+
+
+def _truncate(step: ReviewStep) -> None:
+    start, end, track = step.fields["start"], step.fields["end"], step.track
+    if not (track.first_frame <= start <= end <= track.last_frame):
+        raise NotApplicable(
+            f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
+        )
+    step.after["keep_start"], step.after["keep_end"] = start, end
+
+
+def _undo(step: ReviewStep) -> AnnotationEvent:
+    reverts = last_undoable_event(step.session, step.track.id, step.user.id)
+    if reverts is None:
+        raise Conflict(f"nothing to undo: no action of {step.user.name} on track {step.track.id} is left to undo")
+    was, became = stored_state(reverts.before), stored_state(reverts.after)
+    for f in REVIEW_FIELDS:
+        if was[f] != became[f]:
+            step.after[f] = was[f]
+    return reverts
+
+
+@dataclass(frozen=True)
+class ReviewAction:
+    """One review action: its name (the event's `action`, `models.ACTIONS`), its request body,
+    the OpenAPI text of its route (None: it has no route of its own here) and its rule, which
+    changes `step.after` and returns the event an undo reverts (None for other actions)."""
+
+    name: str
+    body: type[ActionBase]
+    route_doc: str | None
+    rule: Callable[[ReviewStep], AnnotationEvent | None]
+
+
+# The one list of review actions: the routes POST /tracks/{id}/<name> are made from it
+# (app/api/routes/tracks.py), `apply_action` runs its rules, the assist job counts them. Undo's
+# route is the repair's (app/api/routes/repair.py), which also undoes splits and merges.
+REVIEW_ACTIONS: dict[str, ReviewAction] = {a.name: a for a in (
+    ReviewAction("accept", AcceptAction, "Accept the track (its constraints become verified). Stale `version` -> 409.",
+                 _accept),
+    ReviewAction("discard", DiscardAction,
+                 "Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409.", _discard),
+    ReviewAction("truncate", TruncateAction,
+                 "Keep frames `start..end` (inclusive) of the track's full range; outside it -> 409.", _truncate),
+    ReviewAction("label", LabelAction, "Give the whole track one class (and accept it); an unknown class -> 422.",
+                 _label),
+    ReviewAction("undo", UndoAction, None, _undo),
+)}
+
+
 def _review_after(
-    session: Session,
-    track: Track,
-    user: AuthUser,
-    action: str,
-    before: dict[str, Any],
-    label: str | None,
-    start: int | None,
-    end: int | None,
+    session: Session, track: Track, user: AuthUser, action: str, before: dict[str, Any], fields: dict[str, Any],
     sample_classes: tuple[str, ...],
 ) -> tuple[dict[str, Any], AnnotationEvent | None]:
     """The review state after `action`, and the event an undo reverts (None for other actions)."""
-    after = dict(before)
-    reverts: AnnotationEvent | None = None
-    if action == "accept":
-        after["status"] = "accepted"
-        after["label_source"] = None if after["label"] is None else "review"
-    elif action == "discard":
-        after["status"] = "discarded"
-        after["label_source"] = None
-    elif action == "label":
-        if label not in sample_classes:
-            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
-        after["label"] = label
-        after["status"] = "accepted"  # labelling a track is accepting it with that class
-        after["label_source"] = "review"
-    elif action == "truncate":
-        assert start is not None and end is not None
-        if not (track.first_frame <= start <= end <= track.last_frame):
-            raise NotApplicable(
-                f"frame range {start}..{end} is not inside the track's frames {track.first_frame}..{track.last_frame}"
-            )
-        after["keep_start"], after["keep_end"] = start, end
-    elif action == "undo":
-        reverts = last_undoable_event(session, track.id, user.id)
-        if reverts is None:
-            raise Conflict(f"nothing to undo: no action of {user.name} on track {track.id} is left to undo")
-        was, became = stored_state(reverts.before), stored_state(reverts.after)
-        for f in REVIEW_FIELDS:
-            if was[f] != became[f]:
-                after[f] = was[f]
-    else:
+    declared = REVIEW_ACTIONS.get(action)
+    if declared is None:
         raise Invalid(f"unknown action {action!r}")
-    return after, reverts
+    step = ReviewStep(session, track, user, dict(before), fields, sample_classes)
+    return step.after, declared.rule(step)
 
 
 def _recount_kept_range(session: Session, track: Track, keep_start: int, keep_end: int) -> None:

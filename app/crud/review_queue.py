@@ -9,8 +9,8 @@ from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
 
 from app.core.errors import NotFound
+from app.crud.leases import LeaseHeld
 from app.crud.users import AuthUser
-from app.leases import LeaseHeld
 from app.models import Sequence, Track, User, utcnow
 
 
@@ -119,7 +119,7 @@ def lease_track(session: Session, track_id: int, user: AuthUser, lease_seconds: 
         session.rollback()
         holder = session.get(Track, track_id)
         name = session.scalar(select(User.name).where(User.id == holder.lease_user_id)) if holder else None
-        raise LeaseHeld(track_id, name or "another user", (holder and holder.lease_expires_at) or now)  # the 409 of app.leases
+        raise LeaseHeld(track_id, name or "another user", (holder and holder.lease_expires_at) or now)  # the 409 of app.crud.leases
     session.commit()
     session.refresh(track)
     return track

@@ -8,7 +8,7 @@ from typing import Any
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.core.errors import NotFound
+from app.crud.rows import get_or_404
 from app.models import AnnotationEvent, Segment, Track
 
 TRACK_SORTS = {
@@ -85,10 +85,7 @@ def list_tracks(
 
 
 def get_track(session: Session, track_id: int) -> Track:
-    track = session.get(Track, track_id)
-    if track is None:
-        raise NotFound(f"track {track_id} not found")
-    return track
+    return get_or_404(session, Track, track_id, "track")
 
 
 def track_segments(session: Session, track_id: int) -> list[Segment]:

@@ -11,6 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Invalid, NotFound
 from app.core.security import hash_token, new_token, token_display_prefix
+from app.crud.rows import get_or_404
 from app.models import ROLES, ApiToken, User, utcnow
 
 
@@ -120,3 +121,11 @@ def list_tokens(session: Session, user_id: int) -> list[ApiToken]:
     if session.get(User, user_id) is None:
         raise NotFound(f"user {user_id} not found")
     return list(session.scalars(select(ApiToken).where(ApiToken.user_id == user_id).order_by(ApiToken.id)).all())
+
+
+def list_users(session: Session) -> list[User]:
+    return list(session.scalars(select(User).order_by(User.id)).all())
+
+
+def get_user(session: Session, user_id: int) -> User:
+    return get_or_404(session, User, user_id, "user")

@@ -20,8 +20,8 @@ from pydantic import ConfigDict, Field
 from sqlalchemy import delete, insert, select
 
 from app.core.errors import Invalid
+from app.crud.model_versions import choose_model, ready_sequence, score_stored_samples
 from app.jobs.context import JobContext
-from app.jobs.models_util import choose_model, ready_sequence, score_stored_samples
 from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
 from app.models import AnchorProposal, Frame, Segment, Track, utcnow

@@ -29,15 +29,16 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.config import Settings
 from app.core.db import Database
+from app.crud.model_versions import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.context import JobContext
-from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
 from app.models import AnnotationEvent, Frame, Job, Label, ModelVersion, Segment, Sequence, Track
 from app.schemas import JsonModel
+from app.services.repair import GEOMETRY_ACTIONS
 
 # the review actions that bring the model something new (bulk accepts are its own predictions)
-REVIEW_ACTIONS = ("accept", "discard", "truncate", "label", "undo", "split", "merge")
+REVIEW_ACTIONS = (*crud.REVIEW_ACTIONS, *GEOMETRY_ACTIONS)  # what an operator did by hand
 
 
 class AssistParams(JsonModel):

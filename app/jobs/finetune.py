@@ -2,7 +2,7 @@
 constraints; registers the result as a new model version (parent = the pretrained one) and can
 queue a `predict` job with it.
 
-Training data (read with app.jobs.models_util):
+Training data (read with app.crud.model_versions):
 - labels: the sequence's labels table, which holds every labelled track's samples (a confirmed
   track-level anchor labels its whole track) plus the confirmed sample-level anchors;
 - constraints: `verified` (pairs of accepted tracks, weight 1, the paper), `automatic` (pairs of
@@ -17,9 +17,9 @@ import numpy as np
 from pydantic import ConfigDict, Field, ValidationError
 from sqlalchemy import select
 
-from app.anchors import confirmed_sample_anchors
 from app.core.errors import Conflict, Invalid, ServiceError
-from app.jobs import models_util
+from app.crud import model_versions
+from app.crud.anchors import confirmed_sample_anchors
 from app.jobs.context import JobContext
 from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, get_job_type, register
@@ -51,8 +51,8 @@ def finetune_job_config(params: Any) -> TrainingConfig:
 
 
 def prepare_finetune(s: Any, params: Any) -> None:
-    models_util.ready_sequence(s, params.sequence_id)
-    models_util.get_model_version(s, params.model_id)
+    model_versions.ready_sequence(s, params.sequence_id)
+    model_versions.get_model_version(s, params.model_id)
 
 
 def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> Any:
@@ -62,7 +62,7 @@ def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> An
     with ctx.db.read() as s:
         anchors = confirmed_sample_anchors(s, params.sequence_id)
         try:
-            ts = models_util.load_training_set(
+            ts = model_versions.load_training_set(
                 s, ctx.artifacts, [params.sequence_id], params.constraints, params.min_score, classes
             )
             base, seg_ids = ts.data, ts.segment_ids
@@ -77,7 +77,7 @@ def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> An
         extra = [seg for seg, _ in anchors if seg not in have]
         extra_samples = None
         if extra:
-            extra_samples, _ = models_util.read_samples(s, ctx.artifacts, np.array(extra, np.int64))
+            extra_samples, _ = model_versions.read_samples(s, ctx.artifacts, np.array(extra, np.int64))
     for _seg, cls in anchors:
         if cls not in classes:
             raise Invalid(f"anchor class {cls!r} is not a class of the model ({', '.join(classes)})")
@@ -110,10 +110,10 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
 
     with ctx.db.read() as s:
         prepare_finetune(s, params)
-        done = models_util.model_version_for_job(s, ctx.job_id)
+        done = model_versions.model_version_for_job(s, ctx.job_id)
         if done is not None:  # a retry after the model was registered
             return {"model_id": done.id, "path": done.path, "metrics": done.metrics, "predict_job_id": None}
-        parent = models_util.get_model_version(s, params.model_id)
+        parent = model_versions.get_model_version(s, params.model_id)
         parent_id, parent_path, parent_name = parent.id, parent.path, parent.name
     model, meta = load_checkpoint(parent_path)
     classes = tuple(meta.classes[: meta.model_config.num_classes])
@@ -125,7 +125,7 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
             f"({meta.sample_config.channels}, {meta.sample_config.size}, {meta.sample_config.size})"
         )
     cfg = finetune_job_config(params)
-    out_dir = models_util.model_dir(ctx.settings, "finetune", ctx.job_id)
+    out_dir = model_versions.model_dir(ctx.settings, "finetune", ctx.job_id)
 
     def on_progress(p: Any) -> None:
         msg = f"epoch {p.epoch + 1}/{p.epochs} step {p.step}/{p.steps_per_epoch} loss {p.loss:.3f}"
@@ -142,7 +142,7 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
     metrics = dict(res.metrics) | {"sequence_id": params.sequence_id, "constraints": params.constraints}
     predict_job_id = None
     with ctx.db.write() as s:
-        mv = models_util.register_model_version(
+        mv = model_versions.register_model_version(
             s,
             name=params.name or f"{parent_name} + finetune seq {params.sequence_id}",
             kind="finetune",

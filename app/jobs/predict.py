@@ -21,8 +21,8 @@ from sqlalchemy.orm import Session
 
 from app import crud
 from app.core.errors import Invalid
+from app.crud.model_versions import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.context import JobContext
-from app.jobs.models_util import ChosenModel, choose_model, ready_sequence, score_stored_samples
 from app.jobs.registry import JobType, register
 from app.models import Frame, Segment, Track
 from app.schemas import JsonModel

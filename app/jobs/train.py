@@ -1,6 +1,6 @@
 """`train`: train the sample CNN on the verified labels (+ constraints) of ready sequences.
 
-1. Read the labelled samples and must-link pairs (`models_util.load_training_set`): verified pairs
+1. Read the labelled samples and must-link pairs (`model_versions.load_training_set`): verified pairs
    of accepted tracks (the paper), automatic ones weighted by their association score, or none.
 2. Split the labelled samples 70/30 into train/validation by track (`split_by_group`), so
    near-identical samples of one track never sit on both sides, and leave the pairs that touch a
@@ -28,8 +28,7 @@ from sqlalchemy import update
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Invalid
-from app.jobs.context import JobContext, JobStopped
-from app.jobs.models_util import (
+from app.crud.model_versions import (
     TrainingSet,
     load_training_set,
     model_dir,
@@ -38,6 +37,7 @@ from app.jobs.models_util import (
     register_model_version,
     sample_config_for,
 )
+from app.jobs.context import JobContext, JobStopped
 from app.jobs.registry import JobType, register
 from app.jobs.training_params import job_training_config, with_training_fields
 from app.models import Job, Sequence

@@ -20,7 +20,7 @@ depends_on: str | Sequence[str] | None = None
 
 
 def upgrade() -> None:
-    # reviewed by hand: the counter starts at each sequence's highest key (app/track_ids.py)
+    # reviewed by hand: the counter starts at each sequence's highest key (app/crud/track_ids.py)
     with op.batch_alter_table('sequences', schema=None) as batch_op:
         batch_op.add_column(sa.Column('last_track_key', sa.BigInteger(), server_default='0', nullable=False))
     op.execute(

@@ -14,7 +14,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
-from pipeline.config import merge_nested
+from pipeline.config import merge_nested, read_yaml_mapping
 from pipeline.errors import ConfigError
 
 CONFIG_DIR = Path(__file__).resolve().parent
@@ -32,13 +32,7 @@ def _read(name: str) -> dict[str, Any]:
         path = CONFIG_DIR / f"{name}.yaml"
         if not path.is_file():
             raise ConfigError(f"no experiment config named {name!r}; named: {', '.join(config_names())}")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: cannot read config: {exc}") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: an experiment config must be a mapping of fields")
-    return data
+    return read_yaml_mapping(path, "an experiment config must be a mapping of fields")
 
 
 def _assignment(item: str) -> dict[str, Any]:

@@ -38,7 +38,7 @@ from pipeline.classes import GROUND, NUM_SAMPLE_CLASSES, UNLABELLED, to_ours
 from pipeline.config import PipelineConfig
 from pipeline.progress import QUIET, Progress
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3  # 3: pairs from pipeline.links, in frame order
 UNKNOWN = NUM_SAMPLE_CLASSES - 1
 
 
@@ -152,23 +152,17 @@ def segment_truth(segment: np.ndarray, n_segments: int, semantic: np.ndarray, in
     return out_cls, out_key, out_pur
 
 
-def track_pairs(track: np.ndarray, frame: np.ndarray) -> np.ndarray:
-    """(P, 2) indices of consecutive samples of each track (frames t, t + 1)."""
-    order = np.lexsort((frame, track))
-    t, f = track[order], frame[order]
-    nxt = (t[1:] == t[:-1]) & (f[1:] == f[:-1] + 1)
-    return np.stack([order[:-1][nxt], order[1:][nxt]], 1).astype(np.int64)
-
-
 def operator_review(
     track: np.ndarray,
     frame: np.ndarray,
     gt_class: np.ndarray,
     gt_object: np.ndarray,
     gt_purity: np.ndarray,
+    pairs: np.ndarray,
     min_purity: float = 0.5,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The careful operator: (label (M,) int16 with -1 = none, verified pairs (Q, 2) int64).
+    """The careful operator: (label (M,) int16 with -1 = none, verified pairs (Q, 2) int64: the
+    track `pairs` (P, 2) whose two samples it kept, none for unknown).
 
     Per track in frame order: the object of its first sample is the track's object when that
     sample is clean (a sample class, purity >= min_purity); the track is kept up to (not including)
@@ -190,7 +184,6 @@ def operator_review(
     base = cum_bad[start_pos] - bad[start_pos]  # bad samples before the track's first one
     kept = cum_bad == base
     label[order[kept]] = gt_class[order[kept]]
-    pairs = track_pairs(track, frame)
     keep_pair = (label[pairs[:, 0]] >= 0) & (label[pairs[:, 1]] >= 0) & (label[pairs[:, 0]] != UNKNOWN)
     return label, pairs[keep_pair]
 
@@ -240,7 +233,7 @@ def realistic_review(scene: SceneSamples, miss_rate: float, mislabel_rate: float
     rng = np.random.default_rng(seed)
     label = _noisy_track_labels(scene.track, scene.frame, scene.gt_class, scene.gt_object, scene.gt_purity,
                                 miss_rate, mislabel_rate, rng)
-    pairs = track_pairs(scene.track, scene.frame)
+    pairs = scene.auto_pairs
     keep = (label[pairs[:, 0]] >= 0) & (label[pairs[:, 1]] >= 0) & (label[pairs[:, 0]] != UNKNOWN)
     # a stitch is confirmed between kept samples of one object whatever classes the tracks were given
     stitched = confirm_stitches(scene.fragment_pairs, np.where(label >= 0, 0, -1).astype(np.int16), scene.gt_object)
@@ -255,8 +248,10 @@ SCENE_SOURCES = ("pipeline", "research/simulation", "research/experiments/data.p
 # pipeline modules that only consume samples (training, inference, their reports): no module that
 # makes a scene imports them (tests/research/test_simulation.py checks), so a change to the
 # training keeps the cached scenes
-SAMPLE_CONSUMERS = frozenset({"pipeline/training.py", "pipeline/model.py", "pipeline/finetune.py",
-                              "pipeline/anchors.py", "pipeline/predict.py", "pipeline/metrics.py",
+SAMPLE_CONSUMERS = frozenset({*(f"pipeline/training/{m}.py" for m in ("__init__", "augment", "data", "loop", "loss", "plots",
+                                                                         "sampling", "split")),
+                              "pipeline/model.py", "pipeline/finetune.py",
+                              "pipeline/anchors.py", "pipeline/predict.py", "pipeline/prediction_files.py", "pipeline/metrics.py",
                               "pipeline/plots.py", "pipeline/input_stats.py"})
 
 
@@ -300,6 +295,7 @@ def _route_progress(poses: np.ndarray) -> np.ndarray:
 
 def process_scene(seq: str | Path, config: PipelineConfig, progress: Progress = QUIET) -> SceneSamples:
     """Run the perception pipeline over a labelled sequence and let the operator review it."""
+    from pipeline.links import LinkBuilder
     from pipeline.processing import SequenceProcessor
     from pipeline.sequence import open_sequence
 
@@ -308,11 +304,11 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: Progress = 
     assert poses is not None, "simulated sequences carry poses"
     route = _route_progress(np.asarray(poses))
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("samples", "frame", "segment", "track", "link_score",
-                                                           "gt_class", "gt_object", "gt_purity", "fragments",
+                                                           "gt_class", "gt_object", "gt_purity", "auto", "fragments",
                                                            "fragment_scores")}
     proc = SequenceProcessor(config, sensor)
+    links = LinkBuilder()  # each sample is named by its index in the scene
     n_done = 0
-    prev_lut = np.zeros(0, np.int64)  # previous frame: segment id -> sample index, -1 = none
     for fr in proc.iter_frames(source, progress=progress, samples=True, poses=poses):
         if fr.scan.semantic is None or fr.scan.instance is None:
             raise ValueError(f"{seq}: frame {fr.name} has no labels")
@@ -327,19 +323,20 @@ def process_scene(seq: str | Path, config: PipelineConfig, progress: Progress = 
         parts["gt_class"].append(cls[s])
         parts["gt_object"].append(key[s])
         parts["gt_purity"].append(pur[s])
-        lut = np.full(n_seg, -1, np.int64)
-        lut[s] = n_done + np.arange(len(s))
-        if len(fr.fragments) and len(prev_lut):
-            fa, fb = lut[fr.fragments[:, 0]], prev_lut[fr.fragments[:, 1]]
-            ok = (fa >= 0) & (fb >= 0)
-            parts["fragments"].append(np.stack([fa[ok], fb[ok]], 1))
-            parts["fragment_scores"].append(np.asarray(fr.fragment_share, np.float32)[ok])
-        prev_lut, n_done = lut, n_done + len(s)
-    parts["fragments"].append(np.zeros((0, 2), np.int64))
-    parts["fragment_scores"].append(np.zeros(0, np.float32))
+        ref = np.full(n_seg, -1, np.int64)
+        ref[s] = n_done + np.arange(len(s))
+        fl = links.add(fr.segments.track_id, ref >= 0, ref, fr.fragments, fr.fragment_share)
+        parts["auto"].append(fl.pairs)
+        parts["fragments"].append(fl.fragment_refs)
+        parts["fragment_scores"].append(fl.share.astype(np.float32))
+        n_done += len(s)
+    for k, empty in (("auto", np.zeros((0, 2), np.int64)), ("fragments", np.zeros((0, 2), np.int64)),
+                     ("fragment_scores", np.zeros(0, np.float32))):
+        parts[k].append(empty)
     arr = {k: np.concatenate(v) for k, v in parts.items()}
-    label, verified = operator_review(arr["track"], arr["frame"], arr["gt_class"], arr["gt_object"], arr["gt_purity"])
-    auto = track_pairs(arr["track"], arr["frame"])
+    auto = arr["auto"].astype(np.int64)
+    label, verified = operator_review(arr["track"], arr["frame"], arr["gt_class"], arr["gt_object"], arr["gt_purity"],
+                                      auto)
     scores = arr["link_score"][auto[:, 1]]
     scores = np.where(np.isfinite(scores), scores, 0.0).astype(np.float32)
     return SceneSamples(

@@ -15,16 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from research.simulation.furniture import add_cargo_box, add_scooter
 from research.simulation.ground import GroundModel
 from research.simulation.models import (
     CarShape,
     PersonShape,
     add_bicycle,
     add_car,
-    add_cargo_box,
     add_person,
     add_rider,
-    add_scooter,
 )
 from research.simulation.route import SAMPLE_STEP, EgoProfile, Route
 from research.simulation.shapes import Material, PrimitiveBuilder, PrimitiveSet, rot_z

@@ -176,46 +176,32 @@ def _hash01(seed, a, b, c):  # pragma: no cover - numba
 
 
 @njit(cache=True, inline="always")
+def _slab(o, d, h, tn, tf, cosi):  # pragma: no cover - numba
+    """One axis of the slab test: (tn, tf, cosi) narrowed by the slab |x| <= h, and whether a ray
+    parallel to it misses it."""
+    if abs(d) < 1e-12:
+        return tn, tf, cosi, abs(o) > h
+    t1 = (-h - o) / d
+    t2 = (h - o) / d
+    if t1 > t2:
+        t1, t2 = t2, t1
+    if t1 > tn:
+        tn = t1
+        cosi = abs(d)
+    return tn, min(tf, t2), cosi, False
+
+
+@njit(cache=True, inline="always")
 def _box(ox, oy, oz, dx, dy, dz, hx, hy, hz):  # pragma: no cover - numba
-    tn = -1e30
-    tf = 1e30
-    cosi = 0.0
-    if abs(dx) < 1e-12:
-        if abs(ox) > hx:
-            return -1.0, -1.0, 0.0
-    else:
-        t1 = (-hx - ox) / dx
-        t2 = (hx - ox) / dx
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t1 > tn:
-            tn = t1
-            cosi = abs(dx)
-        tf = min(tf, t2)
-    if abs(dy) < 1e-12:
-        if abs(oy) > hy:
-            return -1.0, -1.0, 0.0
-    else:
-        t1 = (-hy - oy) / dy
-        t2 = (hy - oy) / dy
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t1 > tn:
-            tn = t1
-            cosi = abs(dy)
-        tf = min(tf, t2)
-    if abs(dz) < 1e-12:
-        if abs(oz) > hz:
-            return -1.0, -1.0, 0.0
-    else:
-        t1 = (-hz - oz) / dz
-        t2 = (hz - oz) / dz
-        if t1 > t2:
-            t1, t2 = t2, t1
-        if t1 > tn:
-            tn = t1
-            cosi = abs(dz)
-        tf = min(tf, t2)
+    tn, tf, cosi, miss = _slab(ox, dx, hx, -1e30, 1e30, 0.0)
+    if miss:
+        return -1.0, -1.0, 0.0
+    tn, tf, cosi, miss = _slab(oy, dy, hy, tn, tf, cosi)
+    if miss:
+        return -1.0, -1.0, 0.0
+    tn, tf, cosi, miss = _slab(oz, dz, hz, tn, tf, cosi)
+    if miss:
+        return -1.0, -1.0, 0.0
     if tn > tf or tn <= 0.0:
         return -1.0, -1.0, 0.0
     return tn, tf, cosi

@@ -22,9 +22,8 @@ from research.simulation.layout import (
     RoadSpec,
     low_widths,
     plan_stretches,
-    populate,
-    static_primitives,
 )
+from research.simulation.planting import populate, static_primitives
 from research.simulation.population import populate_actors
 from research.simulation.route import EgoProfile, Route, make_ego_profile, make_route
 from research.simulation.shapes import PrimitiveSet, concat

@@ -2,7 +2,7 @@
 its checks (server errors, status codes, content types, headers and bodies conforming to the
 schema, negative data rejected, positive data accepted, auth not ignored, unsupported methods,
 ...), as an admin or as an operator (assigned to the sequence) over a database holding an
-ingested sequence, so that routes get past authentication. Used by tests/app/test_api_fuzz.py (few examples) and bench/bench_service.py
+ingested sequence, so that routes get past authentication. Used by tests/app/api/test_api_fuzz.py (few examples) and bench/bench_service.py
 (many). schemathesis' own pytest plugin does not run under this pytest, so operations are
 driven here.
 """

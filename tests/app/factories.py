@@ -12,10 +12,9 @@ from sqlalchemy import select
 from app import crud
 from app.core.config import Settings
 from app.core.db import Database
-from app.jobs import ingest
 from app.models import Job, Sequence, Track
 from app.worker import Worker
-from tests.app.fakes import FakeBackend
+from tests.app.fakes import fake_pipeline
 
 
 @dataclass(frozen=True)
@@ -78,12 +77,8 @@ class Factory:
         """A sequence ingested by the real ingest job over the fake pipeline; returns its id."""
         seq_id = self.registered_sequence(name)
         self.queue_ingest(seq_id)
-        previous = ingest._backend
-        ingest.set_backend(FakeBackend(n_frames=n_frames, n_objects=n_objects))
-        try:
+        with fake_pipeline(n_frames=n_frames, n_objects=n_objects):
             assert Worker(self.settings, db=self.db).run_once()
-        finally:
-            ingest.set_backend(previous)
         with self.db.read() as s:
             seq = s.get(Sequence, seq_id)
             assert seq is not None and seq.status == "ready", (seq and seq.status, self.last_job_error())

@@ -1,5 +1,7 @@
 """A fake perception pipeline: deterministic FrameResult-like frames, so that service tests need
-neither real sequences nor the real pipeline's run time.
+neither real sequences nor the real pipeline's run time. `fake_pipeline(...)` puts it in place of
+the pipeline functions the app calls (`pipeline.sequence.open_sequence`,
+`pipeline.processing.SequenceProcessor`, `pipeline.resample`'s two) for the length of a `with`.
 
 Object `o` (0-based) is visible in frames [o % 3, F) and is track key o + 1; each frame also has
 one small segment that is not valid (no track) and `ground` ground points.
@@ -7,6 +9,7 @@ one small segment that is not valid (no track) and `ground` ground points.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -16,7 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from app.jobs.ingest import IngestBackend
+import pipeline.processing
+import pipeline.resample
+import pipeline.sequence
+from pipeline.sensors import get_sensor
 
 POINTS_PER_SEGMENT = 20
 SAMPLE_SHAPE = (4, 8, 8)
@@ -62,7 +68,7 @@ def fake_frame(index: int, n_objects: int, ground: int = 30, key_offset: int = 0
     return SimpleNamespace(
         index=index,
         name=f"{index:06d}",
-        scan=SimpleNamespace(points=points, intensity=rng.random(n, dtype=np.float32)),
+        scan=SimpleNamespace(points=points, intensity=rng.random(n, dtype=np.float32), input_rows=None),
         segment=seg_of_point,
         ground=seg_of_point < 0,
         segments=segments,
@@ -90,23 +96,20 @@ class FakeProcessor:
             yield fake_frame(i, self.n_objects)
 
 
-class FakeBackend(IngestBackend):
-    """Opens any path as a FakeSource of `n_frames` frames."""
+class FakePipeline:
+    """Opens any path as a FakeSource of `n_frames` frames (sensor: the hdl64e preset)."""
 
     def __init__(self, n_frames: int = 6, n_objects: int = 4, delay_s: float = 0.0, fail_at: int | None = None) -> None:
         self.n_frames, self.n_objects, self.delay_s, self.fail_at = n_frames, n_objects, delay_s, fail_at
 
-    def open(self, path: str, fmt: str, sensor: str, poses: str) -> SimpleNamespace:
-        return SimpleNamespace(source=FakeSource(Path(path), self.n_frames), sensor=None, poses=None)
+    def open_sequence(self, path: Any, *_: Any, **__: Any) -> SimpleNamespace:
+        return SimpleNamespace(source=FakeSource(Path(path), self.n_frames), sensor=get_sensor("hdl64e"), poses=None)
 
     def processor(self, config: Any, sensor: Any) -> FakeProcessor:
         return FakeProcessor(self.n_objects, self.delay_s, self.fail_at)
 
-    def config(self, settings_path: Any, overrides: Any) -> Any:
-        return None
-
-    def resample(self, sensor: Any, config: Any, points: np.ndarray, intensity: np.ndarray, seg_point: np.ndarray,
-                 seg_ids: np.ndarray) -> Any:
+    def resample_segments(self, points: np.ndarray, intensity: np.ndarray, seg_point: np.ndarray, seg_ids: np.ndarray,
+                          sensor: Any, config: Any) -> Any:
         """Statistics as the pipeline computes them; validity = more than FAKE_MIN_POINTS points;
         each sample filled with 100 + its segment id (so a test sees which ones were re-rendered)."""
         from pipeline.resample import ResampledSegments
@@ -123,9 +126,31 @@ class FakeBackend(IngestBackend):
         table = SegmentTable(n_points=n, centroid=cen, range=np.linalg.norm(cen, axis=1).astype(np.float32), valid=valid)
         return ResampledSegments(table=table, samples=samples, sample_of=sample_of)
 
-    def height(self, sensor: Any, config: Any, points: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+    def height_above_ground(self, points: np.ndarray, intensity: np.ndarray, sensor: Any, config: Any) -> np.ndarray:
         """Height above a flat ground at z = FAKE_GROUND_Z."""
         return (points[:, 2] - FAKE_GROUND_Z).astype(np.float32)
+
+    def install(self) -> None:
+        """Put the fakes in place for good (a worker subprocess's job plugin)."""
+        pipeline.sequence.open_sequence = self.open_sequence
+        pipeline.processing.SequenceProcessor = self.processor
+        pipeline.resample.resample_segments = self.resample_segments
+        pipeline.resample.height_above_ground = self.height_above_ground
+
+
+@contextlib.contextmanager
+def fake_pipeline(fake: FakePipeline | None = None, **kw: Any) -> Iterator[FakePipeline]:
+    """The fake pipeline in place inside the `with` (`fake`, else FakePipeline(**kw))."""
+    fake = fake or FakePipeline(**kw)
+    targets = [(pipeline.sequence, "open_sequence"), (pipeline.processing, "SequenceProcessor"),
+               (pipeline.resample, "resample_segments"), (pipeline.resample, "height_above_ground")]
+    before = [getattr(m, name) for m, name in targets]
+    fake.install()
+    try:
+        yield fake
+    finally:
+        for (m, name), value in zip(targets, before, strict=True):
+            setattr(m, name, value)
 
 
 FAKE_MIN_POINTS = 3

@@ -10,10 +10,9 @@ from pathlib import Path
 
 from sqlalchemy import func, select, update
 
-from app.jobs import ingest
 from app.models import Frame, Job, PairConstraint, Segment, Sequence, Track, utcnow
 from app.worker import Worker
-from tests.app.fakes import FakeBackend, expected_counts, fake_frame
+from tests.app.fakes import expected_counts, fake_frame, fake_pipeline
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -155,16 +154,12 @@ def test_worker_sigkill_mid_job_is_completed_by_another_worker(factory, db, sett
     assert all((settings.artifacts_path / rel).is_file() for rel in artifacts)
 
     settings.job_lease_seconds = 1.5
-    previous = ingest._backend
-    ingest.set_backend(FakeBackend(n_frames=12, n_objects=4))
-    try:
+    with fake_pipeline(n_frames=12, n_objects=4):
         other = Worker(settings, db=db)
         deadline = time.monotonic() + 30
         while not other.run_once():  # nothing to claim until the dead worker's lease expires
             assert time.monotonic() < deadline
             time.sleep(0.1)
-    finally:
-        ingest.set_backend(previous)
     with db.read() as s:
         job = s.get(Job, job_id)
         assert (job.status, job.attempts, job.worker_id) == ("succeeded", 2, other.worker_id)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from app.jobs.models_util import register_model_version
+from app.crud.model_versions import register_model_version
 from app.main import create_app
 from app.worker import Worker
 from bench.effort.operator import Operator, Policy

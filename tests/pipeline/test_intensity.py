@@ -106,13 +106,13 @@ def test_shipped_model_on_an_xyz_only_scan_warns_about_intensity_and_calls_not_a
     # segments car and said nothing
     from pypcd4 import PointCloud
 
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     raw = np.fromfile(next((real_data / "nuscenes_hdl32e").glob("*.pcd.bin")), np.float32).reshape(-1, 5)
     (tmp_path / "xyz").mkdir()
     PointCloud.from_xyz_points(np.ascontiguousarray(raw[:, :3])).save(tmp_path / "xyz" / "0.pcd")
     logged: list[str] = []
-    summary = run_predict(tmp_path / "xyz", None, tmp_path / "out", device="cpu", log=logged.append)
+    summary = run_predict(tmp_path / "xyz", None, tmp_path / "out", PredictOptions(device="cpu"), log=logged.append)
     assert any(w.startswith("intensity: the input has none") for w in summary["warnings"])
     assert set(summary["warnings"]) <= set(logged)
     assert _top_share(summary) <= 0.6
@@ -121,9 +121,9 @@ def test_shipped_model_on_an_xyz_only_scan_warns_about_intensity_and_calls_not_a
 @pytest.mark.real_data
 def test_shipped_model_on_an_ouster_capture_warns_about_intensity_and_calls_not_all_one_class(real_data, tmp_path):
     pytest.importorskip("ouster.sdk")
-    from pipeline.predict import run_predict
+    from pipeline.pipeline import PredictOptions, run_predict
 
     pcap = real_data / "ouster" / "OS-1-128_v2.3.0_1024x10_lb_n3.pcap"
-    summary = run_predict(pcap, None, tmp_path / "out", device="cpu")
+    summary = run_predict(pcap, None, tmp_path / "out", PredictOptions(device="cpu"))
     assert [w.split(":")[0] for w in summary["warnings"]] == ["intensity"]
     assert _top_share(summary) <= 0.6

@@ -252,7 +252,7 @@ def test_label_components_match_graph_components(h, w, seed, ok_share, join_shar
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from pipeline.segmentation import _label_components
+    from pipeline.segment_merge import _label_components
 
     rng = np.random.default_rng(seed)
     ok = rng.random((h, w)) < ok_share

@@ -13,14 +13,14 @@ from pipeline.training import (
     EpochRecord,
     LabelledSamples,
     TrainingData,
-    _select,
-    _TrackPartners,
     augment_batch,
     learning_rate,
     semi_supervised_loss,
     split_by_group,
     train,
 )
+from pipeline.training.loop import _select
+from pipeline.training.sampling import _TrackPartners
 
 K = 7
 SIZE = 16
@@ -327,7 +327,7 @@ def test_train_threads_option_applies_during_the_run_only(blob_data):
 
 
 def test_balanced_labels_draw_classes_uniformly():
-    from pipeline.training import _BalancedCycler, _Cycler
+    from pipeline.training.sampling import _BalancedCycler, _Cycler
 
     labels = np.array([0] * 900 + [1] * 90 + [2] * 10)
     rng = np.random.default_rng(0)
@@ -365,7 +365,7 @@ def test_track_partners_draw_any_other_member_of_the_track():
 
 
 def test_component_draws_weigh_each_component_alike():
-    from pipeline.training import _ComponentDraw
+    from pipeline.training.sampling import _ComponentDraw
 
     # component {0..9}: 9 pairs; component {20, 21}: 1 pair
     pairs = np.array([[i, i + 1] for i in range(9)] + [[20, 21]])
@@ -417,7 +417,7 @@ def test_train_with_closure_labels_runs(blob_data):
 
 
 def test_annotation_draw_gives_each_annotation_its_own_weight_spread_over_its_component():
-    from pipeline.training import _AnnotationDraw, _closure
+    from pipeline.training.sampling import _AnnotationDraw, _closure
 
     # component {0..9} holds annotation 0 (class 1); {10, 11} holds annotation 10 (class 1);
     # {20, 21} holds 20 (class 2) and 21 (class 3): they disagree and spread to nothing

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 
+from pipeline.links import sample_pairs
 from research.experiments.data import (
     SceneSamples,
     confirm_stitches,
@@ -13,7 +14,6 @@ from research.experiments.data import (
     prepare_scene,
     route_part,
     segment_truth,
-    track_pairs,
 )
 
 
@@ -26,17 +26,18 @@ def test_operator_accepts_clean_tracks_truncates_at_first_wrong_link_and_skips_u
     obj = np.array([10, 10, 11, 10, 10, 5, 5, 7, 7, 7, 8, 8])
     pur = np.array([1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0.9, 0.3], np.float32)
     perm = np.random.default_rng(0).permutation(len(track))  # order of samples does not matter
-    label, pairs = operator_review(track[perm], frame[perm], cls[perm], obj[perm], pur[perm])
+    label, pairs = operator_review(track[perm], frame[perm], cls[perm], obj[perm], pur[perm],
+                                   sample_pairs(track[perm], frame[perm]))
     assert label[np.argsort(perm)].tolist() == [1, 1, -1, -1, -1, -1, -1, 6, 6, 6, 4, -1]
     got = {tuple(sorted((int(perm[a]), int(perm[b])))) for a, b in pairs}
     assert got == {(0, 1)}
 
 
-def test_track_pairs_link_consecutive_frames_only():
+def test_sample_pairs_link_consecutive_samples_of_each_track():
     track = np.array([3, 3, 3, 5, 5])
-    frame = np.array([2, 0, 1, 4, 6])  # track 5 skips a frame
-    pairs = track_pairs(track, frame)
-    assert {tuple(p) for p in pairs.tolist()} == {(1, 2), (2, 0)}
+    frame = np.array([2, 0, 1, 4, 6])  # track 5 has no sample at frame 5: linked over it, as ingest does
+    pairs = sample_pairs(track, frame)
+    assert pairs.tolist() == [[1, 2], [2, 0], [3, 4]]
 
 
 def test_segment_truth_majority_object_and_purity():
@@ -86,8 +87,8 @@ def _toy_scene(n_tracks: int = 40, length: int = 5) -> SceneSamples:
     frame = np.tile(np.arange(length), n_tracks) + np.repeat(np.arange(n_tracks), length)
     cls = np.repeat(np.arange(n_tracks) % 7, length).astype(np.int16)
     obj = track.astype(np.int64)
-    label, verified = operator_review(track, frame, cls, obj, np.ones(m, np.float32))
-    auto = track_pairs(track, frame)
+    auto = sample_pairs(track, frame)
+    label, verified = operator_review(track, frame, cls, obj, np.ones(m, np.float32), auto)
     return SceneSamples(
         samples=rng.integers(0, 255, (m, 4, 8, 8), dtype=np.uint8), frame=frame.astype(np.int32),
         segment=np.zeros(m, np.int32), track=track, link_score=np.ones(m, np.float32), gt_class=cls,
@@ -309,7 +310,7 @@ def test_realistic_operator_misses_wrong_links_and_mislabels_tracks_at_the_given
     obj = scene.gt_object.copy()
     obj[np.arange(len(scene)) % 6 == 3] += 1000  # every track runs into another object at its 4th sample
     scene = dataclasses.replace(scene, gt_object=obj)
-    careful, _ = operator_review(scene.track, scene.frame, scene.gt_class, obj, scene.gt_purity)
+    careful, _ = operator_review(scene.track, scene.frame, scene.gt_class, obj, scene.gt_purity, scene.auto_pairs)
     same = realistic_review(scene, 0.0, 0.0, seed=0)
     assert np.array_equal(same.label, careful) and (same.label >= 0).sum() == 40 * 3
     blind = realistic_review(scene, 1.0, 0.0, seed=0)  # sees no wrong link: whole tracks labelled

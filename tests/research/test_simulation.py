@@ -564,7 +564,7 @@ def test_no_scene_making_module_imports_a_sample_consumer():
     from research.experiments import data
 
     root = Path(data.__file__).resolve().parents[2]
-    consumers = sorted(n.removesuffix(".py").replace("/", ".") for n in data.SAMPLE_CONSUMERS)
+    consumers = sorted(n.removesuffix(".py").removesuffix("/__init__").replace("/", ".") for n in data.SAMPLE_CONSUMERS)
     code = ("import sys, research.experiments.data, research.simulation, pipeline.processing, pipeline.sequence, "
             "pipeline.pipeline, pipeline.io\n"
             f"print([m for m in {consumers!r} if m in sys.modules])")
@@ -579,7 +579,7 @@ def test_finetune_pretrained_models_are_keyed_by_the_training_code(monkeypatch):
 
     cfg = FinetuneExperimentConfig()
     before = cfg.key()
-    target = Path(data.__file__).resolve().parents[2] / "pipeline" / "training.py"
+    target = Path(data.__file__).resolve().parents[2] / "pipeline" / "training" / "loop.py"
     real_read = Path.read_bytes
     monkeypatch.setattr(Path, "read_bytes", lambda self: real_read(self) + (b"#" if self == target else b""))
     assert cfg.key() != before

@@ -12,8 +12,8 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query
 
-from app import anchors
 from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
+from app.crud import anchors
 from app.schemas import (
     AnchorCorrect,
     AnchorEventPublic,
@@ -22,13 +22,12 @@ from app.schemas import (
     AnchorPublic,
     AnchorStatus,
     AnchorSummary,
+    ClassName,
 )
 from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["anchors"])
 
-ClassName = Literal["person", "car", "cyclist", "trunk", "bush", "building", "unknown"]
-assert set(ClassName.__args__) == set(SAMPLE_CLASSES)  # type: ignore[attr-defined]
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
 BIG = 2**31 - 1
 ANSWER_RESPONSES: dict[int | str, dict[str, str]] = {

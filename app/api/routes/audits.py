@@ -6,12 +6,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
-from sqlalchemy import select
 
-from app import audits
 from app.api.deps import AuditorUser, IdPath, LeaseGuardDep, SessionDep, WriteSessionDep
 from app.core.errors import Forbidden
-from app.models import Audit
+from app.crud import audits
 from app.schemas import AuditCorrect, AuditPublic, AuditSample, AuditStatus
 from pipeline.classes import SAMPLE_CLASSES
 
@@ -37,12 +35,7 @@ def list_audits(
     offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
 ) -> list[AuditPublic]:
     """Audits, oldest first (admin or reviewer)."""
-    q = select(Audit).order_by(Audit.id).limit(limit).offset(offset)
-    if status is not None:
-        q = q.where(Audit.status == status)
-    if sequence_id is not None:
-        q = q.where(Audit.sequence_id == sequence_id)
-    return [AuditPublic.model_validate(a) for a in session.scalars(q).all()]
+    return [AuditPublic.model_validate(a) for a in audits.list_audits(session, status, sequence_id, limit, offset)]
 
 
 def _decide(audit_id: int, guard: LeaseGuardDep, session: WriteSessionDep, label: str | None) -> AuditPublic:

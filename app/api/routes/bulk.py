@@ -10,8 +10,6 @@ from fastapi import APIRouter, Query
 
 from app import crud
 from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
-from app.core.errors import NotFound
-from app.models import Sequence
 from app.schemas import BulkAcceptAction, BulkActionPublic, BulkPreview, ClassName
 from pipeline.classes import SAMPLE_CLASSES
 
@@ -19,8 +17,7 @@ router = APIRouter(tags=["review"])
 
 
 def _sequence(session: SessionDep | WriteSessionDep, sequence_id: int) -> None:
-    if session.get(Sequence, sequence_id) is None:
-        raise NotFound(f"sequence {sequence_id} not found")
+    crud.get_sequence(session, sequence_id)
 
 
 @router.get("/sequences/{sequence_id}/bulk-accept/preview")

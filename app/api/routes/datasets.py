@@ -1,14 +1,13 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, status
-from sqlalchemy import select
 
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, Invalid
 from app.crud import AuthUser
+from app.crud.ingest_rows import note_queued
 from app.jobs import policy
-from app.jobs.ingest import note_queued
 from app.jobs.registry import get_job_type
 from app.models import Dataset, Job, Sequence
 from app.schemas import (
@@ -26,7 +25,7 @@ router = APIRouter(tags=["datasets"])
 
 
 def _public(session: SessionDep, ds: Dataset) -> DatasetPublic:
-    seqs = session.scalars(select(Sequence).where(Sequence.dataset_id == ds.id).order_by(Sequence.id)).all()
+    seqs = crud.dataset_sequences(session, ds.id)
     return DatasetPublic(
         id=ds.id,
         name=ds.name,
@@ -93,20 +92,16 @@ def register_dataset(
 @router.get("/datasets")
 def list_datasets(_admin: AdminUser, session: SessionDep) -> list[DatasetPublic]:
     """Registered datasets with their paths and sequences (admin)."""
-    return [_public(session, ds) for ds in session.scalars(select(Dataset).order_by(Dataset.id)).all()]
+    return [_public(session, ds) for ds in crud.list_datasets(session)]
 
 
 @router.get("/datasets/{dataset_id}")
 def inspect_dataset(dataset_id: IdPath, _admin: AdminUser, session: SessionDep) -> DatasetDetail:
     """A dataset with per-sequence counts of frames, segments, samples, tracks and constraints (admin)."""
-    ds = session.get(Dataset, dataset_id)
-    if ds is None:
-        raise NotFound(f"dataset {dataset_id} not found")
-    pub = _public(session, ds)
+    pub = _public(session, crud.get_dataset(session, dataset_id))
     stats = []
     for sp in pub.sequences:
-        seq = session.get(Sequence, sp.id)
-        assert seq is not None
+        seq = crud.get_sequence(session, sp.id)
         stats.append(SequenceStats(sequence=sp, **crud.sequence_stats(session, seq)))
     return DatasetDetail(**pub.model_dump(), stats=stats)
 
@@ -116,10 +111,7 @@ def list_sequences(
     user: CurrentUser, session: SessionDep, status: SequenceStatus | None = None
 ) -> list[SequencePublic]:
     """Sequences to review (any user; the folder `path` only for admins)."""
-    q = select(Sequence).order_by(Sequence.id)
-    if status is not None:
-        q = q.where(Sequence.status == status)
-    return [_sequence_public(s, user) for s in session.scalars(q).all()]
+    return [_sequence_public(s, user) for s in crud.list_sequences(session, status)]
 
 
 def _sequence_public(seq: Sequence, user: AuthUser) -> SequencePublic:
@@ -130,10 +122,7 @@ def _sequence_public(seq: Sequence, user: AuthUser) -> SequencePublic:
 @router.get("/sequences/{sequence_id}")
 def read_sequence(sequence_id: IdPath, user: CurrentUser, session: SessionDep) -> SequencePublic:
     """One sequence: format, sensor, ingest status (and its path, for admins)."""
-    seq = session.get(Sequence, sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {sequence_id} not found")
-    return _sequence_public(seq, user)
+    return _sequence_public(crud.get_sequence(session, sequence_id), user)
 
 
 @router.post("/sequences/{sequence_id}/ingest", status_code=status.HTTP_202_ACCEPTED)

@@ -5,11 +5,11 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Query, Response
 from fastapi.responses import StreamingResponse
 
-from app import audits, crud, exports
+from app import crud
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
-from app.core.errors import NotFound
-from app.models import Sequence
+from app.crud import audits
 from app.schemas import ProgressStats
+from app.services import exports
 from app.services.point_labels import ExportOptions, point_label_plan
 from pipeline.propagation import Rules
 
@@ -87,9 +87,7 @@ def export_semantickitti(
     `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts the points per
     source and class, with confidences, and the points left without a class; `with_sources` adds
     each point's source (`sources/<frame>.source`, uint8 per row: its index in `summary.sources`)."""
-    seq = session.get(Sequence, sequence_id)
-    if seq is None:
-        raise NotFound(f"sequence {sequence_id} not found")
+    seq = crud.get_sequence(session, sequence_id)
     options = ExportOptions(include_ground, reviewed_only, Rules(radius=radius, ground_radius=ground_radius))
     plan = point_label_plan(session, seq, options)
     session.close()

@@ -3,11 +3,9 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
-from sqlalchemy import func, select
 
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
-from app.core.errors import NotFound
-from app.models import Frame, Sequence
+from app.crud import frames
 from app.schemas import FrameList, FramePublic
 
 router = APIRouter(tags=["frames"])
@@ -24,22 +22,14 @@ def list_frames(
     offset: Annotated[int, Query(ge=0, le=2**31)] = 0,
 ) -> FrameList:
     """Frames of a sequence in order (only frames whose ingest batch committed)."""
-    if session.get(Sequence, sequence_id) is None:
-        raise NotFound(f"sequence {sequence_id} not found")
-    rows = session.scalars(
-        select(Frame).where(Frame.sequence_id == sequence_id).order_by(Frame.index).limit(limit).offset(offset)
-    ).all()
-    total = session.scalar(select(func.count()).select_from(Frame).where(Frame.sequence_id == sequence_id)) or 0
-    return FrameList(items=[FramePublic.model_validate(f) for f in rows], total=int(total))
+    rows, total = frames.list_frames(session, sequence_id, limit, offset)
+    return FrameList(items=[FramePublic.model_validate(f) for f in rows], total=total)
 
 
 @router.get("/frames/{frame_id}")
 def read_frame(frame_id: IdPath, _user: CurrentUser, session: SessionDep) -> FramePublic:
     """One frame's metadata."""
-    frame = session.get(Frame, frame_id)
-    if frame is None:
-        raise NotFound(f"frame {frame_id} not found")
-    return FramePublic.model_validate(frame)
+    return FramePublic.model_validate(frames.get_frame(session, frame_id))
 
 
 @router.get(
@@ -52,9 +42,7 @@ def frame_payload_route(frame_id: IdPath, _user: CurrentUser, session: SessionDe
     frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none) and `track` (N,)
     int32 (database track id, 0 = none; int64 once ids pass 2**31).
     Load with `numpy.load(io.BytesIO(body))`."""
-    rel = session.scalar(select(Frame.artifact).where(Frame.id == frame_id))
-    if rel is None:
-        raise NotFound(f"frame {frame_id} not found")
+    rel = frames.frame_artifact(session, frame_id)
     session.close()  # release the connection before the file work
     body = artifacts.payload(rel)
     return Response(content=body, media_type=NPZ_MEDIA_TYPE, headers={"Cache-Control": "private, max-age=3600"})

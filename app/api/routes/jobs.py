@@ -4,13 +4,12 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, status
 from pydantic import ValidationError
-from sqlalchemy import select
 
 from app import crud
 from app.api.deps import CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
 from app.api.errors import ErrorBody
 from app.api.redact import job_public
-from app.core.errors import Forbidden, Invalid, NotFound
+from app.core.errors import Forbidden, Invalid
 from app.crud import AuthUser
 from app.jobs import policy
 from app.jobs.registry import get_job_type, job_types
@@ -54,7 +53,7 @@ def create_job(body: JobCreate, user: CurrentUser, session: WriteSessionDep, set
     priority = policy.authorize(session, user, jt, params, settings)
     job = crud.create_job(session, jt.name, params.model_dump(mode="json"), user.id, priority)
     if jt.name == "ingest":
-        from app.jobs.ingest import note_queued
+        from app.crud.ingest_rows import note_queued
 
         note_queued(session, params.sequence_id, job.id)
     session.commit()
@@ -71,20 +70,12 @@ def list_jobs(
     offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
 ) -> list[JobPublic]:
     """Jobs, newest first: all of them for an admin, the caller's own for an operator."""
-    q = select(Job).order_by(Job.id.desc()).limit(limit).offset(offset)
-    if status is not None:
-        q = q.where(Job.status == status)
-    if type is not None:
-        q = q.where(Job.type == type)
-    if not user.is_admin:
-        q = q.where(Job.created_by_id == user.id)
-    return [job_public(j, user) for j in session.scalars(q).all()]
+    jobs = crud.list_jobs(session, status, type, None if user.is_admin else user.id, limit, offset)
+    return [job_public(j, user) for j in jobs]
 
 
 def _visible_job(session: SessionDep, job_id: int, user: AuthUser) -> Job:
-    job = session.get(Job, job_id)
-    if job is None:
-        raise NotFound(f"job {job_id} not found")
+    job = crud.get_job(session, job_id)
     if not user.is_admin and job.created_by_id != user.id:
         raise Forbidden("operators see only their own jobs")
     return job

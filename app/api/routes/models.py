@@ -10,12 +10,11 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field
-from sqlalchemy import select
 
 from app.api.deps import CurrentUser, IdPath, SessionDep
 from app.api.redact import hide_paths_in
 from app.core.errors import NotFound
-from app.crud import AuthUser
+from app.crud import AuthUser, model_versions
 from app.models import ModelVersion
 from app.schemas import UtcDateTime
 
@@ -77,18 +76,13 @@ def list_models(
     offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
 ) -> list[ModelSummary]:
     """Registered models, newest first, each with its validation F (mean and per class)."""
-    q = select(ModelVersion).order_by(ModelVersion.id.desc()).limit(limit).offset(offset)
-    if kind is not None:
-        q = q.where(ModelVersion.kind == kind)
-    return [_summary(mv, user) for mv in session.scalars(q).all()]
+    return [_summary(mv, user) for mv in model_versions.list_model_versions(session, kind, limit, offset)]
 
 
 @router.get("/models/{model_id}")
 def get_model(model_id: IdPath, user: CurrentUser, session: SessionDep) -> ModelDetail:
     """One model with all its stored metrics and the config it was trained with; 404 when unknown."""
-    mv = session.get(ModelVersion, model_id)
-    if mv is None:
-        raise NotFound(f"model {model_id} not found")
+    mv = model_versions.get_model_version(session, model_id)
     detail = ModelDetail.model_validate(mv).model_copy(update=_summary_fields(mv) | _hidden(user))
     if not user.is_admin:
         detail = detail.model_copy(update={"metrics": hide_paths_in(detail.metrics), "config": hide_paths_in(detail.config)})
@@ -102,9 +96,7 @@ def get_model_plot(
 ) -> FileResponse:
     """A PNG written beside the model's checkpoint when it was trained: `learning_curve.png` (loss
     and validation F per epoch) or `confusion.png` (validation confusion of the selected epoch)."""
-    mv = session.get(ModelVersion, model_id)
-    if mv is None:
-        raise NotFound(f"model {model_id} not found")
+    mv = model_versions.get_model_version(session, model_id)
     path = Path(mv.path).parent / name
     if not path.is_file():
         raise NotFound(f"model {model_id} has no {name}")

@@ -4,7 +4,7 @@ sequence not ready, merged track, a refused lease, a region that selects no poin
 or a track merged with itself; 422 a body the schema refuses. Changes are events in the track's log (`GET /tracks/{id}/events`).
 
 A split or merge does its slow part (cutting frames, rendering samples, writing files) in a read
-session and writes in one short transaction (app/repair.py): other operators' actions never wait
+session and writes in one short transaction (app/services/repair.py): other operators' actions never wait
 behind it. Races with other writers run the request again (app/api/retry.py), never a 500."""
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import numpy as np
 from fastapi import APIRouter, Response
 from sqlalchemy.orm import Session
 
-from app import repair, track_ids
+from app import crud
 from app.api.deps import ArtifactsDep, BigIdPath, DatabaseDep, LeaseGuardDep, SettingsDep, WriteSessionDep
 from app.core.config import Settings
-from app.core.errors import NotFound
-from app.models import Track
+from app.crud import track_ids
 from app.schemas import MergeAction, SplitAction, SplitPublic, TrackPublic, UndoAction
+from app.services import repair
 
 router = APIRouter(tags=["tracks"])
 RESPONSES: dict[int | str, dict[str, str]] = {
@@ -45,9 +45,7 @@ def _write_timing(response: Response, t0: float) -> None:
 
 
 def _context(session: Session, settings: Settings, artifacts: ArtifactsDep, track_id: int) -> repair.RepairContext:
-    track = session.get(Track, track_id)
-    if track is None:
-        raise NotFound(f"track {track_id} not found")
+    track = crud.get_track(session, track_id)
     return repair.repair_context(session, settings, artifacts, track.sequence_id)
 
 

@@ -9,8 +9,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from app import stitches
 from app.api.deps import CurrentUser, IdPath, LeaseGuardDep, SessionDep, WriteSessionDep
+from app.crud import stitches
 from app.schemas import StitchDecision, StitchList, StitchPublic, StitchStatus
 
 router = APIRouter(tags=["stitches"])

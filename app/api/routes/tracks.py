@@ -1,10 +1,10 @@
 from __future__ import annotations
 
+import inspect
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 from pydantic import Field
-from sqlalchemy import select
 
 from app import crud
 from app.api.deps import (
@@ -17,19 +17,16 @@ from app.api.deps import (
     WriteSessionDep,
 )
 from app.core.errors import NotFound
-from app.models import Frame, Segment
+from app.crud.frames import segment_sample_ref
 from app.schemas import (
-    AcceptAction,
+    ActionBase,
     ClassName,
-    DiscardAction,
     EventPublic,
-    LabelAction,
     SegmentPublic,
     TrackDetail,
     TrackList,
     TrackPublic,
     TrackStatus,
-    TruncateAction,
 )
 from pipeline.classes import SAMPLE_CLASSES
 
@@ -109,28 +106,23 @@ def _act(session: WriteSessionDep, track_id: int, guard: LeaseGuardDep, action: 
     return TrackPublic.model_validate(track)
 
 
-@router.post("/tracks/{track_id}/accept")
-def accept_track(track_id: BigIdPath, body: AcceptAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Accept the track (its constraints become verified). Stale `version` -> 409."""
-    return _act(session, track_id, guard, "accept", body.version)
+def _action_route(action: crud.ReviewAction) -> None:
+    """POST /tracks/{track_id}/<action> with the action's body (`crud.REVIEW_ACTIONS`)."""
+
+    def endpoint(track_id: BigIdPath, body: ActionBase, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
+        return _act(session, track_id, guard, action.name, body.version, **body.model_dump(exclude={"version"}))
+
+    sig = inspect.signature(endpoint)
+    endpoint.__signature__ = sig.replace(  # type: ignore[attr-defined]
+        parameters=[p.replace(annotation=action.body) if p.name == "body" else p for p in sig.parameters.values()])
+    endpoint.__name__ = endpoint.__qualname__ = f"{action.name}_track"
+    endpoint.__doc__ = action.route_doc
+    router.post(f"/tracks/{{track_id}}/{action.name}")(endpoint)
 
 
-@router.post("/tracks/{track_id}/discard")
-def discard_track(track_id: BigIdPath, body: DiscardAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409."""
-    return _act(session, track_id, guard, "discard", body.version)
-
-
-@router.post("/tracks/{track_id}/truncate")
-def truncate_track(track_id: BigIdPath, body: TruncateAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Keep frames `start..end` (inclusive) of the track's full range; outside it -> 409."""
-    return _act(session, track_id, guard, "truncate", body.version, start=body.start, end=body.end)
-
-
-@router.post("/tracks/{track_id}/label")
-def label_track(track_id: BigIdPath, body: LabelAction, guard: LeaseGuardDep, session: WriteSessionDep) -> TrackPublic:
-    """Give the whole track one class (and accept it); an unknown class -> 422."""
-    return _act(session, track_id, guard, "label", body.version, label=body.label)
+for _action in crud.REVIEW_ACTIONS.values():
+    if _action.route_doc is not None:
+        _action_route(_action)
 
 
 @router.get(
@@ -150,13 +142,9 @@ def segment_sample(
     import cv2
     import numpy as np
 
-    row = session.execute(
-        select(Segment.sample_index, Frame.artifact).join(Frame, Frame.id == Segment.frame_id).where(Segment.id == segment_id)
-    ).first()
-    if row is None or row.sample_index is None:
-        raise NotFound(f"segment {segment_id} has no sample")
-    samples = artifacts.read_arrays(row.artifact, ("samples",))["samples"]
-    sample = samples[row.sample_index]  # (C, S, S)
+    rel, sample_index = segment_sample_ref(session, segment_id)
+    samples = artifacts.read_arrays(rel, ("samples",))["samples"]
+    sample = samples[sample_index]  # (C, S, S)
     if channel is not None:
         if channel >= len(sample):
             raise NotFound(f"sample has {len(sample)} channels")

@@ -6,11 +6,9 @@ from the next request on."""
 from __future__ import annotations
 
 from fastapi import APIRouter, status
-from sqlalchemy import select
 
 from app import crud
 from app.api.deps import AdminUser, CurrentUser, IdPath, SessionDep, SettingsDep, WriteSessionDep
-from app.models import User
 from app.schemas import (
     RevokeResult,
     TokenCreate,
@@ -27,13 +25,13 @@ router = APIRouter(tags=["users"])
 @router.get("/users/me")
 def read_me(user: CurrentUser, session: SessionDep) -> UserPublic:
     """The caller."""
-    return UserPublic.model_validate(session.get(User, user.id))
+    return UserPublic.model_validate(crud.get_user(session, user.id))
 
 
 @router.get("/users")
 def list_users(_admin: AdminUser, session: SessionDep) -> list[UserPublic]:
     """All users (admin)."""
-    return [UserPublic.model_validate(u) for u in session.scalars(select(User).order_by(User.id)).all()]
+    return [UserPublic.model_validate(u) for u in crud.list_users(session)]
 
 
 @router.post("/users", status_code=status.HTTP_201_CREATED)
@@ -51,7 +49,7 @@ def create_token(
     """Issue another token for a user (admin); the token row records the issuing admin."""
     days = (body.expires_days if body else None) or settings.token_expiry_days
     token = crud.create_token(session, user_id, created_by_id=admin.id, expires_days=days)
-    return UserWithToken(user=UserPublic.model_validate(session.get(User, user_id)), token=token)
+    return UserWithToken(user=UserPublic.model_validate(crud.get_user(session, user_id)), token=token)
 
 
 @router.get("/users/{user_id}/tokens")

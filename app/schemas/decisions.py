@@ -1,0 +1,144 @@
+"""Anchors, stitches and audits: the proposals and checks an operator decides."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+from app.schemas.base import (
+    ClassName,
+    LabelSource,
+    UtcDateTime,
+    _Public,
+    _Request,
+)
+
+# ----------------------------------------------------------------------------- anchors (issue 7)
+AnchorStatus = Literal["proposed", "confirmed", "rejected"]
+AnchorLevel = Literal["sample", "track"]
+
+
+class AnchorPublic(BaseModel):
+    """A proposed fine-tuning anchor: one sample (`level` sample) or a whole track (`level` track,
+    `segment_id` = a representative sample to show)."""
+
+    id: int
+    sequence_id: int
+    track_id: int
+    segment_id: int | None
+    frame_index: int | None = Field(description="Frame of the (representative) sample.")
+    level: AnchorLevel
+    strategy: str | None
+    rank: int | None = Field(description="Order within its proposed class, 0 = proposed first.")
+    proposed_class: str | None
+    score: float = Field(description="The strategy's score (confidence, entropy or k-center distance).")
+    status: AnchorStatus
+    answer_class: str | None = Field(description="The class the operator gave (confirm or correct).")
+    corrected: bool = Field(description="Confirmed with a class other than the proposed one.")
+    decided_by_id: int | None
+    decided_by: str | None
+    decided_at: UtcDateTime | None
+    model_id: int | None = Field(description="The model version that proposed it.")
+    job_id: int | None = Field(description="The propose_anchors job that made it.")
+    created_at: UtcDateTime
+    sample_url: str | None = Field(description="PNG of the (representative) sample.")
+
+
+class AnchorList(BaseModel):
+    items: list[AnchorPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class AnchorCorrect(_Request):
+    label: ClassName = Field(description="The right class (one of the sample classes).")
+
+
+class AnchorClassCounts(BaseModel):
+    proposed: int = 0
+    confirmed: int = 0
+    corrected: int = 0
+    rejected: int = 0
+
+
+class AnchorSummary(BaseModel):
+    total: int
+    by_status: dict[str, int]
+    per_class: dict[str, AnchorClassCounts] = Field(
+        description="proposed/rejected/corrected by proposed class; confirmed by answer class."
+    )
+
+
+class AnchorEventPublic(_Public):
+    id: int
+    proposal_id: int
+    sequence_id: int
+    user_id: int | None
+    action: Literal["confirm", "correct", "reject"]
+    class_name: str | None
+    created_at: UtcDateTime
+
+
+# ----------------------------------------------------------------------------- stitches (issue 5)
+StitchStatus = Literal["pending", "confirmed", "rejected"]
+
+
+class StitchPublic(_Public):
+    """Two tracks joined by the association's fragment links (pieces of one object that split,
+    merged or reshuffled between frames). Confirmed: one object; its fragment pairs become
+    verified constraints once both tracks are accepted."""
+
+    id: int
+    sequence_id: int
+    track_a_id: int
+    track_b_id: int
+    links: int = Field(description="Fragment pairs joining the two tracks.")
+    share: float = Field(description="Largest share of a segment's points shared by a linked pair.")
+    status: StitchStatus
+    version: int
+    decided_by_id: int | None
+    decided_at: UtcDateTime | None
+
+
+class StitchList(BaseModel):
+    items: list[StitchPublic]
+    total: int
+    limit: int
+    offset: int
+
+
+class StitchDecision(_Request):
+    version: int = Field(ge=1, le=2**31 - 1, description="The stitch version the decision was made on.")
+
+
+# ----------------------------------------------------------------------------- audits (issue 23)
+AuditStatus = Literal["queued", "agreed", "corrected"]
+
+
+class AuditSample(_Request):
+    n: int = Field(ge=1, le=10_000, description="Accepted, never-audited tracks to queue (fewer when fewer exist).")
+    sequence_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description="One sequence; all when omitted.")
+    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    source: LabelSource | None = Field(default=None, description="Only tracks whose class came from this source "
+                                       "(`bulk`: bulk-accepted predictions); any when omitted.")
+
+
+class AuditCorrect(_Request):
+    label: ClassName = Field(description="The right class of the track.")
+
+
+class AuditPublic(_Public):
+    id: int
+    sequence_id: int
+    track_id: int
+    operator_id: int | None = Field(description="Who accepted the track.")
+    label: str | None = Field(description="The class the operator gave.")
+    status: AuditStatus
+    sampled_by_id: int | None
+    created_at: UtcDateTime
+    auditor_id: int | None
+    answer_label: str | None = Field(description="The auditor's class (the operator's when agreed).")
+    decided_at: UtcDateTime | None
+    source: LabelSource | None = Field(default=None, description="The label's source when sampled.")
