@@ -136,8 +136,10 @@ def test_viewer_progress_panel_matches_the_api(viewer, tab_client, live_api):
     panel: ProgressPanel = viewer.tabs[0].progress
     st = panel.refresh()
     api = ApiClient(live_api.url, live_api.admin_token)
-    assert st == api.stats()
+    assert st == api.stats(live_api.sequence_id)  # the tab's sequence
     assert f"{st['tracks_reviewed']} reviewed" in panel.gui_summary.content
+    points = api.points_progress(live_api.sequence_id)
+    assert f"{points['points_in_tracks']:,} points in tracks" in panel.gui_points.content
     api.close()
 
 
