@@ -10,8 +10,11 @@ Scene (the current frame's lidar frame, sensor at the origin, z up, points in fl
   /track/path     the track's centroids over its frames (world centroids moved into this frame)
   /track/nodes    those centroids, small; orange inside the kept range, grey outside, white = this frame
 
-`shown` is what the client was last sent (track id, version, frame id, frame ETag): a key is
-bound to it, and the change feed compares with it.
+`shown` is what the client has applied (track id, version, frame id, frame ETag): a key is bound
+to it, and the change feed compares with it. A draw becomes `shown` when the client answers a
+request queued right after it (a localStorage read: the client handles its messages in order,
+so the answer comes after it applied the draw); a key that arrives before the answer was
+pressed on the previous track.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,10 +66,29 @@ class SceneView:
         self.frame_points: np.ndarray | None = None  # (N, 3) float32 points of the frame shown
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
         self.shown: Shown | None = None
+        self._sent: Shown | None = None
+        self._acks = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"ack-{client.client_id}")
         self.timings_ms: dict[str, float] = {}
 
+    def close(self) -> None:
+        self._acks.shutdown(wait=False, cancel_futures=True)
+
+    def _ack(self, sent: Shown) -> None:
+        """Wait for the client to have applied `sent`, then bind keys to it."""
+        try:
+            self.client.local_storage.get_item("tracklabel-ack", timeout=30.0)
+        except (RuntimeError, TimeoutError):
+            return  # gone: no key will come
+        if self._sent is sent:
+            self.shown = sent
+
+    @property
+    def sent(self) -> Shown | None:
+        """What the client was last sent (it may not have applied it yet)."""
+        return self._sent
+
     def clear(self) -> None:
-        self.shown = None
+        self.shown = self._sent = None
         for name in TRACK_NODES:
             self.client.scene.remove_by_name(name)
 
@@ -106,9 +129,9 @@ class SceneView:
                 texts()
                 if reset_camera and self.follow_camera:
                     self._aim_camera(t, fi, payload.points[mask])
-                # before the atomic update leaves: a key can answer it as soon as it arrives
-                self.shown = Shown(int(t["id"]), int(t["version"]), int(frame["id"]), payload.etag)
+                sent = self._sent = Shown(int(t["id"]), int(t["version"]), int(frame["id"]), payload.etag)
             self.client.flush()
+            self._acks.submit(self._ack, sent)
             t_sent = time.perf_counter()
             self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
                                    send=1e3 * (t_sent - t_coloured))

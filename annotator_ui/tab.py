@@ -156,6 +156,7 @@ class ClientTab:
         self._closed.set()
         self.playback.playing.clear()
         self._keys.shutdown(wait=False, cancel_futures=True)
+        self.scene.close()
         self.jobs.close()
         self.session.close()
 
@@ -196,11 +197,11 @@ class ClientTab:
             traceback.print_exc()
 
     def run_action(self, action: str, arg: str | None = None, shown: Any = _NOW) -> bool:
-        """Run one review action on `shown` (default: what is on screen now). Dropped with a notice,
+        """Run one review action on `shown` (default: what the client was last sent). Dropped with a notice,
         nothing sent, when the session has moved on from that track, or when another tab changed
         it since it was drawn. False if dropped."""
-        if shown is _NOW:
-            shown = self.scene.shown
+        if shown is _NOW:  # called, not pressed: what was sent is what it means
+            shown = self.scene.sent
         with self._busy:
             t = self.session.track
             if action != "undo" and not self._still_shown(shown, action):
@@ -268,7 +269,7 @@ class ClientTab:
 
     def _follow_service(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None:
         with self._busy:
-            t, shown = self.session.track, self.scene.shown
+            t, shown = self.session.track, self.scene.sent
             if t is None:
                 return
             info = tracks.get(int(t["id"]))
