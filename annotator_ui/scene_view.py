@@ -11,23 +11,25 @@ Scene (the current frame's lidar frame, sensor at the origin, z up, points in fl
   /track/nodes    those centroids, small; orange inside the kept range, grey outside, white = this frame
 
 `shown` is what the client has applied (track id, version, frame id, frame ETag): a key is bound
-to it, and the change feed compares with it. A draw becomes `shown` when the client answers a
-request queued right after it (a localStorage read: the client handles its messages in order,
-so the answer comes after it applied the draw); a key that arrives before the answer was
-pressed on the previous track.
+to it. A draw becomes `shown` when the client answers a request sent in the same atomic update
+(a localStorage read: the client applies a batch's messages in order, so its answer leaves after
+the draw is applied and before any key pressed on it); a key that arrives before the answer was
+pressed on the previous track. viser's own `get_item` sends the same message, but from another
+thread and in a later batch, one animation frame later.
 """
 
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import viser
+from viser import _messages as viser_messages
 
 from annotator_ui.client import ApiClient, ApiError, FramePayload
 from annotator_ui.colours import ColourMode, fade, point_colours
@@ -67,19 +69,23 @@ class SceneView:
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
         self.shown: Shown | None = None
         self._sent: Shown | None = None
-        self._acks = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"ack-{client.client_id}")
+        self._receipts: dict[str, Shown] = {}  # request uuid -> the draw it follows
         self.timings_ms: dict[str, float] = {}
+        self._conn = client._websock_connection  # noqa: SLF001 - see the module docstring
+        self._conn.register_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
 
     def close(self) -> None:
-        self._acks.shutdown(wait=False, cancel_futures=True)
+        self._conn.unregister_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
 
-    def _ack(self, sent: Shown) -> None:
-        """Wait for the client to have applied `sent`, then bind keys to it."""
-        try:
-            self.client.local_storage.get_item("tracklabel-ack", timeout=30.0)
-        except (RuntimeError, TimeoutError):
-            return  # gone: no key will come
-        if self._sent is sent:
+    def _ask_receipt(self, sent: Shown) -> None:
+        uuid = secrets.token_hex(8)
+        self._receipts[uuid] = sent
+        self._conn.queue_message(viser_messages.LocalStorageGetItemRequestMessage(key="tracklabel", request_uuid=uuid))
+
+    def _on_receipt(self, _client_id: int, message: viser_messages.LocalStorageGetItemResponseMessage) -> None:
+        """The client applied a draw (runs in viser's event loop, in order with the keys)."""
+        sent = self._receipts.pop(message.request_uuid, None)
+        if sent is not None and sent is self._sent:
             self.shown = sent
 
     @property
@@ -129,9 +135,9 @@ class SceneView:
                 texts()
                 if reset_camera and self.follow_camera:
                     self._aim_camera(t, fi, payload.points[mask])
-                sent = self._sent = Shown(int(t["id"]), int(t["version"]), int(frame["id"]), payload.etag)
+                self._sent = Shown(int(t["id"]), int(t["version"]), int(frame["id"]), payload.etag)
+                self._ask_receipt(self._sent)
             self.client.flush()
-            self._acks.submit(self._ack, sent)
             t_sent = time.perf_counter()
             self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
                                    send=1e3 * (t_sent - t_coloured))

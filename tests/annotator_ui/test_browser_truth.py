@@ -203,10 +203,9 @@ def test_browser_queue_stays_in_the_chosen_sequence(browser, two_sequences):
     try:
         page = open_page(browser, viewer)
         tab = tabs_of(viewer, 1)[0]
-        page.get_by_text("sequence **", exact=False)  # noqa: B018 - named on the page, checked below
         page.locator("input[value*='(#']").first.click()
         page.get_by_role("option", name=f"second (#{second_seq})").click()
-        wait(lambda: int(tab.session.track["sequence_id"]) == second_seq, what="the queue switching to the chosen sequence")
+        page.evaluate("document.activeElement.blur()")  # keys go to the viewer, not the picker        wait(lambda: int(tab.session.track["sequence_id"]) == second_seq, what="the queue switching to the chosen sequence")
         page.get_by_text("sequence second").first.wait_for(timeout=10_000)
         seen = []
         for _ in range(8):
