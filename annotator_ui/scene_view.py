@@ -10,6 +10,11 @@ Scene (the current frame's lidar frame, sensor at the origin, z up, points in fl
   /track/path     the track's centroids over its frames (world centroids moved into this frame)
   /track/nodes    those centroids, small; orange inside the kept range, grey outside, white = this frame
 
+The background cloud is faded as a whole (the track is drawn on top of it in its own colours), so
+in the *track* colour mode it does not depend on which track is reviewed: it is sent once per
+frame version and left on the client while the next track is in the same frame (only the track,
+its outline and its path are sent then).
+
 `shown` is what the client has applied (track id, version, frame id, frame ETag): a key is bound
 to it. A draw becomes `shown` when the client answers a request sent in the same atomic update
 (a localStorage read: the client applies a batch's messages in order, so its answer leaves after
@@ -44,7 +49,18 @@ TRACK_POINT_SIZE = 0.08  # a little larger than the rest: dense enough to read t
 NODE_SIZE = 0.12  # path markers small enough not to cover a pedestrian
 OUTSIDE_KEPT = (150, 150, 150)
 PATH_KEPT = (255, 140, 0)
+# the background cloud's level of detail: a frame over this is thinned evenly (every k-th point in
+# scan order) before it is sent; the track's own points are always all drawn (/frame/track).
+# Real KITTI frames hold ~124k points, the demo's ~60k (sent whole).
+MAX_CLOUD_POINTS = 65_536
 TRACK_NODES = ("/frame/track", "/frame/outline", "/track/aggregate", "/track/path", "/track/nodes")
+
+
+def lod(n: int, budget: int) -> np.ndarray:
+    """Indices of an even thinning of n points to at most `budget` (all of them when n fits)."""
+    if n <= budget:
+        return np.arange(n)
+    return np.linspace(0, n - 1, budget).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -69,6 +85,7 @@ class SceneView:
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
         self.shown: Shown | None = None
         self._sent: Shown | None = None
+        self._cloud: tuple[int, str, str] | None = None  # (frame id, ETag, colour mode) of the cloud on the client
         self._receipts: dict[str, Shown] = {}  # request uuid -> the draw it follows
         self.timings_ms: dict[str, float] = {}
         self._conn = client._websock_connection  # noqa: SLF001 - see the module docstring
@@ -95,6 +112,7 @@ class SceneView:
 
     def clear(self) -> None:
         self.shown = self._sent = None
+        self._cloud = None
         for name in TRACK_NODES:
             self.client.scene.remove_by_name(name)
 
@@ -121,15 +139,22 @@ class SceneView:
                 self.notify("Cannot load the frame", exc.detail, "red")
                 return False
             mask = payload.track == int(t["id"])
-            colours = fade(point_colours(payload.segment, payload.track, self.colour_mode, info), mask)
+            cloud = (int(frame["id"]), payload.etag, self.colour_mode)
+            resend = cloud != self._cloud or self.colour_mode != "track"  # other modes follow the reviews
+            if resend:
+                keep = lod(len(payload.points), MAX_CLOUD_POINTS)
+                colours = fade(point_colours(payload.segment[keep], payload.track[keep], self.colour_mode, info),
+                               np.zeros(len(keep), bool))
             t_coloured = time.perf_counter()
             # what the canvas shows is known before the client sees it (a click or a cut may
             # arrive as soon as the cloud does)
             self.frame_points, self.frame_tracks = payload.points, payload.track
             self.generation += 1
             with self.client.atomic():
-                self.client.scene.add_point_cloud("/frame/points", payload.points, colours, point_size=POINT_SIZE,
-                                                  precision="float32", point_shading="flat")
+                if resend:
+                    self.client.scene.add_point_cloud("/frame/points", payload.points[keep], colours,
+                                                      point_size=POINT_SIZE, precision="float32", point_shading="flat")
+                    self._cloud = cloud
                 self._draw_track(t, fi, payload, mask, aggregated)
                 self._draw_path(t, fi, pose_matrix(frame.get("pose")))
                 texts()

@@ -7,8 +7,9 @@ subprotocol and wire format, `annotator_ui.headless`), all signed in with one op
 the viewer's queue coordinator gives each its own track.
 
 Latency: a client triggers a review hotkey command (accept / discard / a class, as the A / D / 1-7
-keys do); the clock stops when that client receives the next track's `/frame/points` point cloud
-(70k float32 points + colours). This spans the action POST, the queue lease, the track detail, the
+keys do); the clock stops when that client receives the next track's drawing (its `/track/nodes`,
+sent last with the track; the frame's `/frame/points` cloud of 70k float32 points + colours comes
+in the same update unless the client already holds that frame). This spans the action POST, the queue lease, the track detail, the
 frame payload (fetched from the API when the viewer has not cached that frame), colouring, and
 viser's serialisation and send over loopback.
   - `sequential`: one action in flight at a time, rotating over the 4 clients (the target);
@@ -80,7 +81,7 @@ def _act(client, label: str) -> float:
 
     since = client.mark()
     t0 = client.trigger(label)
-    msg = client.wait_for(is_points("/frame/points"), since=since, timeout=60)
+    msg = client.wait_for(is_points("/track/nodes"), since=since, timeout=60)
     return 1e3 * (msg.t - t0)
 
 
@@ -182,9 +183,10 @@ def _prepare_real(tmp_path: Path, port: int) -> Any:
     ingested with the real pipeline like `tracklabel label` does."""
     from app.demo import demo_settings
     from app.label import Source, prepare
-    from bench.real_data import kitti_seq00
+    from bench.real_data import REAL, kitti_seq00
 
     settings = demo_settings(tmp_path, port)
+    settings = settings.model_copy(update={"data_roots": [*settings.data_roots, REAL.resolve()]})  # the links' targets
     folder = kitti_seq00(settings.data_dir / "kitti_seq00", frames=range(REAL_FRAMES))
     if folder is None:
         raise FileNotFoundError("../shared/data/real/kitti_seq00 is absent")

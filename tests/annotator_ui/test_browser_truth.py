@@ -10,7 +10,6 @@ import threading
 import time
 
 import httpx
-import numpy as np
 import pytest
 
 from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
@@ -205,7 +204,8 @@ def test_browser_queue_stays_in_the_chosen_sequence(browser, two_sequences):
         tab = tabs_of(viewer, 1)[0]
         page.locator("input[value*='(#']").first.click()
         page.get_by_role("option", name=f"second (#{second_seq})").click()
-        page.evaluate("document.activeElement.blur()")  # keys go to the viewer, not the picker        wait(lambda: int(tab.session.track["sequence_id"]) == second_seq, what="the queue switching to the chosen sequence")
+        page.evaluate("document.activeElement.blur()")  # keys go to the viewer, not the picker
+        wait(lambda: int(tab.session.track["sequence_id"]) == second_seq, what="the queue switching to the chosen sequence")
         page.get_by_text("sequence second").first.wait_for(timeout=10_000)
         seen = []
         for _ in range(8):
@@ -216,6 +216,5 @@ def test_browser_queue_stays_in_the_chosen_sequence(browser, two_sequences):
         assert set(seen) == {second_seq}, seen
         pending_first = get(url, admin, "/tracks", sequence_id=first_seq, status="pending", limit=1)["total"]
         assert pending_first > 0  # the other sequence still had tracks to hand out
-        assert np.all(np.asarray(seen) == second_seq)
     finally:
         viewer.stop()
