@@ -36,6 +36,7 @@ from annotator_ui.review_panel import (
 )
 from annotator_ui.samples import blank_image, sample_image
 from annotator_ui.scene_view import SceneView, Shown
+from annotator_ui.track_views_panel import hard_to_read
 from pipeline.classes import SAMPLE_CLASSES
 
 if TYPE_CHECKING:
@@ -89,7 +90,7 @@ class ClientTab:
         r.gui_follow.on_update(lambda _: setattr(self.scene, "follow_camera", bool(r.gui_follow.value)))
         with tabs.add_tab("Repair", viser.Icon.CUT):
             self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
-                                      self.newest_model, self.notify)
+                                      self.newest_model, self.notify, self.track_points)
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api, self.sequence_id)
         with tabs.add_tab("Model", viser.Icon.SPARKLES):
@@ -337,6 +338,13 @@ class ClientTab:
             return pts[tracks == tid].mean(axis=0)
         return None
 
+    def track_points(self) -> np.ndarray:
+        """(K, 3) the shown track's points in the shown frame (scene frame)."""
+        pts, tracks, tid = self.frame_points, self.frame_tracks, self.session.track_id
+        if pts is None or tracks is None or tid is None:
+            return np.zeros((0, 3), np.float32)
+        return pts[tracks == tid]
+
     def open_track(self, track_id: int) -> None:
         with self._busy:
             self.playback.playing.clear()
@@ -395,6 +403,7 @@ class ClientTab:
             self.scene.clear()
             self.review.gui_sample.image = blank_image()
             return
+        self.views.track_hard = hard_to_read(t)
         with self.client.atomic():
             self.playback.fit()
         self.render_frame(reset_camera=reset_camera)
@@ -420,6 +429,8 @@ class ClientTab:
         self.later(lambda: self._load_sample(gen, seg))
         if reset_camera:
             self.repair.place(self.track_centre())
+        elif self.repair.gizmo is not None:
+            self.repair.preview()  # the count follows the frame
         return True
 
     def _load_sample(self, gen: int, seg: dict[str, Any] | None) -> None:
