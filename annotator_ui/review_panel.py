@@ -29,6 +29,7 @@ class ReviewPanel:
         self.gui_track = gui.add_markdown("Loading the review queue ...")
         self.playback = add_playback()
         self.gui_sample = gui.add_image(blank_image(), label="Sample (height · range · intensity · mask)", format="png")
+        self.gui_route = gui.add_image(blank_image(), label="Route (grey) · seen from (orange) · track (white)", format="png")
         self.gui_predicted = gui.add_markdown("Model: no prediction for this track")
         self.buttons: dict[str, Any] = {}  # button text or group label -> handle
         groups: dict[str, list[Action]] = {}

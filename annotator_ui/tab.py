@@ -34,6 +34,7 @@ from annotator_ui.review_panel import (
     sequence_label,
     track_info,
 )
+from annotator_ui.route_map import route_image
 from annotator_ui.samples import blank_image, sample_image
 from annotator_ui.scene_view import SceneView, Shown
 from annotator_ui.track_views_panel import hard_to_read
@@ -429,9 +430,16 @@ class ClientTab:
         self.later(lambda: self._load_sample(gen, seg))
         if reset_camera:
             self.repair.place(self.track_centre())
+            self.later(lambda: self._draw_route(t))
         elif self.repair.gizmo is not None:
             self.repair.preview()  # the count follows the frame
         return True
+
+    def _draw_route(self, t: dict[str, Any]) -> None:
+        """The route overview of a newly shown track (off the key's path: one image per track)."""
+        if self.session.track_id == int(t["id"]):
+            frames = self.cache.frames(self.api, int(t["sequence_id"]))
+            self.review.gui_route.image = route_image(t, frames)
 
     def _load_sample(self, gen: int, seg: dict[str, Any] | None) -> None:
         image = blank_image()

@@ -64,3 +64,17 @@ def test_readable_cut_preview_counts_what_the_cut_takes(tab, live_api):  # noqa:
     tab.repair.cut("box", this_frame_only=True)
     assert live_api.track(tid)["n_points"] == before - n  # exactly the previewed points went
     tab.run_action("undo")
+
+
+def test_readable_route_map_marks_the_route_and_the_track():
+    from annotator_ui.route_map import ROUTE, SEEN_FROM, TRACK, route_image
+
+    pose = lambda x: [1, 0, 0, x, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # noqa: E731 - a sensor at (x, 0)
+    frames = {i: {"pose": pose(float(i))} for i in range(10)}
+    track = {"segments": [{"frame_index": 8, "centroid_world": [8.0, 5.0, 0.0]}]}
+    img = route_image(track, frames)
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    assert {ROUTE, SEEN_FROM, TRACK} <= colours
+    rows, _ = np.nonzero(np.all(img == TRACK, axis=2))
+    rows_route, _ = np.nonzero(np.all(img == ROUTE, axis=2))
+    assert rows.mean() < rows_route.mean()  # the track lies north of the route (y up)
