@@ -45,6 +45,7 @@ if TYPE_CHECKING:
 
 _NOW = object()  # run_action's default: bind to what is on screen at the call
 GEOMETRY = ("split", "merge", "undo")  # actions that may rewrite frames
+PROGRESS_DELAY_S = 2.0  # progress is refreshed at most this often: fast keys do not wait on its queries
 
 
 class ClientTab:
@@ -59,6 +60,8 @@ class ClientTab:
         self._closed = threading.Event()
         self._own: set[tuple[int, int]] = set()  # (track, version) this tab's own edits produced
         self.sequences: dict[int, dict[str, Any]] = {}
+        self._progress_timer: threading.Timer | None = None
+        self._progress_lock = threading.Lock()
         self._build_gui()
         for a in ACTIONS:
             cmd = client.gui.add_command(a.label, description=a.help, hotkey=a.key)  # type: ignore[arg-type]
@@ -261,8 +264,22 @@ class ClientTab:
             self.viewer.feed.poll_now(seq, exclude=self)  # drop the rewritten frames before drawing
         self.scene.timings_ms["action_and_next"] = 1e3 * (time.perf_counter() - t0)
         self.render_track(reset_camera=self.session.track_id != before)
-        self.later(self.progress.refresh)
+        self._refresh_progress_soon()
         self.later(self.stitches.refresh)
+
+    def _refresh_progress_soon(self) -> None:
+        """Refresh the progress panel PROGRESS_DELAY_S from now, once for every action until then."""
+        with self._progress_lock:
+            if self._progress_timer is not None:
+                return
+            self._progress_timer = threading.Timer(PROGRESS_DELAY_S, self._refresh_progress_now)
+            self._progress_timer.daemon = True
+            self._progress_timer.start()
+
+    def _refresh_progress_now(self) -> None:
+        with self._progress_lock:
+            self._progress_timer = None
+        self.later(self.progress.refresh)
 
     def service_changed(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None:
         """The change feed: a track or frame changed in the service (another tab, another operator)."""
