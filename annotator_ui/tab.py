@@ -159,6 +159,9 @@ class ClientTab:
 
     def close(self) -> None:
         self._closed.set()
+        with self._progress_lock:
+            if self._progress_timer is not None:
+                self._progress_timer.cancel()
         self.playback.playing.clear()
         self._keys.shutdown(wait=False, cancel_futures=True)
         self.scene.close()
@@ -279,7 +282,8 @@ class ClientTab:
     def _refresh_progress_now(self) -> None:
         with self._progress_lock:
             self._progress_timer = None
-        self.later(self.progress.refresh)
+        if not self._closed.is_set():
+            self.later(self.progress.refresh)
 
     def service_changed(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None:
         """The change feed: a track or frame changed in the service (another tab, another operator)."""
