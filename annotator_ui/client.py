@@ -52,12 +52,14 @@ class FramePayload:
     intensity: (N,) float32
     segment:   (N,) int32, -1 = ground / no segment
     track:     (N,) int64, database track id, 0 = no track
+    etag:      the service's version of the frame (a split, merge or undo changes it)
     """
 
     points: np.ndarray
     intensity: np.ndarray
     segment: np.ndarray
     track: np.ndarray
+    etag: str = ""
 
     def __post_init__(self) -> None:
         n = len(self.points)
@@ -69,10 +71,11 @@ class FramePayload:
         return int(self.points.nbytes + self.intensity.nbytes + self.segment.nbytes + self.track.nbytes)
 
     @classmethod
-    def from_npz(cls, body: bytes) -> FramePayload:
+    def from_npz(cls, body: bytes, etag: str = "") -> FramePayload:
         """Parse the service's `/frames/{id}/payload` body (an uncompressed .npz)."""
         with np.load(io.BytesIO(body)) as z:
             return cls(
+                etag=etag,
                 points=np.ascontiguousarray(z["points"], dtype=np.float32),
                 intensity=np.ascontiguousarray(z["intensity"], dtype=np.float32),
                 segment=np.ascontiguousarray(z["segment"], dtype=np.int32),
@@ -221,7 +224,17 @@ class ApiClient:
                 return items
 
     def frame_payload(self, frame_id: int) -> FramePayload:
-        return FramePayload.from_npz(self._request("GET", f"/frames/{frame_id}/payload").content)
+        r = self._request("GET", f"/frames/{frame_id}/payload")
+        return FramePayload.from_npz(r.content, r.headers.get("etag", ""))
+
+    def changes(self, sequence_id: int, since: str | None = None) -> dict[str, Any]:
+        """SequenceChanges: `cursor` (pass back as `since`), changed `tracks` (id, version, status,
+        n_points) and the `frames` (id, index, etag) they have points in."""
+        return self._json("GET", f"/sequences/{sequence_id}/changes", params={} if since is None else {"since": since})
+
+    def points_progress(self, sequence_id: int) -> dict[str, Any]:
+        """PointsProgress: points, points_in_tracks, points_labelled(_per_source), ..."""
+        return self._json("GET", f"/sequences/{sequence_id}/points-progress")
 
     def sequences(self) -> list[dict[str, Any]]:
         return self._json("GET", "/sequences")

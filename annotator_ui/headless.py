@@ -99,6 +99,9 @@ class HeadlessClient:
                             self.gui[m["uuid"]] = dict(m["props"])
                         elif kind == "GuiUpdateMessage" and m.get("uuid") in self.gui:
                             self.gui[m["uuid"]].update(m.get("updates", {}))
+                        elif kind == "LocalStorageGetItemRequestMessage":  # as a browser answers, in order
+                            self._send({"type": "LocalStorageGetItemResponseMessage",
+                                        "request_uuid": m["request_uuid"], "value": None, "error": None})
                     self._cond.notify_all()
         except (ConnectionClosed, OSError):
             pass

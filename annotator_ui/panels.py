@@ -25,10 +25,14 @@ ANCHORS_PATH = "/anchors"
 
 
 class ProgressPanel:
-    """Tracks reviewed / pending and samples labelled per class (GET /exports/stats)."""
+    """The share of the sequence's points labelled, by source (GET /sequences/{id}/points-progress),
+    then tracks reviewed / pending and samples labelled per class (GET /exports/stats)."""
 
-    def __init__(self, gui: viser.GuiApi, api: ApiClient) -> None:
+    def __init__(self, gui: viser.GuiApi, api: ApiClient, sequence_id: Callable[[], int | None] = lambda: None) -> None:
         self.api = api
+        self.sequence_id = sequence_id
+        self.gui_points = gui.add_markdown("")
+        self.gui_points_bar = gui.add_progress_bar(0.0, color="blue")
         self.gui_summary = gui.add_markdown("Loading progress ...")
         self.gui_bar = gui.add_progress_bar(0.0, color="green")
         self.gui_classes = gui.add_html("")
@@ -36,9 +40,29 @@ class ProgressPanel:
         self.gui_refresh.on_click(lambda _: self.refresh())
         self.last: dict[str, Any] | None = None
 
-    def refresh(self) -> dict[str, Any] | None:
+    def _refresh_points(self, seq: int | None) -> None:
+        if seq is None or not self.api.has_route("get", "/sequences/{sequence_id}/points-progress"):
+            return
         try:
-            st = self.api.stats()
+            p = self.api.points_progress(seq)
+        except ApiError as exc:
+            self.gui_points.content = f"Points progress unavailable: {exc.detail}"
+            return
+        share = p["points_labelled"] / p["points_in_tracks"] if p["points_in_tracks"] else 0.0
+        by = " · ".join(f"{src} {n:,}" for src, n in sorted(p["points_labelled_per_source"].items())) or "none yet"
+        self.gui_points.content = (
+            f"**Points labelled** {100 * share:.1f} % of the sequence's {p['points_in_tracks']:,} points in tracks "
+            f"({p['points_labelled']:,}; by source: {by})  \n"
+            f"pending {p['points_pending']:,} · discarded {p['points_discarded']:,} · accepted without class "
+            f"{p['points_accepted_unlabelled']:,} · all points of the frames {p['points']:,}"
+        )
+        self.gui_points_bar.value = 100.0 * share
+
+    def refresh(self) -> dict[str, Any] | None:
+        seq = self.sequence_id()
+        self._refresh_points(seq)
+        try:
+            st = self.api.stats(seq)
         except ApiError as exc:
             self.gui_summary.content = f"Progress unavailable: {exc.detail}"
             return None

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from annotator_ui.cut_preview import PREVIEW_COLOUR, gizmo_scale, inside_box, preview_text
 from annotator_ui.geometry import clip_from_scene, matrix_wxyz, rect_polygon_ndc
 from pipeline.classes import SAMPLE_CLASSES
 from pipeline.regions import quaternion_matrix
@@ -41,15 +42,19 @@ class RepairPanel:
         centre: Callable[[], np.ndarray | None],
         model_id: Callable[[], int | None],
         notify: Callable[[str, str, str], None],
+        track_points: Callable[[], np.ndarray] = lambda: np.zeros((0, 3), np.float32),
     ) -> None:
         self.scene, self._split, self._merge, self._pose, self._centre = scene, split, merge, pose, centre
-        self._model_id, self._notify = model_id, notify
+        self._model_id, self._notify, self._track_points = model_id, notify, track_points
         self.gizmo: Any = None
         gui.add_markdown("**Split** the track: its points in the region become a new pending track. **Z** undoes.")
         self.gui_show_box = gui.add_checkbox("Show cut box / plane", False)
         self.gui_show_box.on_update(lambda _: self._toggle_gizmo())
         self.gui_size = gui.add_vector3("Box size (m)", (2.0, 2.0, 2.0), min=(0.1, 0.1, 0.1), max=(60.0, 60.0, 60.0), step=0.1)
         self.gui_size.on_update(lambda _: self._draw_box())
+        self.gui_centre = gui.add_vector3("Box centre (m)", (0.0, 0.0, 0.0), step=0.05, hint="in the shown frame")
+        self.gui_centre.on_update(lambda e: self._typed_centre() if e.client is not None else None)
+        self.gui_preview = gui.add_markdown("Cut preview: show the cut box")
         self.gui_cut_box = gui.add_button_group("Cut box", SCOPES)
         self.gui_cut_box.on_click(lambda e: self.cut("box", e.target.value == SCOPES[1]))
         self.gui_cut_plane = gui.add_button_group("Cut plane (red axis side)", SCOPES)
@@ -69,22 +74,56 @@ class RepairPanel:
     def _toggle_gizmo(self) -> None:
         if not self.gui_show_box.value:
             self.scene.remove_by_name("/cut")
+            self.scene.remove_by_name("/cut_preview")
             self.gizmo = None
+            self.gui_preview.content = "Cut preview: show the cut box"
             return
         centre = self._centre()
+        self._add_gizmo(tuple(float(v) for v in centre) if centre is not None else (0.0, 0.0, 0.0))
+
+    def _add_gizmo(self, position: tuple[float, ...]) -> None:
         self.gizmo = self.scene.add_transform_controls(
-            "/cut", scale=1.5, position=tuple(centre) if centre is not None else (0.0, 0.0, 0.0), depth_test=False
+            "/cut", scale=gizmo_scale(self._track_points()), position=position, depth_test=False
         )
+        self.gizmo.on_update(lambda _: self._moved())
         self._draw_box()
+        self._moved()
 
     def _draw_box(self) -> None:
         if self.gizmo is not None:
             self.scene.add_box("/cut/box", color=BOX_COLOUR, dimensions=tuple(self.gui_size.value), wireframe=True)
+            self.preview()
+
+    def _moved(self) -> None:
+        if self.gizmo is not None:
+            self.gui_centre.value = tuple(round(float(v), 3) for v in self.gizmo.position)
+            self.preview()
+
+    def _typed_centre(self) -> None:
+        if self.gizmo is not None:
+            self.gizmo.position = tuple(float(v) for v in self.gui_centre.value)
+            self.preview()
+
+    def preview(self) -> int:
+        """Count and highlight the track's points of this frame inside the box; their number."""
+        if self.gizmo is None:
+            return 0
+        pts = self._track_points()
+        R = quaternion_matrix(np.asarray(self.gizmo.wxyz, np.float64))
+        inside = inside_box(pts, np.asarray(self.gizmo.position, np.float64), R, np.asarray(self.gui_size.value))
+        self.gui_preview.content = preview_text(int(inside.sum()), len(pts))
+        if inside.any():  # a child of the world, not of the gizmo: the points stay where they are
+            self.scene.add_point_cloud("/cut_preview", pts[inside].astype(np.float32), PREVIEW_COLOUR, point_size=0.12,
+                                       precision="float32", point_shading="flat")
+        else:
+            self.scene.remove_by_name("/cut_preview")
+        return int(inside.sum())
 
     def place(self, centre: np.ndarray | None) -> None:
-        """Move the gizmo to a newly shown track."""
+        """Move the gizmo to a newly shown track, sized to it."""
         if self.gizmo is not None and centre is not None:
-            self.gizmo.position = tuple(float(v) for v in centre)
+            self.scene.remove_by_name("/cut")
+            self._add_gizmo(tuple(float(v) for v in centre))
 
     # ------------------------------------------------------------------ regions
     def _world_box(self) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,16 @@ from annotator_ui.samples import blank_image
 from annotator_ui.track_look import TRACK_LOOKS, FrameCut, ortho_image
 
 ORTHO_SIZE = 220
+# a track this sparse or far is hard to read in one frame: its kept frames are overlaid first
+SPARSE_POINTS = 300  # its densest kept frame holds fewer points
+FAR_M = 25.0  # its mean range is beyond
+
+
+def hard_to_read(track: dict[str, Any]) -> bool:
+    """Whether the track should open in the aggregated view (sparse or far)."""
+    kept = [s for s in track.get("segments", []) if s["in_kept_range"]] or track.get("segments", [])
+    densest = max((int(s["n_points"]) for s in kept), default=0)
+    return densest < SPARSE_POINTS or float(track.get("mean_range") or 0.0) > FAR_M
 
 
 def frame_cuts(track: dict[str, Any], frames: dict[int, dict[str, Any]], payload: Callable[[int], Any]) -> list[FrameCut]:
@@ -47,10 +57,13 @@ class TrackViewsPanel:
     def __init__(self, gui: viser.GuiApi, changed: Callable[[], None]) -> None:
         self.gui_look = gui.add_dropdown("Track colours", TRACK_LOOKS, initial_value="height")
         self.gui_aggregate = gui.add_checkbox("Aggregate kept frames", False, hint="overlay the track's points of all kept frames")
+        self.gui_auto = gui.add_checkbox("Aggregate far / sparse tracks first", True,
+                                         hint=f"under {SPARSE_POINTS} points a frame or beyond {FAR_M:.0f} m")
+        self.track_hard = False  # the shown track is far or sparse (set by the tab)
         self.gui_compensate = gui.add_checkbox("Motion-compensate", False, hint="align the frames by the track's centroids")
         # off by default: two images per frame drawn cost the browser a re-layout on every key
         self.gui_ortho = gui.add_checkbox("Top and side views", False, hint="orthographic images of the track")
-        for h in (self.gui_look, self.gui_aggregate, self.gui_compensate, self.gui_ortho):
+        for h in (self.gui_look, self.gui_aggregate, self.gui_auto, self.gui_compensate, self.gui_ortho):
             h.on_update(lambda e: changed() if e.client is not None else None)
         self.gui_top = gui.add_image(blank_image(), label="Top view (1 m grid)", format="png", visible=False)
         self.gui_side = gui.add_image(blank_image(), label="Side view (1 m grid)", format="png", visible=False)
@@ -61,7 +74,7 @@ class TrackViewsPanel:
 
     @property
     def aggregated(self) -> bool:
-        return bool(self.gui_aggregate.value)
+        return bool(self.gui_aggregate.value) or (bool(self.gui_auto.value) and self.track_hard)
 
     @property
     def compensated(self) -> bool:

@@ -91,12 +91,13 @@ def test_review_undo_reverts_the_last_action_and_shows_that_track(session, live_
 def test_review_undo_of_a_truncation_restores_the_range(session, live_api):
     session.next()
     _multi_frame(session)
-    lo, hi = session.frame_range()
+    kept = (session.track["keep_start"], session.track["keep_end"])  # ingest may keep less than lo..hi
+    lo, _hi = session.frame_range()
     session.set_frame(lo + 1)
     session.truncate_before()
     session.undo()
     t = live_api.track(session.track_id)
-    assert (t["keep_start"], t["keep_end"]) == (lo, hi)
+    assert (t["keep_start"], t["keep_end"]) == kept
 
 
 def test_review_undo_with_nothing_done_says_nothing_to_undo(session):

@@ -69,7 +69,7 @@ def test_viewer_accept_hotkey_accepts_and_loads_the_next_track(viewer, tab_clien
     track = shown_track(viewer)[0]
     since = tab_client.mark()
     tab_client.trigger("Accept track")
-    tab_client.wait_for(is_points("/frame/points"), since=since)
+    tab_client.wait_for(is_points("/track/nodes"), since=since)  # drawn (the cloud stays when the frame does)
     assert live_api.track(track["id"])["status"] == "accepted"
     wait_until(lambda: viewer.tabs[0].session.track_id != track["id"])
 
@@ -84,7 +84,7 @@ def test_viewer_class_hotkey_labels_the_track(viewer, tab_client, live_api):
     track = shown_track(viewer)[0]
     since = tab_client.mark()
     tab_client.trigger("Class cyclist")
-    tab_client.wait_for(is_points("/frame/points"), since=since)
+    tab_client.wait_for(is_points("/track/nodes"), since=since)  # drawn (the cloud stays when the frame does)
     t = live_api.track(track["id"])
     assert (t["status"], t["label"]) == ("accepted", "cyclist")
 
@@ -124,10 +124,10 @@ def test_viewer_undo_hotkey_brings_the_track_back(viewer, tab_client, live_api):
     track = shown_track(viewer)[0]
     since = tab_client.mark()
     tab_client.trigger("Discard track")
-    tab_client.wait_for(is_points("/frame/points"), since=since)
+    tab_client.wait_for(is_points("/track/nodes"), since=since)  # drawn (the cloud stays when the frame does)
     since = tab_client.mark()
     tab_client.trigger("Undo")
-    tab_client.wait_for(is_points("/frame/points"), since=since)
+    tab_client.wait_for(is_points("/track/nodes"), since=since)  # drawn (the cloud stays when the frame does)
     assert live_api.track(track["id"])["status"] == "pending"
     wait_until(lambda: viewer.tabs[0].session.track_id == track["id"])
 
@@ -136,8 +136,10 @@ def test_viewer_progress_panel_matches_the_api(viewer, tab_client, live_api):
     panel: ProgressPanel = viewer.tabs[0].progress
     st = panel.refresh()
     api = ApiClient(live_api.url, live_api.admin_token)
-    assert st == api.stats()
+    assert st == api.stats(live_api.sequence_id)  # the tab's sequence
     assert f"{st['tracks_reviewed']} reviewed" in panel.gui_summary.content
+    points = api.points_progress(live_api.sequence_id)
+    assert f"{points['points_in_tracks']:,} points in tracks" in panel.gui_points.content
     api.close()
 
 

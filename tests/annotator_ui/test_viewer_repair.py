@@ -10,7 +10,9 @@ import pytest
 
 from annotator_ui.client import ApiClient, ApiError
 from annotator_ui.headless import HeadlessClient, is_points
-from annotator_ui.viewer import AnnotatorViewer, ClientTab, ViewerConfig
+from annotator_ui.review_panel import empty_queue_message
+from annotator_ui.tab import ClientTab
+from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 from pipeline.classes import SAMPLE_CLASSES
 from tests.annotator_ui.test_viewer import wait_until
 
@@ -43,7 +45,7 @@ def _open_multi_frame(tab: ClientTab, min_frames: int = 3) -> None:
 
 
 def test_viewer_class_buttons_show_their_number_keys(tab):
-    labels = [*tab.gui_class_a.options, *tab.gui_class_b.options]
+    labels = [*tab.review.buttons["Class 1-4"].options, *tab.review.buttons["Class 5-7"].options]
     assert labels == [f"{i + 1} {name}" for i, name in enumerate(SAMPLE_CLASSES)]
 
 
@@ -70,17 +72,17 @@ def test_viewer_slider_goes_back_when_the_frame_cannot_be_drawn(tab, monkeypatch
         raise ApiError(0, "cannot reach the track service")
 
     monkeypatch.setattr(tab.cache, "payload", outage)
-    tab.gui_frame.value = other  # the operator drags the slider during an outage
-    tab._on_slider(SimpleNamespace(client=object()))
-    assert tab.session.frame_index == shown and tab.gui_frame.value == shown
+    tab.playback.gui_frame.value = other  # the operator drags the slider during an outage
+    tab.playback._on_slider(SimpleNamespace(client=object()))
+    assert tab.session.frame_index == shown and tab.playback.gui_frame.value == shown
 
 
 def test_viewer_failed_ingest_is_not_all_reviewed():
     api = SimpleNamespace(
         sequences=lambda: [{"id": 3, "name": "seq", "status": "failed", "ingest_job_id": 9}],
-        stats=lambda: {"tracks": 0},
+        stats=lambda _seq=None: {"tracks": 0},
     )
-    text = ClientTab._empty_queue_message(SimpleNamespace(api=api))
+    text = empty_queue_message(api)
     assert "Ingest of sequence seq (#3) failed" in text and "All tracks are reviewed" not in text
 
 

@@ -2,11 +2,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Header, Query, Response
 
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
 from app.crud import frames
 from app.schemas import FrameList, FramePublic
+from app.versions import frame_etag
 
 router = APIRouter(tags=["frames"])
 
@@ -37,12 +38,21 @@ def read_frame(frame_id: IdPath, _user: CurrentUser, session: SessionDep) -> Fra
     response_class=Response,
     responses={200: {"content": {NPZ_MEDIA_TYPE: {}}, "description": "uncompressed .npz"}},
 )
-def frame_payload_route(frame_id: IdPath, _user: CurrentUser, session: SessionDep, artifacts: ArtifactsDep) -> Response:
+def frame_payload_route(
+    frame_id: IdPath, _user: CurrentUser, session: SessionDep, artifacts: ArtifactsDep,
+    if_none_match: Annotated[str | None, Header()] = None,
+) -> Response:
     """The viewer payload of a frame: an uncompressed `.npz` with `points` (N,3) float32 (lidar
     frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none) and `track` (N,)
     int32 (database track id, 0 = none; int64 once ids pass 2**31).
-    Load with `numpy.load(io.BytesIO(body))`."""
+    Load with `numpy.load(io.BytesIO(body))`. The `ETag` changes whenever a split, merge or undo
+    rewrites the frame (`GET /sequences/{id}/changes` lists the new one); `If-None-Match` with the
+    current one answers 304 without a body."""
     rel = frames.frame_artifact(session, frame_id)
     session.close()  # release the connection before the file work
+    etag = frame_etag(rel)
+    headers = {"Cache-Control": "private, no-cache", "ETag": etag}  # revalidate: a repair changes the frame
+    if if_none_match is not None and etag in (t.strip() for t in if_none_match.split(",")):
+        return Response(status_code=304, headers=headers)
     body = artifacts.payload(rel)
-    return Response(content=body, media_type=NPZ_MEDIA_TYPE, headers={"Cache-Control": "private, max-age=3600"})
+    return Response(content=body, media_type=NPZ_MEDIA_TYPE, headers=headers)

@@ -1,0 +1,243 @@
+"""What a tab draws in its 3D view: the shown frame's points, the track in its real colours with
+its outline, the aggregated cloud, the path over the route, and the camera aimed at the track.
+
+Scene (the current frame's lidar frame, sensor at the origin, z up, points in float32):
+  /frame/points   every point of the frame, coloured by the colour mode, faded around the track
+  /frame/track    the reviewed track's points in this frame in their real colours (height or
+                  intensity; grey outside the kept range)
+  /frame/outline  a box around them (the halo that finds the track without hiding its shape)
+  /track/aggregate  the points of all kept frames overlaid (while "Aggregate" is ticked)
+  /track/path     the track's centroids over its frames (world centroids moved into this frame)
+  /track/nodes    those centroids, small; orange inside the kept range, grey outside, white = this frame
+
+The background cloud is faded as a whole (the track is drawn on top of it in its own colours), so
+in the *track* colour mode it does not depend on which track is reviewed: it is sent once per
+frame version and left on the client while the next track is in the same frame (only the track,
+its outline and its path are sent then).
+
+`shown` is what the client has applied (track id, version, frame id, frame ETag): a key is bound
+to it. A draw becomes `shown` when the client answers a request sent in the same atomic update
+(a localStorage read: the client applies a batch's messages in order, so its answer leaves after
+the draw is applied and before any key pressed on it); a key that arrives before the answer was
+pressed on the previous track. viser's own `get_item` sends the same message, but from another
+thread and in a later batch, one animation frame later.
+"""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import viser
+from viser import _messages as viser_messages
+
+from annotator_ui.client import ApiClient, ApiError, FramePayload
+from annotator_ui.colours import ColourMode, fade, point_colours
+from annotator_ui.frame_cache import FrameCache
+from annotator_ui.geometry import polyline_segments, pose_matrix, world_to_lidar
+from annotator_ui.review import ReviewSession
+from annotator_ui.track_look import OUTLINE, aggregate, box_outline, track_colours
+from annotator_ui.track_views_panel import TrackViewsPanel, frame_cuts
+
+POINT_SIZE = 0.06
+TRACK_POINT_SIZE = 0.08  # a little larger than the rest: dense enough to read the shape, never a blob
+NODE_SIZE = 0.12  # path markers small enough not to cover a pedestrian
+OUTSIDE_KEPT = (150, 150, 150)
+PATH_KEPT = (255, 140, 0)
+# the background cloud's level of detail: a frame over this is thinned evenly (every k-th point in
+# scan order) before it is sent; the track's own points are always all drawn (/frame/track).
+# Real KITTI frames hold ~124k points, the demo's ~60k (sent whole).
+MAX_CLOUD_POINTS = 65_536
+TRACK_NODES = ("/frame/track", "/frame/outline", "/track/aggregate", "/track/path", "/track/nodes")
+
+
+def lod(n: int, budget: int) -> np.ndarray:
+    """Indices of an even thinning of n points to at most `budget` (all of them when n fits)."""
+    if n <= budget:
+        return np.arange(n)
+    return np.linspace(0, n - 1, budget).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class Shown:
+    """What the client was last sent."""
+
+    track_id: int
+    version: int
+    frame_id: int
+    etag: str
+
+
+class SceneView:
+    def __init__(self, client: viser.ClientHandle, api: ApiClient, cache: FrameCache, session: ReviewSession,
+                 views: TrackViewsPanel, notify: Callable[[str, str, str], None]) -> None:
+        self.client, self.api, self.cache, self.session, self.views, self.notify = client, api, cache, session, views, notify
+        self.colour_mode: ColourMode = "track"
+        self.follow_camera = True
+        self.lock = threading.Lock()
+        self.generation = 0  # bumped per frame drawn (a late sample load checks it)
+        self.frame_points: np.ndarray | None = None  # (N, 3) float32 points of the frame shown
+        self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
+        self.shown: Shown | None = None
+        self._sent: Shown | None = None
+        self._cloud: tuple[int, str, str] | None = None  # (frame id, ETag, colour mode) of the cloud on the client
+        self._receipts: dict[str, Shown] = {}  # request uuid -> the draw it follows
+        self.timings_ms: dict[str, float] = {}
+        self._conn = client._websock_connection  # noqa: SLF001 - see the module docstring
+        self._conn.register_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
+
+    def close(self) -> None:
+        self._conn.unregister_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
+
+    def _ask_receipt(self, sent: Shown) -> None:
+        uuid = secrets.token_hex(8)
+        self._receipts[uuid] = sent
+        self._conn.queue_message(viser_messages.LocalStorageGetItemRequestMessage(key="tracklabel", request_uuid=uuid))
+
+    def _on_receipt(self, _client_id: int, message: viser_messages.LocalStorageGetItemResponseMessage) -> None:
+        """The client applied a draw (runs in viser's event loop, in order with the keys)."""
+        sent = self._receipts.pop(message.request_uuid, None)
+        if sent is not None and sent is self._sent:
+            self.shown = sent
+
+    @property
+    def sent(self) -> Shown | None:
+        """What the client was last sent (it may not have applied it yet)."""
+        return self._sent
+
+    def clear(self) -> None:
+        self.shown = self._sent = None
+        self._cloud = None
+        for name in TRACK_NODES:
+            self.client.scene.remove_by_name(name)
+
+    def render(self, texts: Callable[[], None], reset_camera: bool = False) -> bool:
+        """Draw the session's current frame and send it; `texts` updates the GUI in the same
+        atomic update. False when the frame could not be read (nothing on the canvas changed)."""
+        with self.lock:
+            t0 = time.perf_counter()
+            t, fi = self.session.track, self.session.frame_index
+            if t is None or fi is None:
+                return False
+            try:
+                frame = self.cache.frames(self.api, int(t["sequence_id"])).get(fi)
+                if frame is None:
+                    self.notify("Frame missing", f"frame {fi} of sequence {t['sequence_id']} is not in the service", "red")
+                    return False
+                payload = self.cache.payload(self.api, int(frame["id"]))
+                t_fetched = time.perf_counter()
+                info = None
+                if self.colour_mode != "track":
+                    info = self.api.tracks_by_id(np.unique(payload.track[payload.track > 0]).tolist())
+                aggregated = self._aggregated(t, frame) if self.views.aggregated else None
+            except ApiError as exc:
+                self.notify("Cannot load the frame", exc.detail, "red")
+                return False
+            mask = payload.track == int(t["id"])
+            cloud = (int(frame["id"]), payload.etag, self.colour_mode)
+            resend = cloud != self._cloud or self.colour_mode != "track"  # other modes follow the reviews
+            if resend:
+                keep = lod(len(payload.points), MAX_CLOUD_POINTS)
+                colours = fade(point_colours(payload.segment[keep], payload.track[keep], self.colour_mode, info),
+                               np.zeros(len(keep), bool))
+            t_coloured = time.perf_counter()
+            # what the canvas shows is known before the client sees it (a click or a cut may
+            # arrive as soon as the cloud does)
+            self.frame_points, self.frame_tracks = payload.points, payload.track
+            self.generation += 1
+            with self.client.atomic():
+                if resend:
+                    self.client.scene.add_point_cloud("/frame/points", payload.points[keep], colours,
+                                                      point_size=POINT_SIZE, precision="float32", point_shading="flat")
+                    self._cloud = cloud
+                self._draw_track(t, fi, payload, mask, aggregated)
+                self._draw_path(t, fi, pose_matrix(frame.get("pose")))
+                texts()
+                if reset_camera and self.follow_camera:
+                    self._aim_camera(t, fi, payload.points[mask])
+                self._sent = Shown(int(t["id"]), int(t["version"]), int(frame["id"]), payload.etag)
+                self._ask_receipt(self._sent)
+            self.client.flush()
+            t_sent = time.perf_counter()
+            self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
+                                   send=1e3 * (t_sent - t_coloured))
+            return True
+
+    def drawn_points(self, track_id: int) -> int:
+        """How many points of `track_id` the shown frame has (what the canvas draws)."""
+        return 0 if self.frame_tracks is None else int((self.frame_tracks == track_id).sum())
+
+    def _aggregated(self, t: dict[str, Any], frame: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """The kept frames' track points overlaid, in this frame's scene: (M, 3) points, (M,) intensity."""
+        frames = self.cache.frames(self.api, int(t["sequence_id"]))
+        cuts = frame_cuts(t, frames, lambda fid: self.cache.payload(self.api, fid))
+        seg = self.session.segment_at(int(frame["index"]))
+        anchor = np.asarray(seg["centroid_world"], np.float64) if seg is not None else None
+        pts_world, intensity = aggregate(cuts, self.views.compensated, anchor)
+        return world_to_lidar(pts_world, pose_matrix(frame.get("pose"))), intensity
+
+    def _draw_track(self, t: dict[str, Any], fi: int, payload: FramePayload, mask: np.ndarray,
+                    aggregated: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """The track in its real colours with an outline box; the aggregated cloud when asked;
+        the orthographic images of whichever of the two is shown."""
+        scene = self.client.scene
+        pts, intensity = payload.points[mask], payload.intensity[mask]
+        kept = t["keep_start"] <= fi <= t["keep_end"]
+        colours = track_colours(pts, intensity, self.views.look) if kept else np.full((len(pts), 3), OUTSIDE_KEPT, np.uint8)
+        if len(pts):
+            scene.add_point_cloud("/frame/track", pts, colours, point_size=TRACK_POINT_SIZE, precision="float32",
+                                  point_shading="flat")
+        else:
+            scene.remove_by_name("/frame/track")
+        if aggregated is not None and len(aggregated[0]):
+            agg_colours = track_colours(aggregated[0], aggregated[1], self.views.look)
+            scene.add_point_cloud("/track/aggregate", aggregated[0], agg_colours, point_size=POINT_SIZE,
+                                  precision="float32", point_shading="flat")
+            outlined, view_colours = aggregated[0], agg_colours
+        else:
+            scene.remove_by_name("/track/aggregate")
+            outlined, view_colours = pts, colours
+        if len(outlined):
+            scene.add_line_segments("/frame/outline", box_outline(outlined), OUTLINE if kept else OUTSIDE_KEPT,
+                                    thickness=2.0, thickness_units="screen")
+        else:
+            scene.remove_by_name("/frame/outline")
+        self.views.show(outlined, view_colours)
+
+    def _draw_path(self, t: dict[str, Any], fi: int, T_world_lidar: np.ndarray) -> None:
+        segs = sorted(t["segments"], key=lambda s: s["frame_index"])
+        path = world_to_lidar(np.array([s["centroid_world"] for s in segs], np.float64).reshape(-1, 3), T_world_lidar)
+        node_colours = np.array(
+            [(255, 255, 255) if s["frame_index"] == fi else (PATH_KEPT if s["in_kept_range"] else OUTSIDE_KEPT)
+             for s in segs], np.uint8).reshape(-1, 3)
+        scene = self.client.scene
+        if len(path) >= 2:
+            seg_colours = np.repeat(node_colours[1:, None, :], 2, axis=1)
+            scene.add_line_segments("/track/path", polyline_segments(path), seg_colours, thickness=0.03)
+        else:
+            scene.remove_by_name("/track/path")
+        if len(path):
+            scene.add_point_cloud("/track/nodes", path, node_colours, point_size=NODE_SIZE, precision="float32",
+                                  point_shape="circle", point_shading="flat")
+
+    def _aim_camera(self, t: dict[str, Any], fi: int, pts: np.ndarray) -> None:
+        """Look at the track from the sensor's side, far enough back to see all of it and its
+        surroundings: distance grows with the object's extent."""
+        seg = self.session.segment_at(fi)
+        if len(pts):
+            c = pts.mean(axis=0).astype(np.float64)
+            extent = float(np.ptp(pts, axis=0).max())
+        elif seg is not None:
+            c, extent = np.asarray(seg["centroid"], np.float64), 2.0
+        else:
+            return
+        dist = float(np.clip(2.0 * extent + 8.0, 10.0, 70.0))
+        outward = c[:2] / max(float(np.linalg.norm(c[:2])), 1e-6)
+        eye = np.array([c[0] - 0.8 * dist * outward[0], c[1] - 0.8 * dist * outward[1], c[2] + 0.6 * dist])
+        self.client.camera.position = eye  # position first: viser shifts look_at along with it
+        self.client.camera.look_at = c

@@ -1,0 +1,80 @@
+"""The readable-geometry parts of the viewer: the cut preview counts what a cut takes, far or
+sparse tracks open aggregated, the background cloud's level of detail, the key help from the one
+action table."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from annotator_ui.actions import ACTIONS, key_help
+from annotator_ui.cut_preview import gizmo_scale, inside_box
+from annotator_ui.scene_view import lod
+from annotator_ui.track_views_panel import FAR_M, SPARSE_POINTS, hard_to_read
+from tests.annotator_ui.test_viewer_repair import _open_multi_frame, tab, viewer  # noqa: F401 - fixtures
+
+
+def test_readable_inside_box_counts_the_points_of_a_rotated_box():
+    pts = np.array([[0.0, 0.0, 0.0], [0.9, 0.0, 0.0], [0.0, 0.9, 0.0], [2.0, 0.0, 0.0]], np.float32)
+    assert inside_box(pts, np.zeros(3), np.eye(3), np.array([2.0, 2.0, 2.0])).tolist() == [True, True, True, False]
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees about z
+    long_x = inside_box(pts, np.zeros(3), np.eye(3), np.array([4.2, 0.5, 0.5]))
+    long_y = inside_box(pts, np.zeros(3), R, np.array([4.2, 0.5, 0.5]))  # its long side now along y
+    assert long_x.tolist() == [True, True, False, True] and long_y.tolist() == [True, False, True, False]
+
+
+def test_readable_gizmo_follows_the_track_size():
+    small, big = np.random.default_rng(0).normal(size=(50, 3)) * 0.2, np.random.default_rng(0).normal(size=(50, 3)) * 4
+    assert gizmo_scale(small) < gizmo_scale(big) <= 8.0 and gizmo_scale(np.zeros((0, 3))) == 1.5
+
+
+def test_readable_far_or_sparse_tracks_open_aggregated():
+    seg = {"in_kept_range": True}
+    assert hard_to_read({"segments": [{**seg, "n_points": SPARSE_POINTS - 1}], "mean_range": 5.0})
+    assert hard_to_read({"segments": [{**seg, "n_points": 5000}], "mean_range": FAR_M + 1})
+    assert not hard_to_read({"segments": [{**seg, "n_points": 5000}], "mean_range": 10.0})
+
+
+def test_readable_lod_thins_evenly_and_keeps_small_frames_whole():
+    assert lod(1000, 2000).tolist() == list(range(1000))
+    keep = lod(124_000, 65_536)
+    assert len(keep) == 65_536 and keep[0] == 0 and keep[-1] == 123_999 and np.all(np.diff(keep) > 0)
+
+
+def test_readable_key_help_lists_every_key_of_the_table():
+    text = key_help()
+    assert "**A** accept" in text and "**1-7** class" in text and "**H** / **P**" in text
+    assert len({a.key for a in ACTIONS}) == len(ACTIONS)  # one row per key
+
+
+def test_readable_cut_preview_counts_what_the_cut_takes(tab, live_api):  # noqa: F811 - the fixture
+    _open_multi_frame(tab)
+    tid = tab.session.track_id
+    pts = tab.track_points()
+    tab.repair.gui_show_box.value = True
+    tab.repair._toggle_gizmo()
+    lo, hi = pts.min(0), pts.max(0)
+    centre = np.array([lo[0], (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2])  # the box holds the lower half in x
+    tab.repair.gui_size.value = (float(hi[0] - lo[0]), float(hi[1] - lo[1]) + 0.2, float(hi[2] - lo[2]) + 0.2)
+    tab.repair.gui_centre.value = tuple(float(v) for v in centre)
+    tab.repair._typed_centre()  # as when the operator types the centre
+    assert np.allclose(tab.repair.gizmo.position, centre)
+    n = tab.repair.preview()
+    assert 0 < n < len(pts) and f"**{n}** of {len(pts)}" in tab.repair.gui_preview.content
+    before = live_api.track(tid)["n_points"]
+    tab.repair.cut("box", this_frame_only=True)
+    assert live_api.track(tid)["n_points"] == before - n  # exactly the previewed points went
+    tab.run_action("undo")
+
+
+def test_readable_route_map_marks_the_route_and_the_track():
+    from annotator_ui.route_map import ROUTE, SEEN_FROM, TRACK, route_image
+
+    pose = lambda x: [1, 0, 0, x, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]  # noqa: E731 - a sensor at (x, 0)
+    frames = {i: {"pose": pose(float(i))} for i in range(10)}
+    track = {"segments": [{"frame_index": 8, "centroid_world": [8.0, 5.0, 0.0]}]}
+    img = route_image(track, frames)
+    colours = {tuple(c) for c in img.reshape(-1, 3)}
+    assert {ROUTE, SEEN_FROM, TRACK} <= colours
+    rows, _ = np.nonzero(np.all(img == TRACK, axis=2))
+    rows_route, _ = np.nonzero(np.all(img == ROUTE, axis=2))
+    assert rows.mean() < rows_route.mean()  # the track lies north of the route (y up)

@@ -1,0 +1,93 @@
+"""The versions that keep the viewer's caches true: a frame payload's ETag follows its artifact,
+the change feed lists what a split / undo / accept changed, points progress counts points, and
+split -> undo -> split never hands out an id twice (an old edit then gets 404 or 409)."""
+
+from __future__ import annotations
+
+import pytest
+
+from app.jobs import ingest
+from tests.app.fakes import FakeBackend
+
+HALF = {"kind": "halfspace", "normal": [1.0, 0.0, 0.0], "offset": 0.0}
+
+
+@pytest.fixture(autouse=True)
+def fake_backend():
+    previous = ingest.get_backend()
+    ingest.set_backend(FakeBackend())
+    yield
+    ingest.set_backend(previous)
+
+
+def _post(client, caller, path, body, status=200):
+    r = client.post(f"/api/v1{path}", json=body, headers=caller.headers)
+    assert r.status_code == status, r.text
+    return r.json()
+
+
+def _get(client, caller, path, **params):
+    r = client.get(f"/api/v1{path}", params=params, headers=caller.headers)
+    assert r.status_code == 200, r.text
+    return r
+
+
+def _frame_of(client, op, track_id):
+    return _get(client, op, f"/tracks/{track_id}").json()["segments"][0]["frame_id"]
+
+
+def test_changes_frame_etag_changes_with_a_split_and_answers_304_when_unchanged(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid = factory.track_ids(seq)[0]
+    fid = _frame_of(client, op, tid)
+    etag = _get(client, op, f"/frames/{fid}/payload").headers["etag"]
+    r = client.get(f"/api/v1/frames/{fid}/payload", headers={**op.headers, "If-None-Match": etag})
+    assert r.status_code == 304 and r.content == b""
+    _post(client, op, f"/tracks/{tid}/split", {"version": 1, "region": HALF})
+    r = client.get(f"/api/v1/frames/{fid}/payload", headers={**op.headers, "If-None-Match": etag})
+    assert r.status_code == 200 and r.headers["etag"] != etag
+
+
+def test_changes_feed_lists_the_split_tracks_and_their_frames_new_etags(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid = factory.track_ids(seq)[0]
+    cursor = _get(client, op, f"/sequences/{seq}/changes").json()["cursor"]
+    fid = _frame_of(client, op, tid)
+    old = _get(client, op, f"/frames/{fid}/payload").headers["etag"]
+    out = _post(client, op, f"/tracks/{tid}/split", {"version": 1, "region": HALF})
+    feed = _get(client, op, f"/sequences/{seq}/changes", since=cursor).json()
+    tracks = {t["id"]: t for t in feed["tracks"]}
+    assert tracks[tid]["version"] == 2 and tracks[tid]["n_points"] == out["track"]["n_points"]
+    assert tracks[out["new_track"]["id"]]["n_points"] == out["new_track"]["n_points"]
+    etags = {f["id"]: f["etag"] for f in feed["frames"]}
+    assert etags[fid] != old and etags[fid] == _get(client, op, f"/frames/{fid}/payload").headers["etag"]
+
+
+def test_changes_split_undo_split_gives_a_fresh_id_and_the_old_edit_is_refused(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid = factory.track_ids(seq)[0]
+    first = _post(client, op, f"/tracks/{tid}/split", {"version": 1, "region": HALF})["new_track"]
+    _post(client, op, f"/tracks/{tid}/undo", {"version": 2})
+    second = _post(client, op, f"/tracks/{tid}/split", {"version": 3, "region": HALF})["new_track"]
+    assert second["id"] != first["id"]
+    r = client.post(f"/api/v1/tracks/{first['id']}/label", json={"version": first["version"], "label": "car"},
+                    headers=op.headers)
+    assert r.status_code in (404, 409), r.text
+
+
+def test_points_progress_counts_the_labelled_tracks_points_by_source(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid, other = factory.track_ids(seq)[:2]
+    before = _get(client, op, f"/sequences/{seq}/points-progress").json()
+    assert before["points_labelled"] == 0 and before["points_pending"] == before["points_in_tracks"] > 0
+    assert before["points"] >= before["points_in_tracks"]
+    labelled = _post(client, op, f"/tracks/{tid}/label", {"version": 1, "label": "car"})
+    _post(client, op, f"/tracks/{other}/discard", {"version": 1})
+    after = _get(client, op, f"/sequences/{seq}/points-progress").json()
+    assert after["points_labelled_per_source"] == {"review": labelled["n_points"]} == {"review": after["points_labelled"]}
+    assert after["points_discarded"] > 0
+    assert after["points_in_tracks"] == before["points_in_tracks"]
