@@ -20,6 +20,7 @@ partial file.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import threading
@@ -164,3 +165,10 @@ class ArtifactStore:
             for f in folder.iterdir():
                 f.unlink(missing_ok=True)
 
+
+def frame_etag(artifact: str) -> str:
+    """The strong ETag (quoted) of a frame whose artifact file is `artifact`. A frame's version is
+    its artifact file: a split, a merge or their undo points the frame at another file
+    (`<index>.<revision>.npz`) and nothing else changes a frame's points, so the file's name is
+    the frame's ETag (a track's version is its `version` column)."""
+    return '"' + hashlib.sha1(artifact.encode()).hexdigest()[:16] + '"'

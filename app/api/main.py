@@ -24,7 +24,6 @@ from app.api.routes import (
     health,
     jobs,
     models,
-    points_progress,
     repair,
     review,
     stitches,
@@ -81,7 +80,7 @@ def declare_errors(router: APIRouter) -> None:
 
 api_router = APIRouter(dependencies=[Depends(strict_query)])
 for module in (health, users, datasets, assignments, frames, tracks, repair, review, bulk, exports, jobs, models, anchors,
-               stitches, audits, changes, points_progress):
+               stitches, audits, changes):
     declare_errors(module.router)  # before including: an included router's routes are not listed
     retry.install(module.router)  # a route that loses a race to another writer runs again
     api_router.include_router(module.router)

@@ -5,9 +5,9 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Query, Response
 
 from app.api.deps import ArtifactsDep, CurrentUser, IdPath, SessionDep
+from app.artifacts import frame_etag
 from app.crud import frames
 from app.schemas import FrameList, FramePublic
-from app.versions import frame_etag
 
 router = APIRouter(tags=["frames"])
 

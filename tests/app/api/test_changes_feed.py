@@ -6,18 +6,15 @@ from __future__ import annotations
 
 import pytest
 
-from app.jobs import ingest
-from tests.app.fakes import FakeBackend
+from tests.app.fakes import fake_pipeline
 
 HALF = {"kind": "halfspace", "normal": [1.0, 0.0, 0.0], "offset": 0.0}
 
 
 @pytest.fixture(autouse=True)
-def fake_backend():
-    previous = ingest.get_backend()
-    ingest.set_backend(FakeBackend())
-    yield
-    ingest.set_backend(previous)
+def fakes():
+    with fake_pipeline():
+        yield
 
 
 def _post(client, caller, path, body, status=200):

@@ -1,0 +1,38 @@
+"""What changed in a sequence since a moment (the viewer's change feed) and its progress in points."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, Field
+
+
+class TrackVersion(BaseModel):
+    id: int
+    version: int
+    status: str
+    n_points: int
+
+
+class FrameVersion(BaseModel):
+    id: int
+    index: int
+    etag: str
+
+
+class SequenceChanges(BaseModel):
+    cursor: datetime  # pass back as `since`
+    tracks: list[TrackVersion]
+    frames: list[FrameVersion]
+    truncated: bool  # more than MAX_TRACKS tracks changed: drop every cache of the sequence
+
+
+class PointsProgress(BaseModel):
+    sequence_id: int
+    points: int = Field(description="All points of the sequence's frames (ground included).")
+    points_in_tracks: int = Field(description="Points of the kept frames of its tracks (merged-away ones excluded).")
+    points_labelled: int = Field(description="Of those, points of accepted tracks with a class.")
+    points_labelled_per_source: dict[str, int]
+    points_accepted_unlabelled: int
+    points_discarded: int
+    points_pending: int
