@@ -21,7 +21,7 @@ class Action:
     key: str  # viser hotkey
     short: str  # the key help's words
     help: str  # the command palette's description
-    review: str | None = None  # ReviewSession action: accept, discard, label, truncate_before, ..., undo, skip
+    review: str | None = None  # a ReviewSession method (accept, truncate_before, undo, skip, ...) or a service action
     arg: str | None = None  # the class of a label action
     call: Callable[[Any], Any] | None = None  # tab -> None, for view commands
     button: str | None = None  # text of its button in the Review tab (None: key only)

@@ -186,10 +186,11 @@ class ApiClient:
         return self._json("GET", f"/tracks/{track_id}/events")
 
     def act(self, track_id: int, action: str, version: int, **body: Any) -> dict[str, Any]:
-        """accept / discard / label(label=) / truncate(start=, end=) / undo; returns TrackPublic.
-        A stale `version` raises StaleEdit."""
-        if action not in {"accept", "discard", "label", "truncate", "undo"}:
-            raise ValueError(f"unknown action {action!r}")
+        """A review action of the service (`crud.REVIEW_ACTIONS`: accept, discard, label(label=),
+        truncate(start=, end=), undo, ...); returns TrackPublic. A stale `version` raises StaleEdit;
+        an action the service does not have answers 404 (ApiError)."""
+        if not action.isidentifier():
+            raise ValueError(f"not an action name: {action!r}")
         return self._json("POST", f"/tracks/{track_id}/{action}", json={"version": version, **body})
 
     def split(self, track_id: int, version: int, region: dict[str, Any], frame_index: int | None = None) -> dict[str, Any]:

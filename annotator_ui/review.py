@@ -195,21 +195,23 @@ class ReviewSession:
         self.history.append(int(self.track["id"]))
         return result
 
-    def _finish(self, action: str, **body: Any) -> dict[str, Any]:
+    def finish(self, action: str, **body: Any) -> dict[str, Any]:
+        """Any service action that settles the track (`POST /tracks/{id}/{action}`), then go on
+        to the next: a new review action of the service needs no method here."""
         with self.lock:
             result = self._act(action, **body)
             self.coordinator.lease_next(self)
             return result
 
     def accept(self) -> dict[str, Any]:
-        return self._finish("accept")
+        return self.finish("accept")
 
     def discard(self) -> dict[str, Any]:
-        return self._finish("discard")
+        return self.finish("discard")
 
     def label(self, class_name: str) -> dict[str, Any]:
         """Give the track one class (the service accepts it too), then go on to the next."""
-        return self._finish("label", label=class_name)
+        return self.finish("label", label=class_name)
 
     def _truncate(self, start: int, end: int) -> dict[str, Any]:
         assert self.track is not None

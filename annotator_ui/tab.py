@@ -222,8 +222,9 @@ class ClientTab:
             if action == "label":
                 assert arg in SAMPLE_CLASSES, arg
                 self._guarded(lambda: self.session.label(arg), before, action)
-            else:
-                self._guarded(getattr(self.session, action), before, action)
+            else:  # a session method (truncate, undo, skip, ...), else a service action that settles the track
+                run = getattr(self.session, action, None) or (lambda: self.session.finish(action))
+                self._guarded(run, before, action)
             return True
 
     def _still_shown(self, shown: Shown | None, action: str) -> bool:
