@@ -33,7 +33,7 @@ lint: $(DEV_STAMP)
 
 test: $(DEV_STAMP)
 	$(MAKE) lint
-	$(VENV)/bin/pytest -q
+	$(VENV)/bin/pytest -q -n 2
 
 demo: $(STAMP)
 	$(VENV)/bin/tracklabel demo --out $(DEMO_DIR) --port $(PORT) --viewer-port $(VIEWER_PORT)
