@@ -23,6 +23,7 @@ import json
 import sys
 import tempfile
 import time
+from contextlib import nullcontext
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -34,11 +35,13 @@ from bench.effort.score import bulk_error, prediction_calibration, score_export
 from bench.effort.service import Api, LocalService
 from bench.effort.truth import SequenceTruth, TruthStore
 from bench.real_data import REAL
+from pipeline.propagation import Rules
 
 LABEL_SETS = ("paper",)  # the label sets the service knows (pipeline/classes.py)
 CLIPS = {"kitti_seq00": (0, 9), "kitti_seq01": None, "kitti_seq02": None}
-RADII = (0.3, 0.5, 1.0)  # the final state is also exported with these (radius, ground radius)
+RADII = (0.3, 0.5, 1.0)  # the final state is also exported with these (radius, ground radius, far radius)
 GROUND_RADII = (0.1, 0.2, 0.3)
+FAR_RADII = (0.0, 2.0, 5.0, 10.0, 20.0)  # at the default radius and ground radius
 
 
 def checkpoints(budget: int) -> list[int]:
@@ -113,13 +116,16 @@ class Run:
 
     def variants(self) -> list[dict[str, Any]]:
         """The final state exported with other propagation radii: how far labels should travel."""
+        default = Rules()
+        grid = [(r, g, default.far_radius) for r in RADII for g in GROUND_RADII]
+        grid += [(default.radius, default.ground_radius, f) for f in FAR_RADII if f != default.far_radius]
         rows = []
-        for radius in RADII:
-            for ground_radius in GROUND_RADII:
-                export = self.admin.export(self.sequence_id, include_ground=True, radius=radius, ground_radius=ground_radius)
-                s = score_export(export, self.truth)
-                rows.append({"radius": radius, "ground_radius": ground_radius, "non_ground_right": s["non_ground_right"],
-                             "ground_right": s["ground_right"]})
+        for radius, ground_radius, far_radius in grid:
+            export = self.admin.export(self.sequence_id, include_ground=True, radius=radius, ground_radius=ground_radius,
+                                       far_radius=far_radius)
+            s = score_export(export, self.truth)
+            rows.append({"radius": radius, "ground_radius": ground_radius, "far_radius": far_radius,
+                         "non_ground_right": s["non_ground_right"], "ground_right": s["ground_right"]})
         return rows
 
     def assist_seconds(self) -> list[float]:
@@ -176,11 +182,15 @@ def plot(results: dict[str, dict[str, Any]], path: Path) -> None:
 
 
 def run_sequence(seq: Path, out: Path, budget: int, frames: tuple[int, int] | None = None,
-                 policy: Policy | None = None, assist_every: int | None = None) -> dict[str, Any]:
-    """The benchmark on one sequence (module docstring); writes OUT/curve.json, effort.png, export/."""
+                 policy: Policy | None = None, assist_every: int | None = None, keep: Path | None = None) -> dict[str, Any]:
+    """The benchmark on one sequence (module docstring); writes OUT/curve.json, effort.png, export/.
+    keep: the service's folder (database, artifacts, the clip's links) is made there and kept, so
+    that `tracklabel serve` and the annotator can show what the operator did; else a temporary one."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="tl_effort_") as tmp:
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="tl_effort_") if keep is None else nullcontext(str(keep.resolve())) as tmp:
         clip = make_clip(seq, *frames, Path(tmp) / "clip" / seq.name) if frames else seq.resolve()
         truth = SequenceTruth(clip)
         env = {"TRACKLABEL_WORKER_POLL_SECONDS": str(WORKER_POLL_S)}
@@ -236,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=_frames, default=None, help="A-B: only frames A..B of the sequence")
     ap.add_argument("--label-set", default="paper", help="the label set (only paper until label sets are data)")
     ap.add_argument("--queue", choices=("priority", "size"), default="priority", help="the review queue's order")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="a folder to make the service in and keep (default: a temporary one)")
     ap.add_argument("--assist-every", type=int, default=None,
                     help="the service's assist_every (reviews between retrains; default: the service's own)")
     args = ap.parse_args(argv)
@@ -245,7 +257,11 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.seq / "labels").is_dir():
         print(f"{args.seq}: no labels/ folder to score against", file=sys.stderr)
         return 2
-    res = run_sequence(args.seq, args.out, args.actions, args.frames, Policy(queue=args.queue), args.assist_every)
+    if args.keep is not None and args.keep.exists() and any(args.keep.iterdir()):
+        print(f"--keep: {args.keep} is not empty", file=sys.stderr)
+        return 2
+    res = run_sequence(args.seq, args.out, args.actions, args.frames, Policy(queue=args.queue), args.assist_every,
+                       args.keep)
     last = res["curve"][-1]
     print(f"{last['actions']} actions: non-ground right {last['non_ground_right']}, ground right {last['ground_right']}")
     return 0

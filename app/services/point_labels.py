@@ -211,5 +211,6 @@ class LabelSummary:
                            "points_no_source_reached": int(self.by_source_class[SOURCE["none"]].sum()) - self.ground_unwritten,
                            "input_rows_that_are_no_point": self.no_point},
             "options": {"include_ground": options.include_ground, "reviewed_only": options.reviewed_only,
-                        "radius": options.rules.radius, "ground_radius": options.rules.ground_radius},
+                        "radius": options.rules.radius, "ground_radius": options.rules.ground_radius,
+                        "far_radius": options.rules.far_radius},
         }

@@ -45,7 +45,8 @@ def _field(world, track, decided):
 
 def test_propagation_gives_each_point_the_nearest_source():
     track, ground, world, decided, predicted = _frame()
-    out = resolve_frame(track, ground, world, decided, predicted, _field(world, track, decided), Rules(), GROUND_CLASS)
+    rules = Rules(far_radius=0.0)
+    out = resolve_frame(track, ground, world, decided, predicted, _field(world, track, decided), rules, GROUND_CLASS)
     assert out.class_.tolist() == [CAR, CAR, BUSH, BUSH, CAR, NONE, BUSH, CAR, GROUND_CLASS]
     names = {v: k for k, v in SOURCE.items()}
     assert [names[s] for s in out.source] == ["reviewed", "reviewed", "predicted", "predicted", "propagated", "none",
@@ -53,9 +54,24 @@ def test_propagation_gives_each_point_the_nearest_source():
     assert np.allclose(out.confidence[[2, 3, 6]], 0.8)
 
 
+def test_propagation_far_radius_reaches_isolated_points_but_no_ground():
+    track, ground, world, decided, predicted = _frame()
+    world = np.vstack([world, [[1.0, 0, -2.0]]])  # a ground point 3 m below the car
+    track, ground = np.append(track, 0), np.append(ground, True)
+    field = _field(world, track, decided)
+    near = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS)
+    far = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=2.0), GROUND_CLASS)
+    assert near.class_[5] == NONE
+    # x = 3 is 1.8 m from the car's point propagated to x = 1.2: within 2 m, beyond the 1 m radius
+    assert far.class_[5] == CAR and far.source[5] != SOURCE["none"]
+    assert far.class_[9] == GROUND_CLASS and far.source[9] == SOURCE["ground"]
+    keep = np.arange(len(track)) != 5
+    assert np.array_equal(near.class_[keep], far.class_[keep])
+
+
 def test_propagation_off_leaves_untracked_points_without_a_class():
     track, ground, world, decided, predicted = _frame()
-    rules = Rules(radius=0.0, ground_radius=0.0)
+    rules = Rules(radius=0.0, ground_radius=0.0, far_radius=0.0)
     out = resolve_frame(track, ground, world, decided, predicted, _field(world, track, decided), rules, None)
     assert out.class_.tolist() == [CAR, CAR, BUSH, BUSH, NONE, NONE, NONE, NONE, NONE]
 

@@ -77,18 +77,21 @@ def export_semantickitti(
     radius: Annotated[float, Query(ge=0.0, le=5.0, description="Metres labels travel to points no review reached.")] = Rules.radius,
     ground_radius: Annotated[float, Query(ge=0.0, le=5.0, description="The same, to points the ground estimate took.")]
     = Rules.ground_radius,
+    far_radius: Annotated[float, Query(ge=0.0, le=20.0, description="Metres, within a frame, to points that are not "
+                                       "ground and that nothing reached within `radius`.")] = Rules.far_radius,
     with_sources: bool = False,
 ) -> StreamingResponse:
     """Per-frame SemanticKITTI `.label` files as a streamed tar, a class for every point that any
     source reaches: its track's reviewed or bulk-accepted class, else the nearest decided point
     within `radius` (in the world frame, this or nearby frames), else its track's predicted class
-    or its frame's nearest labelled point; instance = track key (chunked with `chunk_map.json`
+    or its frame's nearest labelled point (within `far_radius`); instance = track key (chunked with `chunk_map.json`
     past 65,535). `include_ground` writes the ground class on the remaining ground points;
     `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts the points per
     source and class, with confidences, and the points left without a class; `with_sources` adds
     each point's source (`sources/<frame>.source`, uint8 per row: its index in `summary.sources`)."""
     seq = crud.get_sequence(session, sequence_id)
-    options = ExportOptions(include_ground, reviewed_only, Rules(radius=radius, ground_radius=ground_radius))
+    options = ExportOptions(include_ground, reviewed_only, Rules(radius=radius, ground_radius=ground_radius,
+                                                                       far_radius=far_radius))
     plan = point_label_plan(session, seq, options)
     session.close()
     return StreamingResponse(

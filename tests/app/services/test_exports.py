@@ -100,7 +100,7 @@ def test_exports_semantickitti_labels_every_point_it_can_and_counts_sources(clie
     with db.write() as s:
         s.execute(update(Track).where(Track.id == ids[1]).values(predicted_class="bush", predicted_confidence=0.7))
         s.commit()
-    frames, summary = _tar_labels(client, op, seq, include_ground=True, radius=0.0, ground_radius=0.0)
+    frames, summary = _tar_labels(client, op, seq, include_ground=True, radius=0.0, ground_radius=0.0, far_radius=0.0)
     # frame 1: object 0 (20 points), object 1 (20), the invalid segment (4), 30 ground points
     f1 = frames[1]
     assert set(f1[:20] & 0xFFFF) == {SEMANTICKITTI_WRITE_ID["car"]}
