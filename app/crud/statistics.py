@@ -131,6 +131,15 @@ def labels_query(sequence_id: int | None) -> Any:
     return q
 
 
+def segment_classes(session: Session, sequence_id: int, source: str | None = None) -> dict[int, int]:
+    """Class index per labelled segment of the sequence; only the labels from `source` when given
+    ("review": an operator's, not a bulk accept's)."""
+    q = select(Label.segment_id, Label.class_index).where(Label.sequence_id == sequence_id)
+    if source is not None:
+        q = q.where(Label.source == source)
+    return {int(seg): int(cls) for seg, cls in session.execute(q).all()}
+
+
 def track_label_rows(session: Session, sequence_id: int) -> list[Any]:
     """(track id, key, label, keep_start, keep_end) of accepted, labelled tracks."""
     return list(
