@@ -213,31 +213,28 @@ class ReviewSession:
         """Give the track one class (the service accepts it too), then go on to the next."""
         return self.finish("label", label=class_name)
 
-    def _truncate(self, start: int, end: int) -> dict[str, Any]:
-        assert self.track is not None
-        if (start, end) == (int(self.track["keep_start"]), int(self.track["keep_end"])):
-            raise NoChange(f"frames {start}-{end} are already the kept range")
-        return self._act("truncate", start=start, end=end)
+    def _truncate_at_current(self, keep: str) -> dict[str, Any]:
+        """Keep `"after"` (current..keep_end) or `"before"` (keep_start..current) the current frame."""
+        with self.lock:
+            assert self.track is not None and self.frame_index is not None
+            start, end = int(self.track["keep_start"]), int(self.track["keep_end"])
+            if keep == "after":
+                start = min(self.frame_index, end)
+            else:
+                end = max(self.frame_index, start)
+            if (start, end) == (int(self.track["keep_start"]), int(self.track["keep_end"])):
+                raise NoChange(f"frames {start}-{end} are already the kept range")
+            result = self._act("truncate", start=start, end=end)
+            self.reload()
+            return result
 
     def truncate_before(self) -> dict[str, Any]:
         """Drop the frames before the current one: keep current..keep_end."""
-        with self.lock:
-            assert self.track is not None and self.frame_index is not None
-            end = int(self.track["keep_end"])
-            start = min(self.frame_index, end)
-            result = self._truncate(start, end)
-            self.reload()
-            return result
+        return self._truncate_at_current("after")
 
     def truncate_after(self) -> dict[str, Any]:
         """Drop the frames after the current one: keep keep_start..current."""
-        with self.lock:
-            assert self.track is not None and self.frame_index is not None
-            start = int(self.track["keep_start"])
-            end = max(self.frame_index, start)
-            result = self._truncate(start, end)
-            self.reload()
-            return result
+        return self._truncate_at_current("before")
 
     def undo(self) -> dict[str, Any]:
         """Revert this tab's last action and show that track. Nothing to undo -> StaleEdit."""
