@@ -22,6 +22,7 @@ each tab exclude the tracks the other tabs show, so no two tabs get the same tra
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -185,15 +186,22 @@ class ReviewSession:
         return self.frame_index
 
     # ------------------------------------------------------------------ actions
-    def _act(self, action: str, **body: Any) -> dict[str, Any]:
+    def _edit(self, call: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        """Run one edit of the shown track: a stale version reloads the track (the operator sees
+        what changed) and raises; an edit that went through goes into this tab's undo history."""
         assert self.track is not None, "no track is shown"
         try:
-            result = self.api.act(self.track["id"], action, self.track["version"], **body)
+            result = call()
         except StaleEdit:
             self.reload()
             raise
         self.history.append(int(self.track["id"]))
         return result
+
+    def _act(self, action: str, **body: Any) -> dict[str, Any]:
+        assert self.track is not None, "no track is shown"
+        track = self.track
+        return self._edit(lambda: self.api.act(track["id"], action, track["version"], **body))
 
     def finish(self, action: str, **body: Any) -> dict[str, Any]:
         """Any service action that settles the track (`POST /tracks/{id}/{action}`), then go on
@@ -262,12 +270,8 @@ class ReviewSession:
         with self.lock:
             assert self.track is not None
             frame = self.frame_index if this_frame_only else None
-            try:
-                result = self.api.split(int(self.track["id"]), int(self.track["version"]), region, frame)
-            except StaleEdit:
-                self.reload()
-                raise
-            self.history.append(int(self.track["id"]))
+            track = self.track
+            result = self._edit(lambda: self.api.split(int(track["id"]), int(track["version"]), region, frame))
             self.reload()
             return result
 
@@ -279,12 +283,10 @@ class ReviewSession:
             if other_id == self.track_id:
                 raise NoChange("a track cannot be merged with itself")
             other = self.api.track(other_id)
-            try:
-                result = self.api.merge(int(self.track["id"]), int(self.track["version"]), other_id, int(other["version"]))
-            except StaleEdit:
-                self.reload()
-                raise
-            self.history.append(int(self.track["id"]))
+            track = self.track
+            result = self._edit(
+                lambda: self.api.merge(int(track["id"]), int(track["version"]), other_id, int(other["version"]))
+            )
             self.reload()
             return result
 
