@@ -80,7 +80,7 @@ def job_runs(session: Session, job_type: str) -> list[tuple[str, dict[str, Any]]
     ).all()]
 
 
-def users_at_running_limit(limit: int) -> Any:
+def _users_at_running_limit(limit: int) -> Any:
     """SQL: ids of users who already have `limit` running jobs (their queued jobs wait)."""
     return (
         select(Job.created_by_id)
@@ -90,9 +90,9 @@ def users_at_running_limit(limit: int) -> Any:
     )
 
 
-def claimable_owner(limit: int) -> Any:
+def _claimable_owner(limit: int) -> Any:
     """SQL condition on a queued job: its owner is below the running limit."""
-    return or_(Job.created_by_id.is_(None), Job.created_by_id.not_in(users_at_running_limit(limit)))
+    return or_(Job.created_by_id.is_(None), Job.created_by_id.not_in(_users_at_running_limit(limit)))
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ def _next_claimable(session: Session, rules: ClaimRules, now: datetime) -> Job |
         .where(
             Job.type.in_(rules.types),
             or_(
-                (Job.status == "queued") & claimable_owner(rules.max_running_per_user),
+                (Job.status == "queued") & _claimable_owner(rules.max_running_per_user),
                 (Job.status == "running") & (Job.lease_expires_at < now),
             ),
         )
