@@ -276,37 +276,62 @@ class JobsPanel:
         self.gui_curve = self.gui.add_uplot(data, series, title="Learning curve", aspect=1.4)
 
 
-class AnchorsPanel:
-    """Anchor proposals (issue 7's `/anchors`): the waiting proposals of the shown sequence, each
-    with its sample and proposed class; the operator confirms, corrects (another class) or rejects
-    it, or opens its track in the 3D view. Without that API the panel says so and stays disabled."""
+class _RowsPanel:
+    """A panel listing one page of an API resource's waiting rows (anchor proposals, stitches): a
+    status line, the subclass's buttons, a refresh button and a folder of rows that each refresh
+    rebuilds. The subclass's `_refresh` reads the page and draws it."""
 
     PAGE = 8
+    # what it lists (the status line while it looks), its refresh button, its rows' folder
+    NAMES = ("rows", "Refresh", "Rows")
 
     def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
                  sequence_id: Callable[[], int | None], open_track: Callable[[int], None]) -> None:
+        what, refresh_label, rows_title = self.NAMES
         self.gui = gui
         self.api = api
         self.notify = notify
         self.sequence_id = sequence_id
         self.open_track = open_track
         self.available = False
-        self.gui_status = gui.add_markdown("Checking for anchor proposals ...")
-        self.gui_propose = gui.add_button("Propose anchors", icon=viser.Icon.ANCHOR, disabled=True)
-        self.gui_propose.on_click(lambda _: self.propose())
-        self.gui_refresh = gui.add_button("Refresh anchors", icon=viser.Icon.REFRESH, disabled=True)
+        self.gui_status = gui.add_markdown(f"Checking for {what} ...")
+        self._add_buttons()
+        self.gui_refresh = gui.add_button(refresh_label, icon=viser.Icon.REFRESH, disabled=True)
         self.gui_refresh.on_click(lambda _: self.refresh())
         # rows are added from background threads: viser puts a handle in the container of the
         # thread's `with` block, so without this folder they landed under every tab
-        self.gui_rows = gui.add_folder("Waiting proposals", expand_by_default=True)
+        self.gui_rows = gui.add_folder(rows_title, expand_by_default=True)
         self._items: list[Any] = []
-        # a refresh runs from the tab's background work and from buttons at the same time; viser
-        # lets one thread at a time into the rows' folder
+        # a refresh runs from the tab's background work and from buttons at the same time (and
+        # after quick successive actions); viser lets one thread at a time into the rows' folder
         self._lock = threading.Lock()
+
+    def _add_buttons(self) -> None:
+        """The panel's own buttons, above Refresh (none here)."""
 
     def refresh(self) -> None:
         with self._lock:
             self._refresh()
+
+    def _refresh(self) -> None:
+        raise NotImplementedError
+
+    def _clear_rows(self) -> None:
+        for h in self._items:
+            h.remove()
+        self._items = []
+
+
+class AnchorsPanel(_RowsPanel):
+    """Anchor proposals (issue 7's `/anchors`): the waiting proposals of the shown sequence, each
+    with its sample and proposed class; the operator confirms, corrects (another class) or rejects
+    it, or opens its track in the 3D view. Without that API the panel says so and stays disabled."""
+
+    NAMES = ("anchor proposals", "Refresh anchors", "Waiting proposals")
+
+    def _add_buttons(self) -> None:
+        self.gui_propose = self.gui.add_button("Propose anchors", icon=viser.Icon.ANCHOR, disabled=True)
+        self.gui_propose.on_click(lambda _: self.propose())
 
     def _refresh(self) -> None:
         self.available = self.api.has_route("get", ANCHORS_PATH)
@@ -343,9 +368,7 @@ class AnchorsPanel:
         self.notify("Anchor proposal queued", f"job #{job['id']}; refresh when it has finished", "blue")
 
     def _render(self, items: list[dict[str, Any]], total: int) -> None:
-        for h in self._items:
-            h.remove()
-        self._items = []
+        self._clear_rows()
         if not items:
             self.gui_status.content = (
                 "**No anchor proposals** are waiting. A trained model proposes them (Propose anchors)."
@@ -397,7 +420,7 @@ class AnchorsPanel:
 STITCHES_PATH = "/stitches"
 
 
-class StitchesPanel:
+class StitchesPanel(_RowsPanel):
     """Stitches (`/stitches`): two tracks joined by fragment links, pieces of one object. The
     panel lists the pending stitches of the shown track (else of the shown sequence), most links
     first; the operator confirms (one object: its fragment pairs become constraints once both
@@ -405,30 +428,15 @@ class StitchesPanel:
     3D view. The tab refreshes it after every action and track change, so its rows are always
     those of the shown track. Without that API the panel says so and stays disabled."""
 
-    PAGE = 8
+    NAMES = ("stitches", "Refresh stitches", "Pending stitches")
 
     def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
                  sequence_id: Callable[[], int | None], track_id: Callable[[], int | None],
                  open_track: Callable[[int], None], merge: Callable[[int, int], None] | None = None) -> None:
-        self.gui = gui
         self.merge = merge
-        self.api = api
-        self.notify = notify
-        self.sequence_id = sequence_id
         self.track_id = track_id
-        self.open_track = open_track
-        self.available = False
-        self.gui_status = gui.add_markdown("Checking for stitches ...")
-        self.gui_refresh = gui.add_button("Refresh stitches", icon=viser.Icon.REFRESH, disabled=True)
-        self.gui_refresh.on_click(lambda _: self.refresh())
-        self.gui_rows = gui.add_folder("Pending stitches", expand_by_default=True)  # see AnchorsPanel.gui_rows
-        self._items: list[Any] = []
-        self._lock = threading.Lock()  # refreshes after quick successive actions must not interleave rows
+        super().__init__(gui, api, notify, sequence_id, open_track)
         self._shown: tuple[Any, ...] | None = None
-
-    def refresh(self) -> None:
-        with self._lock:
-            self._refresh()
 
     def _refresh(self) -> None:
         self.available = self.api.has_route("get", STITCHES_PATH)
@@ -454,9 +462,7 @@ class StitchesPanel:
         if key == self._shown:
             return  # the same rows: rebuilding them would only make the browser lay the panel out again
         self._shown = key
-        for h in self._items:
-            h.remove()
-        self._items = []
+        self._clear_rows()
         where = f"of track {track}" if track is not None else "of this sequence"
         if not items:
             self.gui_status.content = f"**No pending stitches** {where}."

@@ -22,6 +22,7 @@ each tab exclude the tracks the other tabs show, so no two tabs get the same tra
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -185,15 +186,22 @@ class ReviewSession:
         return self.frame_index
 
     # ------------------------------------------------------------------ actions
-    def _act(self, action: str, **body: Any) -> dict[str, Any]:
+    def _edit(self, call: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+        """Run one edit of the shown track: a stale version reloads the track (the operator sees
+        what changed) and raises; an edit that went through goes into this tab's undo history."""
         assert self.track is not None, "no track is shown"
         try:
-            result = self.api.act(self.track["id"], action, self.track["version"], **body)
+            result = call()
         except StaleEdit:
             self.reload()
             raise
         self.history.append(int(self.track["id"]))
         return result
+
+    def _act(self, action: str, **body: Any) -> dict[str, Any]:
+        assert self.track is not None, "no track is shown"
+        track = self.track
+        return self._edit(lambda: self.api.act(track["id"], action, track["version"], **body))
 
     def finish(self, action: str, **body: Any) -> dict[str, Any]:
         """Any service action that settles the track (`POST /tracks/{id}/{action}`), then go on
@@ -213,31 +221,28 @@ class ReviewSession:
         """Give the track one class (the service accepts it too), then go on to the next."""
         return self.finish("label", label=class_name)
 
-    def _truncate(self, start: int, end: int) -> dict[str, Any]:
-        assert self.track is not None
-        if (start, end) == (int(self.track["keep_start"]), int(self.track["keep_end"])):
-            raise NoChange(f"frames {start}-{end} are already the kept range")
-        return self._act("truncate", start=start, end=end)
+    def _truncate_at_current(self, keep: str) -> dict[str, Any]:
+        """Keep `"after"` (current..keep_end) or `"before"` (keep_start..current) the current frame."""
+        with self.lock:
+            assert self.track is not None and self.frame_index is not None
+            start, end = int(self.track["keep_start"]), int(self.track["keep_end"])
+            if keep == "after":
+                start = min(self.frame_index, end)
+            else:
+                end = max(self.frame_index, start)
+            if (start, end) == (int(self.track["keep_start"]), int(self.track["keep_end"])):
+                raise NoChange(f"frames {start}-{end} are already the kept range")
+            result = self._act("truncate", start=start, end=end)
+            self.reload()
+            return result
 
     def truncate_before(self) -> dict[str, Any]:
         """Drop the frames before the current one: keep current..keep_end."""
-        with self.lock:
-            assert self.track is not None and self.frame_index is not None
-            end = int(self.track["keep_end"])
-            start = min(self.frame_index, end)
-            result = self._truncate(start, end)
-            self.reload()
-            return result
+        return self._truncate_at_current("after")
 
     def truncate_after(self) -> dict[str, Any]:
         """Drop the frames after the current one: keep keep_start..current."""
-        with self.lock:
-            assert self.track is not None and self.frame_index is not None
-            start = int(self.track["keep_start"])
-            end = max(self.frame_index, start)
-            result = self._truncate(start, end)
-            self.reload()
-            return result
+        return self._truncate_at_current("before")
 
     def undo(self) -> dict[str, Any]:
         """Revert this tab's last action and show that track. Nothing to undo -> StaleEdit."""
@@ -265,12 +270,8 @@ class ReviewSession:
         with self.lock:
             assert self.track is not None
             frame = self.frame_index if this_frame_only else None
-            try:
-                result = self.api.split(int(self.track["id"]), int(self.track["version"]), region, frame)
-            except StaleEdit:
-                self.reload()
-                raise
-            self.history.append(int(self.track["id"]))
+            track = self.track
+            result = self._edit(lambda: self.api.split(int(track["id"]), int(track["version"]), region, frame))
             self.reload()
             return result
 
@@ -282,12 +283,10 @@ class ReviewSession:
             if other_id == self.track_id:
                 raise NoChange("a track cannot be merged with itself")
             other = self.api.track(other_id)
-            try:
-                result = self.api.merge(int(self.track["id"]), int(self.track["version"]), other_id, int(other["version"]))
-            except StaleEdit:
-                self.reload()
-                raise
-            self.history.append(int(self.track["id"]))
+            track = self.track
+            result = self._edit(
+                lambda: self.api.merge(int(track["id"]), int(track["version"]), other_id, int(other["version"]))
+            )
             self.reload()
             return result
 

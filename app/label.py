@@ -19,7 +19,6 @@ from app import local
 from app.core.config import Settings
 from app.core.db import Database
 from app.core.migrate import upgrade
-from app.models import Sequence
 from pipeline.errors import ConfigError
 from pipeline.progress import QUIET, Progress
 
@@ -110,12 +109,11 @@ def _register(db: Database, src: Source, admin_id: int, log: Callable[[str], Non
 def _ingest(settings: Settings, db: Database, seq_id: int, src: Source, log: Callable[[str], None],
             progress: Progress) -> dict[str, Any]:
     """Queue the ingest (or pick up one queued before) and run it here; {} when it is ready."""
+    from app.crud.datasets import get_sequence
     from app.crud.ingest_rows import active_ingest_job
 
     with db.read() as s:
-        seq = s.get(Sequence, seq_id)
-        assert seq is not None
-        status = seq.status
+        status = get_sequence(s, seq_id).status
         job_id = active_ingest_job(s, seq_id)
     if status == "ready" and not src.reingest:
         log("already ingested: its tracks and reviews are kept (--reingest processes it again)")

@@ -19,13 +19,12 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
-from sqlalchemy import select
 
 from app import crud
 from app.core.config import Settings
 from app.core.db import Database
 from app.jobs import policy
-from app.models import Job, Sequence, User
+from app.models import Job, Sequence
 from pipeline.errors import ConfigError, TracklabelError
 from pipeline.progress import QUIET, Progress
 
@@ -48,7 +47,7 @@ def check_ports(host: str, ports: dict[str, int]) -> None:
 def token_for(db: Database, name: str, role: str) -> str:
     """A new token for user `name`, creating the user (with `role`) when needed."""
     with db.write() as s:
-        user_id = s.scalar(select(User.id).where(User.name == name))
+        user_id = crud.user_id_by_name(s, name)
         token = crud.create_user(s, name, role)[1] if user_id is None else crud.create_token(s, user_id)
         s.commit()
     return token
@@ -56,7 +55,7 @@ def token_for(db: Database, name: str, role: str) -> str:
 
 def user_id(db: Database, name: str) -> int:
     with db.read() as s:
-        uid = s.scalar(select(User.id).where(User.name == name))
+        uid = crud.user_id_by_name(s, name)
     if uid is None:
         raise ConfigError(f"no user {name!r} in this database")
     return int(uid)
@@ -67,10 +66,10 @@ def find_sequence(db: Database, ref: str) -> Sequence:
     that lists the registered ones otherwise."""
     path = str(Path(ref).expanduser().resolve())
     with db.read() as s:
-        seq = s.scalars(select(Sequence).where(Sequence.path == path).order_by(Sequence.id.desc())).first()
+        seq = crud.sequence_at_path(s, path)
         if seq is None and ref.isdigit():
-            seq = s.get(Sequence, int(ref))
-        known = s.execute(select(Sequence.id, Sequence.path).order_by(Sequence.id)).all()
+            seq = crud.find_sequence_by_id(s, int(ref))
+        known = crud.sequence_paths(s)
         if seq is not None:
             s.expunge(seq)
             return seq
@@ -136,8 +135,7 @@ def _follow(db: Database, job_id: int, desc: str, progress: Progress) -> Job:
     with progress.bar(100, desc, unit="%", bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}{postfix}") as bar:
         while True:
             with db.read() as s:
-                job = s.get(Job, job_id)
-                assert job is not None
+                job = crud.get_job(s, job_id)
                 s.expunge(job)
             pct = int(100 * (1.0 if job.status == "succeeded" else float(job.progress or 0.0)))
             if pct > shown:
@@ -151,10 +149,8 @@ def _follow(db: Database, job_id: int, desc: str, progress: Progress) -> Job:
 
 def latest_model(db: Database) -> Path:
     """The checkpoint of the newest model trained in this database (button or `tracklabel train`)."""
-    from app.models import ModelVersion
-
     with db.read() as s:
-        path = s.scalar(select(ModelVersion.path).order_by(ModelVersion.id.desc()).limit(1))
+        path = crud.newest_model_path(s)
     if path is None:
         raise ConfigError("no model has been trained in this data folder yet: tracklabel train SEQ first")
     return Path(path)
@@ -171,9 +167,7 @@ def export_semantickitti(db: Database, settings: Settings, seq: Sequence, out: P
     from app.services.point_labels import point_label_plan
 
     with db.read() as s:
-        row = s.get(Sequence, seq.id)
-        assert row is not None
-        plan = point_label_plan(s, row, options)
+        plan = point_label_plan(s, crud.get_sequence(s, seq.id), options)
     stream = _ChunkReader(semantickitti_tar(plan, ArtifactStore(settings.artifacts_path)))
     out.mkdir(parents=True, exist_ok=True)
     written = []

@@ -18,31 +18,22 @@ import threading
 import time
 import traceback
 import uuid
-from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
 from pydantic import ValidationError
-from sqlalchemy import case, or_, select, update
 
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
+from app.crud import jobs as crud_jobs
+from app.crud.jobs import ClaimedJob, ClaimRules
 from app.jobs import policy
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.registry import get_job_type, load_job_types
-from app.models import Job, utcnow
+from app.models import utcnow
 
 log = logging.getLogger("tracklabel.worker")
-
-
-@dataclass(frozen=True)
-class ClaimedJob:
-    id: int
-    type: str
-    params: dict[str, Any]
-    attempt: int
-    created_by_id: int | None
 
 
 class Worker:
@@ -59,44 +50,10 @@ class Worker:
     # ------------------------------------------------------------------ claiming
     def claim(self) -> ClaimedJob | None:
         """Claim one job, or None when nothing is runnable."""
-        lease = timedelta(seconds=self.settings.job_lease_seconds)
-        while True:
-            now = utcnow()
-            with self.db.write() as s:
-                job = s.scalars(
-                    select(Job)
-                    .where(
-                        Job.type.in_(self.types),
-                        or_(
-                            (Job.status == "queued") & policy.claimable_owner(s, self.settings.job_max_running_per_user),
-                            (Job.status == "running") & (Job.lease_expires_at < now),
-                        ),
-                    )
-                    .order_by(Job.priority.desc(), Job.id)
-                    .limit(1)
-                    .with_for_update(skip_locked=True)
-                ).first()
-                if job is None:
-                    return None
-                if job.status == "running" and (job.cancel_requested or job.attempts >= self.settings.job_max_attempts):
-                    job.status = "cancelled" if job.cancel_requested else "failed"
-                    job.error = None if job.cancel_requested else f"lease expired after {job.attempts} attempts"
-                    job.finished_at = now
-                    job.lease_expires_at = None
-                    s.commit()
-                    continue
-                job.status = "running"
-                job.worker_id = self.worker_id
-                job.attempts += 1
-                job.lease_expires_at = now + lease
-                job.heartbeat_at = now
-                # never before its creation, whichever machine's clock stamped that
-                job.started_at = job.started_at or max(now, job.created_at)
-                # the worker's host and pid stay in worker_id, for admins and the logs
-                job.message = f"claimed by a worker (attempt {job.attempts})"
-                claimed = ClaimedJob(job.id, job.type, dict(job.params or {}), job.attempts, job.created_by_id)
-                s.commit()
-                return claimed
+        rules = ClaimRules(self.types, self.settings.job_max_running_per_user, self.settings.job_max_attempts,
+                           timedelta(seconds=self.settings.job_lease_seconds))
+        with self.db.write() as s:
+            return crud_jobs.claim_job(s, rules, self.worker_id)
 
     # ------------------------------------------------------------------ running
     def run_once(self) -> bool:
@@ -168,24 +125,11 @@ class Worker:
         message: str = "",
         trace: str | None = None,
     ) -> None:
-        now = utcnow()
-        values: dict[str, Any] = {
-            "status": status,
-            "finished_at": case((Job.started_at > now, Job.started_at), else_=now),  # never before the start
-            "lease_expires_at": None,
-            "message": message or status,
-        }
-        if status == "succeeded":
-            values.update(result=result or {}, progress=1.0)
-        if error is not None:
-            values["error"] = error if trace is None else f"{error}\n{trace[-4000:]}"
+        values = crud_jobs.finish_job_values(
+            status, result, error if error is None or trace is None else f"{error}\n{trace[-4000:]}", message
+        )
         with self.db.write() as s:
-            s.execute(
-                update(Job)
-                .where(Job.id == ctx.job_id, Job.worker_id == self.worker_id, Job.status == "running")
-                .values(**values)
-            )
-            s.commit()
+            crud_jobs.update_running_job(s, ctx.job_id, self.worker_id, values)
 
     def _heartbeat(self, ctx: JobContext, stop: threading.Event, deadline: float) -> None:
         lease = timedelta(seconds=self.settings.job_lease_seconds)
@@ -197,17 +141,13 @@ class Worker:
                 self.touch_alive()
                 with self.db.write() as s:
                     now = utcnow()
-                    res = s.execute(
-                        update(Job)
-                        .where(Job.id == ctx.job_id, Job.worker_id == self.worker_id, Job.status == "running")
-                        .values(lease_expires_at=now + lease, heartbeat_at=now)
+                    running = crud_jobs.update_running_job(
+                        s, ctx.job_id, self.worker_id, {"lease_expires_at": now + lease, "heartbeat_at": now}
                     )
-                    cancel = s.scalar(select(Job.cancel_requested).where(Job.id == ctx.job_id))
-                    s.commit()
-                if res.rowcount != 1:
+                if not running.owned:
                     ctx.lease_lost.set()
                     return
-                if cancel:
+                if running.cancel_requested:
                     ctx.cancelled.set()
             except Exception:  # noqa: BLE001 - a missed beat is retried; the lease covers several
                 log.exception("job %s: heartbeat failed", ctx.job_id)

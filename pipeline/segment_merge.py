@@ -34,6 +34,25 @@ def _union(parent, a, b):  # pragma: no cover - numba
         parent[ra] = rb
 
 
+@njit(cache=True)
+def _number_sets(parent, weight):  # pragma: no cover - numba
+    """The sets of the union-find forest `parent` (n,) numbered 0, 1, ... in the order of their
+    first member: (n,) int32 number of each member, (count,) int32 sum of `weight` (n,) per set,
+    count."""
+    n = len(parent)
+    number = np.full(n, -1, dtype=np.int32)
+    sums = np.zeros(n, dtype=np.int32)
+    count = 0
+    for k in range(n):
+        root = _find(parent, k)
+        if number[root] < 0:
+            number[root] = count
+            count += 1
+        number[k] = number[root]
+        sums[number[k]] += weight[k]
+    return number, sums[:count], count
+
+
 @njit(cache=True, parallel=True)
 def _label_components(ok, right, down):  # pragma: no cover - numba
     """Connected components of the join graph (joins flagged TEXTURE_CUT excluded): (H, W) int32
@@ -92,22 +111,13 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
                     _union(parent, a, b)
                     last_a = a
                     last_b = b
-    lab = np.full(n, -1, dtype=np.int32)
-    sizes = np.zeros(n, dtype=np.int32)
-    nxt = 0
-    for k in range(n):
-        root = _find(parent, k)
-        if lab[root] < 0:
-            lab[root] = nxt
-            nxt += 1
-        lab[k] = lab[root]
-        sizes[lab[k]] += length[k]
+    lab, sizes, count = _number_sets(parent, length)
     labels = np.full((h, w), -1, dtype=np.int32)
     for r in prange(h):
         for c in range(w):
             if ok[r, c]:
                 labels[r, c] = lab[first[r] + run_of[r, c]]
-    return labels, sizes[:nxt], nxt
+    return labels, sizes, count
 
 
 @njit(cache=True)
@@ -214,14 +224,4 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, 
             break
         if best[a] >= 0:
             _union(parent, a, best[a])
-    remap = np.full(count, -1, dtype=np.int32)
-    new_sizes = np.zeros(count, dtype=np.int32)
-    nxt = 0
-    for k in range(count):  # components keep the raster order of their first pixel
-        root = _find(parent, k)
-        if remap[root] < 0:
-            remap[root] = nxt
-            nxt += 1
-        remap[k] = remap[root]
-        new_sizes[remap[k]] += sizes[k]
-    return remap, new_sizes[:nxt], nxt
+    return _number_sets(parent, sizes)  # components keep the raster order of their first pixel

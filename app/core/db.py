@@ -107,8 +107,18 @@ class Database:
     def dialect(self) -> str:
         return self.engine.dialect.name
 
+    def ping(self) -> None:
+        """Raise unless the database answers `SELECT 1`."""
+        ping(self.engine)
+
     def dispose(self) -> None:
         self.engine.dispose()
+
+
+def ping(engine: Engine) -> None:
+    """Raise unless the database answers `SELECT 1`."""
+    with engine.connect() as conn:
+        conn.execute(text("SELECT 1"))
 
 
 def wait_for_db(engine: Engine, timeout_s: float = 60.0, interval_s: float = 1.0) -> None:
@@ -116,8 +126,7 @@ def wait_for_db(engine: Engine, timeout_s: float = 60.0, interval_s: float = 1.0
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            with engine.connect() as conn:
-                conn.execute(text("SELECT 1"))
+            ping(engine)
             return
         except Exception:
             if time.monotonic() >= deadline:

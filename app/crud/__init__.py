@@ -16,17 +16,22 @@ from app.crud.datasets import (
     check_tree_inside_roots,
     create_dataset,
     dataset_sequences,
+    find_sequence_by_id,
     get_dataset,
     get_sequence,
     list_datasets,
     list_sequences,
     pipeline_config,
+    ready_sequence_ids,
     registered_sequence_id,
     require_ready,
     resolve_registration_path,
+    sequence_at_path,
+    sequence_paths,
     sequence_stats,
 )
-from app.crud.jobs import cancel_job, create_job, get_job, list_jobs
+from app.crud.jobs import cancel_job, create_job, get_job, job_runs, list_jobs, queued_count
+from app.crud.model_versions import newest_model_path
 from app.crud.review import (
     REVIEW_ACTIONS,
     REVIEW_FIELDS,
@@ -58,6 +63,8 @@ from app.crud.users import (
     revoke_tokens,
     set_user_active,
     user_for_token,
+    user_id_by_name,
+    user_role,
 )
 
 __all__ = [
@@ -125,4 +132,13 @@ __all__ = [
     "verified_constraints_query",
     "labels_query",
     "track_label_rows",
+    "find_sequence_by_id",
+    "ready_sequence_ids",
+    "sequence_at_path",
+    "sequence_paths",
+    "user_id_by_name",
+    "user_role",
+    "queued_count",
+    "job_runs",
+    "newest_model_path",
 ]

@@ -13,13 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import delete, func, insert, select
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud import AuthUser
-from app.models import AnchorEvent, AnchorProposal, Segment, Track, User, utcnow
+from app.models import AnchorEvent, AnchorProposal, Frame, Segment, Track, User, utcnow
 
 ANSWERS = ("confirm", "correct", "reject")
 
@@ -210,3 +210,41 @@ def confirmed_sample_anchors(session: Session, sequence_id: int) -> list[tuple[i
             )
         ).all()
     ]
+
+
+def proposal_candidates(session: Session, sequence_id: int) -> list[Any]:
+    """The sequence's segments that have a sample and a track, in frame order then local id, with
+    their frame's artifact and their track's status and label: (id, track_id, sample_index,
+    artifact, status, label)."""
+    return list(session.execute(
+        select(Segment.id, Segment.track_id, Segment.sample_index, Frame.artifact, Track.status, Track.label)
+        .join(Frame, Frame.id == Segment.frame_id)
+        .join(Track, Track.id == Segment.track_id)
+        .where(Segment.sequence_id == sequence_id, Segment.sample_index.is_not(None))
+        .order_by(Segment.frame_index, Segment.local_id)
+    ).all())
+
+
+def answered_proposals(session: Session, sequence_id: int, *, with_unanswered: bool) -> list[Any]:
+    """(segment_id, track_id, level) of the sequence's answered proposals, and of its unanswered
+    ones too with `with_unanswered` (a run that keeps them must not propose them again)."""
+    q = select(AnchorProposal.segment_id, AnchorProposal.track_id, AnchorProposal.level).where(
+        AnchorProposal.sequence_id == sequence_id
+    )
+    if not with_unanswered:
+        q = q.where(AnchorProposal.status != "proposed")
+    return list(session.execute(q).all())
+
+
+def store_proposals(session: Session, sequence_id: int, values: list[dict[str, Any]], *, replace: bool) -> int:
+    """Insert proposal rows, first deleting the sequence's unanswered ones with `replace`; commits.
+    Returns how many were deleted."""
+    removed = 0
+    if replace:
+        removed = session.execute(
+            delete(AnchorProposal).where(AnchorProposal.sequence_id == sequence_id, AnchorProposal.status == "proposed")
+        ).rowcount
+    if values:
+        session.execute(insert(AnchorProposal), values)
+    session.commit()
+    return int(removed or 0)

@@ -40,3 +40,10 @@ def delete_assignment(session: Session, assignment_id: int) -> None:
         raise NotFound(f"assignment {assignment_id} not found")
     session.delete(row)
     session.commit()
+
+
+def is_assigned(session: Session, user_id: int, sequence_id: int) -> bool:
+    """True when an admin assigned the user to the sequence."""
+    return session.scalar(
+        select(Assignment.id).where(Assignment.user_id == user_id, Assignment.sequence_id == sequence_id).limit(1)
+    ) is not None

@@ -152,3 +152,22 @@ def list_sequences(session: Session, status: str | None = None) -> list[Sequence
 
 def get_sequence(session: Session, sequence_id: int) -> Sequence:
     return get_or_404(session, Sequence, sequence_id, "sequence")
+
+
+def sequence_at_path(session: Session, path: str) -> Sequence | None:
+    """The newest sequence registered at `path` (resolved), None when there is none."""
+    return session.scalars(select(Sequence).where(Sequence.path == path).order_by(Sequence.id.desc())).first()
+
+
+def find_sequence_by_id(session: Session, sequence_id: int) -> Sequence | None:
+    return session.get(Sequence, sequence_id)
+
+
+def sequence_paths(session: Session) -> list[tuple[int, str]]:
+    """(id, path) of every registered sequence, by id."""
+    return [(int(i), p) for i, p in session.execute(select(Sequence.id, Sequence.path).order_by(Sequence.id)).all()]
+
+
+def ready_sequence_ids(session: Session) -> list[int]:
+    """The ids of the ready sequences, in order."""
+    return [int(i) for i in session.scalars(select(Sequence.id).where(Sequence.status == "ready").order_by(Sequence.id))]

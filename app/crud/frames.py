@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
@@ -42,3 +44,20 @@ def segment_sample_ref(session: Session, segment_id: int) -> tuple[str, int]:
     if row is None or row.sample_index is None:
         raise NotFound(f"segment {segment_id} has no sample")
     return row.artifact, int(row.sample_index)
+
+
+def frame_artifacts(session: Session, sequence_id: int) -> dict[int, str]:
+    """The artifact file of each of the sequence's frames, by frame id."""
+    return {int(i): a for i, a in session.execute(select(Frame.id, Frame.artifact).where(Frame.sequence_id == sequence_id))}
+
+
+def sample_segments(session: Session, sequence_id: int) -> list[Any]:
+    """The sequence's segments that have a sample, in frame order then sample order: id, frame_id,
+    frame_index, sample_index, track_id, n_points, range, cz."""
+    return list(session.execute(
+        select(Segment.id, Segment.frame_id, Segment.frame_index, Segment.sample_index, Segment.track_id,
+               Segment.n_points, Segment.range, Segment.cz)
+        .where(Segment.sequence_id == sequence_id, Segment.sample_index.is_not(None))
+        .order_by(Segment.frame_index, Segment.sample_index)
+    ).all())
+

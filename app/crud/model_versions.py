@@ -120,6 +120,25 @@ def choose_model(session: Session, model_id: int | None) -> ChosenModel:
         raise NotFound(f"no model is registered and {exc}") from None
 
 
+def newest_model_path(session: Session) -> str | None:
+    """The checkpoint of the newest registered model, None while there is none."""
+    return session.scalar(select(ModelVersion.path).order_by(ModelVersion.id.desc()).limit(1))
+
+
+def _trained_on(mv: ModelVersion, sequence_id: int) -> bool:
+    params = (mv.config or {}).get("params") or {}
+    return sequence_id in (params.get("sequence_ids") or []) or params.get("sequence_id") == sequence_id
+
+
+def newest_model_trained_on(session: Session, sequence_id: int) -> ModelVersion | None:
+    """The newest model whose training job's params name the sequence (train's `sequence_ids`,
+    finetune's `sequence_id`); None when no model was trained on it."""
+    for mv in session.scalars(select(ModelVersion).order_by(ModelVersion.id.desc())):
+        if _trained_on(mv, sequence_id):
+            return mv
+    return None
+
+
 def model_version_for_job(session: Session, job_id: int) -> ModelVersion | None:
     """The model a job registered already (a retried job returns it instead of training again)."""
     return session.scalars(select(ModelVersion).where(ModelVersion.job_id == job_id).limit(1)).first()

@@ -299,3 +299,14 @@ def refresh_labels(session: Session, track: Track, user_id: int, sample_classes:
             "user_id": user_id, "created_at": utcnow(), "keep_start": track.keep_start, "keep_end": track.keep_end,
         },
     )
+
+
+def review_events_after(session: Session, sequence_id: int, actions: tuple[str, ...], after: int) -> tuple[int, int]:
+    """(count, newest id, 0 when none) of the sequence's annotation events with one of `actions`
+    and an id above `after`."""
+    n, newest = session.execute(
+        select(func.count(), func.coalesce(func.max(AnnotationEvent.id), 0))
+        .join(Track, Track.id == AnnotationEvent.track_id)
+        .where(Track.sequence_id == sequence_id, AnnotationEvent.action.in_(actions), AnnotationEvent.id > after)
+    ).one()
+    return int(n), int(newest)

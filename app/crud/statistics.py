@@ -62,17 +62,20 @@ def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
     from sqlalchemy import and_, union_all
     from sqlalchemy.orm import aliased
 
-    def pair_columns(sa: Any, sb: Any, verified: Any) -> Any:
-        return select(PairConstraint.id, PairConstraint.track_id, PairConstraint.segment_a_id,
-                      PairConstraint.segment_b_id, sa.frame_index.label("frame_a"), sb.frame_index.label("frame_b"),
-                      PairConstraint.score, verified.label("verified"))
+    def pairs_with_segments(sa: Any, sb: Any, verified: Any) -> Any:
+        """The pair rows joined to their two segments `sa`, `sb` (aliases of Segment)."""
+        return (
+            select(PairConstraint.id, PairConstraint.track_id, PairConstraint.segment_a_id,
+                   PairConstraint.segment_b_id, sa.frame_index.label("frame_a"), sb.frame_index.label("frame_b"),
+                   PairConstraint.score, verified.label("verified"))
+            .join(sa, sa.id == PairConstraint.segment_a_id)
+            .join(sb, sb.id == PairConstraint.segment_b_id)
+        )
 
     sa, sb = aliased(Segment), aliased(Segment)
     links = (
-        pair_columns(sa, sb, Track.status == "accepted")
+        pairs_with_segments(sa, sb, Track.status == "accepted")
         .join(Track, Track.id == PairConstraint.track_id)
-        .join(sa, sa.id == PairConstraint.segment_a_id)
-        .join(sb, sb.id == PairConstraint.segment_b_id)
         .where(
             PairConstraint.kind == "must_link",
             Track.status != "discarded",
@@ -84,10 +87,8 @@ def constraints_query(sequence_id: int | None, verified_only: bool) -> Any:
     ta, tb = aliased(Track), aliased(Track)
     frag_verified = and_(Stitch.status == "confirmed", ta.status == "accepted", tb.status == "accepted")
     fragments = (
-        pair_columns(fa, fb, frag_verified)
+        pairs_with_segments(fa, fb, frag_verified)
         .join(Stitch, Stitch.id == PairConstraint.stitch_id)
-        .join(fa, fa.id == PairConstraint.segment_a_id)
-        .join(fb, fb.id == PairConstraint.segment_b_id)
         .join(ta, ta.id == fa.track_id)
         .join(tb, tb.id == fb.track_id)
         .where(
@@ -129,6 +130,15 @@ def labels_query(sequence_id: int | None) -> Any:
     if sequence_id is not None:
         q = q.where(Label.sequence_id == sequence_id)
     return q
+
+
+def segment_classes(session: Session, sequence_id: int, source: str | None = None) -> dict[int, int]:
+    """Class index per labelled segment of the sequence; only the labels from `source` when given
+    ("review": an operator's, not a bulk accept's)."""
+    q = select(Label.segment_id, Label.class_index).where(Label.sequence_id == sequence_id)
+    if source is not None:
+        q = q.where(Label.source == source)
+    return {int(seg): int(cls) for seg, cls in session.execute(q).all()}
 
 
 def track_label_rows(session: Session, sequence_id: int) -> list[Any]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from app.crud.rows import get_or_404
@@ -101,3 +101,19 @@ def track_events(session: Session, track_id: int) -> list[AnnotationEvent]:
         ).all()
     )
 
+
+
+def track_ranges(session: Session, sequence_id: int) -> list[Any]:
+    """The sequence's tracks: id, keep_start, keep_end, n_points, status."""
+    return list(session.execute(
+        select(Track.id, Track.keep_start, Track.keep_end, Track.n_points, Track.status)
+        .where(Track.sequence_id == sequence_id)
+    ).all())
+
+
+def set_predictions(session: Session, rows: list[dict[str, Any]]) -> None:
+    """Write each track's `predicted_class`, `predicted_confidence` and `priority` (dicts with the
+    track's `id`), in batches of 5000 rows; commits."""
+    for i in range(0, len(rows), 5000):
+        session.execute(update(Track), rows[i : i + 5000])
+    session.commit()

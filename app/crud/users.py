@@ -81,6 +81,16 @@ def user_for_token(session: Session, token: str) -> AuthUser | None:
     return None if row is None else AuthUser(id=row.id, name=row.name, role=row.role)
 
 
+def user_id_by_name(session: Session, name: str) -> int | None:
+    """The id of the user called `name`, None when there is none."""
+    return session.scalar(select(User.id).where(User.name == name))
+
+
+def user_role(session: Session, user_id: int | None) -> str | None:
+    """The user's role, None for no user (a job the service queued itself) or an unknown id."""
+    return session.scalar(select(User.role).where(User.id == user_id))
+
+
 def get_user_by_name(session: Session, name: str) -> User:
     user = session.scalar(select(User).where(User.name == name))
     if user is None:

@@ -17,14 +17,14 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import delete, insert, select
 
 from app.core.errors import Invalid
+from app.crud.anchors import answered_proposals, proposal_candidates, store_proposals
 from app.crud.model_versions import choose_model, ready_sequence, score_stored_samples
 from app.jobs.context import JobContext
 from app.jobs.policy import OperatorRule
 from app.jobs.registry import JobType, register
-from app.models import AnchorProposal, Frame, Segment, Track, utcnow
+from app.models import utcnow
 from app.schemas import JsonModel
 
 Strategy = Literal["confident", "entropy", "diverse", "track", "track_diverse"]
@@ -96,19 +96,8 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
         prepare_propose(s, params)
         chosen = choose_model(s, params.model_id)
         mv_id, mv_path = chosen.id, chosen.path
-        rows = s.execute(
-            select(Segment.id, Segment.track_id, Segment.sample_index, Frame.artifact, Track.status, Track.label)
-            .join(Frame, Frame.id == Segment.frame_id)
-            .join(Track, Track.id == Segment.track_id)
-            .where(Segment.sequence_id == params.sequence_id, Segment.sample_index.is_not(None))
-            .order_by(Segment.frame_index, Segment.local_id)
-        ).all()
-        answered = s.execute(
-            select(AnchorProposal.segment_id, AnchorProposal.track_id, AnchorProposal.level).where(
-                AnchorProposal.sequence_id == params.sequence_id,
-                AnchorProposal.status != "proposed" if params.replace else AnchorProposal.id.is_not(None),
-            )
-        ).all()
+        rows = proposal_candidates(s, params.sequence_id)
+        answered = answered_proposals(s, params.sequence_id, with_unanswered=not params.replace)
     if not rows:
         raise Invalid(f"sequence {params.sequence_id} has no samples on tracks to propose")
     ctx.progress(0.0, f"scoring {len(rows)} samples with {chosen.name}")
@@ -136,16 +125,7 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
     values = _proposal_rows(ctx, params, out, classes, seg_ids, track_ids, mv_id, level)
     ctx.checkpoint()
     with ctx.db.write() as s:
-        removed = 0
-        if params.replace:
-            removed = s.execute(
-                delete(AnchorProposal).where(
-                    AnchorProposal.sequence_id == params.sequence_id, AnchorProposal.status == "proposed"
-                )
-            ).rowcount
-        if values:
-            s.execute(insert(AnchorProposal), values)
-        s.commit()
+        removed = store_proposals(s, params.sequence_id, values, replace=params.replace)
     per_class = out.per_class(len(classes))
     return {
         "sequence_id": params.sequence_id,
@@ -156,7 +136,7 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
         "samples_excluded": int(exclude.sum()),
         "proposals": len(values),
         "per_class": {classes[k]: int(per_class[k]) for k in range(len(classes))},
-        "replaced": int(removed or 0),
+        "replaced": removed,
     }
 
 

@@ -23,17 +23,25 @@ from typing import Any
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.core.config import Settings
 from app.core.db import Database
-from app.crud.model_versions import ChosenModel, choose_model, ready_sequence, score_stored_samples
+from app.crud.frames import frame_artifacts, sample_segments
+from app.crud.model_versions import (
+    ChosenModel,
+    choose_model,
+    newest_model_trained_on,
+    ready_sequence,
+    score_stored_samples,
+)
+from app.crud.review import review_events_after
+from app.crud.statistics import segment_classes
+from app.crud.tracks import set_predictions, track_ranges
 from app.jobs.context import JobContext
 from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
-from app.models import AnnotationEvent, Frame, Job, Label, ModelVersion, Segment, Sequence, Track
 from app.schemas import JsonModel
 from app.services.repair import GEOMETRY_ACTIONS
 
@@ -50,18 +58,13 @@ class AssistParams(JsonModel):
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
 
 
-def _trained_on(mv: ModelVersion, sequence_id: int) -> bool:
-    params = (mv.config or {}).get("params") or {}
-    return sequence_id in (params.get("sequence_ids") or []) or params.get("sequence_id") == sequence_id
-
-
 def base_model(session: Session, sequence_id: int, model_id: int | None) -> ChosenModel:
     """The CNN whose view of the samples the head reads (see AssistParams.model_id)."""
     if model_id is not None:
         return choose_model(session, model_id)
-    for mv in session.scalars(select(ModelVersion).order_by(ModelVersion.id.desc())):
-        if _trained_on(mv, sequence_id):
-            return ChosenModel(mv.id, mv.path)
+    mv = newest_model_trained_on(session, sequence_id)
+    if mv is not None:
+        return ChosenModel(mv.id, mv.path)
     from pipeline.model import default_model_path
 
     return ChosenModel(None, str(default_model_path()))
@@ -70,19 +73,10 @@ def base_model(session: Session, sequence_id: int, model_id: int | None) -> Chos
 def _read(session: Session, sequence_id: int) -> dict[str, Any]:
     """The sequence's samples (frame order), tracks and reviewed labels."""
     seq = ready_sequence(session, sequence_id)
-    artifact = dict(session.execute(select(Frame.id, Frame.artifact).where(Frame.sequence_id == seq.id)).all())
-    segs = session.execute(
-        select(Segment.id, Segment.frame_id, Segment.frame_index, Segment.sample_index, Segment.track_id,
-               Segment.n_points, Segment.range, Segment.cz)
-        .where(Segment.sequence_id == seq.id, Segment.sample_index.is_not(None))
-        .order_by(Segment.frame_index, Segment.sample_index)
-    ).all()
-    tracks = session.execute(
-        select(Track.id, Track.keep_start, Track.keep_end, Track.n_points, Track.status).where(Track.sequence_id == seq.id)
-    ).all()
-    reviewed = dict(session.execute(
-        select(Label.segment_id, Label.class_index).where(Label.sequence_id == seq.id, Label.source == "review")
-    ).all())
+    artifact = frame_artifacts(session, seq.id)
+    segs = sample_segments(session, seq.id)
+    tracks = track_ranges(session, seq.id)
+    reviewed = segment_classes(session, seq.id, source="review")
     return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed}
 
 
@@ -144,9 +138,7 @@ def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndar
         rows.append({"id": int(t.id), "predicted_class": classes[int(mean[i].argmax())] if has else None,
                      "predicted_confidence": conf, "priority": crud.queue_priority(int(t.n_points), conf)})
     with ctx.db.write() as s:
-        for i in range(0, len(rows), 5000):
-            s.execute(update(Track), rows[i : i + 5000])
-        s.commit()
+        set_predictions(s, rows)
     return int((counts > 0).sum())
 
 
@@ -176,20 +168,15 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
 
 def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int, int]:
     """(count, newest id) of the sequence's review events after event id `after`."""
-    n, newest = session.execute(
-        select(func.count(), func.coalesce(func.max(AnnotationEvent.id), 0))
-        .join(Track, Track.id == AnnotationEvent.track_id)
-        .where(Track.sequence_id == sequence_id, AnnotationEvent.action.in_(REVIEW_ACTIONS), AnnotationEvent.id > after)
-    ).one()
-    return int(n), max(int(newest), after)
+    n, newest = review_events_after(session, sequence_id, REVIEW_ACTIONS, after)
+    return n, max(newest, after)
 
 
 def _runs(session: Session) -> dict[int, tuple[bool, int]]:
     """Per sequence: whether an assist run is queued or running, and the newest review event a
     run has taken in (a failed run's too, so a failing run waits for more reviews before the next)."""
     out: dict[int, tuple[bool, int]] = {}
-    rows = session.execute(select(Job.status, Job.params).where(Job.type == "assist")).all()
-    for status, p in rows:
+    for status, p in crud.job_runs(session, "assist"):
         seq = int(p.get("sequence_id", 0))
         active, last = out.get(seq, (False, -1))
         out[seq] = (active or status in ("queued", "running"), max(last, int(p.get("after_event", 0))))
@@ -211,8 +198,8 @@ def schedule(db: Database, settings: Settings) -> list[int]:
         return []
     with db.read() as s:
         runs = _runs(s)
-        ready = s.scalars(select(Sequence.id).where(Sequence.status == "ready").order_by(Sequence.id)).all()
-        due = {int(q): a for q in ready if (a := _due(s, int(q), runs.get(int(q)), settings.assist_every)) is not None}
+        ready = crud.ready_sequence_ids(s)
+        due = {q: a for q in ready if (a := _due(s, q, runs.get(q), settings.assist_every)) is not None}
     if not due:
         return []
     with db.write() as s:

@@ -9,12 +9,10 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
-from sqlalchemy import select, update
-
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
-from app.models import Job
+from app.crud.jobs import update_running_job
 
 
 class JobStopped(Exception):
@@ -50,16 +48,11 @@ class JobContext:
 
     def progress(self, fraction: float, message: str = "") -> None:
         """Record progress in [0, 1] and a message in the job row, then check for cancellation."""
+        values = {"progress": float(min(max(fraction, 0.0), 1.0)), "message": message[:2000]}
         with self.db.write() as s:
-            res = s.execute(
-                update(Job)
-                .where(Job.id == self.job_id, Job.worker_id == self.worker_id, Job.status == "running")
-                .values(progress=float(min(max(fraction, 0.0), 1.0)), message=message[:2000])
-            )
-            cancel = s.scalar(select(Job.cancel_requested).where(Job.id == self.job_id))
-            s.commit()
-        if res.rowcount != 1:
+            running = update_running_job(s, self.job_id, self.worker_id, values)
+        if not running.owned:
             self.lease_lost.set()
-        if cancel:
+        if running.cancel_requested:
             self.cancelled.set()
         self.checkpoint()

@@ -15,7 +15,6 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field, ValidationError
-from sqlalchemy import select
 
 from app.core.errors import Conflict, Invalid, ServiceError
 from app.crud import model_versions
@@ -179,10 +178,10 @@ def run_finetune(ctx: JobContext, params: Any) -> dict[str, Any]:
 
 
 def _created_by_admin(ctx: JobContext) -> bool:
-    from app.models import User
+    from app.crud.users import user_role
 
     with ctx.db.read() as s:
-        return s.scalar(select(User.role).where(User.id == ctx.user_id)) == "admin"
+        return user_role(s, ctx.user_id) == "admin"
 
 
 def _queue_predict(s: Any, sequence_id: int, model_version_id: int, user_id: int | None) -> int:

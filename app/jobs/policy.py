@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
-from sqlalchemy import func, or_, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Forbidden, Invalid, ServiceError
-from app.models import Assignment, Job
+from app.crud.assignments import is_assigned
+from app.crud.jobs import queued_count
 
 if TYPE_CHECKING:
     from app.core.config import Settings
@@ -86,13 +86,6 @@ def check_threads(params: BaseModel) -> None:
         raise Invalid(f"params.threads: {threads} is more than this machine's {machine_cores()} cores")
 
 
-def assigned(session: Session, user_id: int, sequence_id: int) -> bool:
-    """True when an admin assigned the user to the sequence."""
-    return session.scalar(
-        select(Assignment.id).where(Assignment.user_id == user_id, Assignment.sequence_id == sequence_id).limit(1)
-    ) is not None
-
-
 def authorize(session: Session, user: AuthUser, job_type: JobType, params: BaseModel, settings: Settings) -> int:
     """Check that `user` may queue `job_type` with `params` now; returns the job's priority.
 
@@ -104,14 +97,12 @@ def authorize(session: Session, user: AuthUser, job_type: JobType, params: BaseM
             raise Forbidden(f"job type {job_type.name!r} needs the admin role")
         check_operator_params(rule, job_type.name, params)
         sequence_id = getattr(params, "sequence_id", None)
-        if rule.own_sequence and sequence_id is not None and not assigned(session, user.id, sequence_id):
+        if rule.own_sequence and sequence_id is not None and not is_assigned(session, user.id, sequence_id):
             raise Forbidden(
                 f"sequence {sequence_id}: operators queue {job_type.name} jobs only on sequences an admin assigned them to"
             )
     check_threads(params)
-    queued = session.scalar(
-        select(func.count()).select_from(Job).where(Job.created_by_id == user.id, Job.status == "queued")
-    ) or 0
+    queued = queued_count(session, user.id)
     if queued >= settings.job_max_queued_per_user:
         raise TooManyJobs(
             f"{user.name} has {queued} queued jobs (limit {settings.job_max_queued_per_user}); wait or cancel one"
@@ -122,21 +113,6 @@ def authorize(session: Session, user: AuthUser, job_type: JobType, params: BaseM
 def max_run_seconds(job_type: JobType, settings: Settings) -> float:
     """The run-time limit of a job type (the settings' override first)."""
     return float(settings.job_max_run_seconds.get(job_type.name, job_type.max_run_seconds))
-
-
-def users_at_running_limit(session: Session, limit: int) -> Any:
-    """SQL: ids of users who already have `limit` running jobs (their queued jobs wait)."""
-    return (
-        select(Job.created_by_id)
-        .where(Job.status == "running", Job.created_by_id.is_not(None))
-        .group_by(Job.created_by_id)
-        .having(func.count() >= limit)
-    )
-
-
-def claimable_owner(session: Session, limit: int) -> Any:
-    """SQL condition on a queued job: its owner is below the running limit."""
-    return or_(Job.created_by_id.is_(None), Job.created_by_id.not_in(users_at_running_limit(session, limit)))
 
 
 def describe(job_type: JobType, settings: Settings) -> dict[str, Any]:

@@ -16,15 +16,16 @@ from typing import Any
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from app import crud
 from app.core.errors import Invalid
+from app.crud.frames import frame_artifacts, sample_segments
 from app.crud.model_versions import ChosenModel, choose_model, ready_sequence, score_stored_samples
+from app.crud.statistics import segment_classes
+from app.crud.tracks import set_predictions, track_ranges
 from app.jobs.context import JobContext
 from app.jobs.registry import JobType, register
-from app.models import Frame, Segment, Track
 from app.schemas import JsonModel
 
 
@@ -78,25 +79,17 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
     with ctx.db.read() as s:
         chosen = choose_model(s, params.model_id)
         seq = ready_sequence(s, params.sequence_id)
-        frames = s.execute(
-            select(Frame.id, Frame.index, Frame.artifact).where(Frame.sequence_id == seq.id).order_by(Frame.index)
-        ).all()
-        seg_rows = s.execute(
-            select(Segment.id, Segment.frame_id, Segment.frame_index, Segment.sample_index, Segment.track_id).where(
-                Segment.sequence_id == seq.id, Segment.sample_index.is_not(None)
-            )
-        ).all()
+        artifact_of = frame_artifacts(s, seq.id)
+        seg_rows = sample_segments(s, seq.id)  # in frame order
         tracks, points = {}, {}
-        for t in s.execute(select(Track.id, Track.keep_start, Track.keep_end, Track.n_points).where(Track.sequence_id == seq.id)):
+        for t in track_ranges(s, seq.id):
             tracks[int(t.id)], points[int(t.id)] = (int(t.keep_start), int(t.keep_end)), int(t.n_points)
-        labels = {int(r.segment_id): int(r.class_index) for r in s.execute(crud.labels_query(seq.id)).all()}
+        labels = segment_classes(s, seq.id)
         model_id, model_path = chosen.id, chosen.path
         model, meta = _load_model(chosen)
     classes = meta.classes
     k = len(classes)
-    # (artifact, sample index) and (segment, track, frame index) of every sample, in frame order
-    artifact_of = {int(f.id): f.artifact for f in frames}
-    seg_rows = sorted(seg_rows, key=lambda r: (int(r.frame_index), int(r.sample_index)))
+    # (artifact, sample index) of every sample, in frame order
     refs = [(artifact_of[int(r.frame_id)], int(r.sample_index)) for r in seg_rows]
 
     def scored(done: int, total: int) -> None:
@@ -106,7 +99,7 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
     threads_before = torch.get_num_threads()
     if params.threads:
         torch.set_num_threads(params.threads)
-    ctx.progress(0.0, f"{chosen.name} over {len(frames)} frames")
+    ctx.progress(0.0, f"{chosen.name} over {len(artifact_of)} frames")
     try:
         probs = score_stored_samples(ctx.artifacts, refs, model, chosen.name, params.batch_samples,
                                      on_file=scored).probs
@@ -127,14 +120,12 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
             updates.append({"id": track_id, "predicted_class": None, "predicted_confidence": None,
                             "priority": crud.queue_priority(points[track_id], None)})
     with ctx.db.write() as s:
-        for i in range(0, len(updates), 5000):
-            s.execute(update(Track), updates[i : i + 5000])
-        s.commit()
+        set_predictions(s, updates)
     result: dict[str, Any] = {
         "model_id": model_id,
         "model_path": model_path,
         "sequence_id": params.sequence_id,
-        "frames": len(frames),
+        "frames": len(artifact_of),
         "samples": len(seg_rows),
         "tracks_predicted": sum(per_class.values()),
         "tracks_without_samples": len(tracks) - sum(per_class.values()),

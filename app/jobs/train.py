@@ -24,10 +24,11 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import ConfigDict, Field
-from sqlalchemy import update
 from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Invalid
+from app.crud.datasets import get_sequence
+from app.crud.jobs import job_owner, update_running_job
 from app.crud.model_versions import (
     TrainingSet,
     load_training_set,
@@ -40,7 +41,6 @@ from app.crud.model_versions import (
 from app.jobs.context import JobContext, JobStopped
 from app.jobs.registry import JobType, register
 from app.jobs.training_params import job_training_config, with_training_fields
-from app.models import Job, Sequence
 from app.schemas import JsonModel
 from pipeline.config import SampleConfig, TrainingConfig
 
@@ -80,12 +80,7 @@ def train_config(params: Any) -> TrainingConfig:
 def _record(ctx: JobContext, result: dict[str, Any]) -> None:
     """Write the running result (per-epoch history) into the job row."""
     with ctx.db.write() as s:
-        s.execute(
-            update(Job)
-            .where(Job.id == ctx.job_id, Job.worker_id == ctx.worker_id, Job.status == "running")
-            .values(result=result)
-        )
-        s.commit()
+        update_running_job(s, ctx.job_id, ctx.worker_id, {"result": result})
 
 
 @dataclass
@@ -110,12 +105,10 @@ def _read(ctx: JobContext, params: Any) -> _JobData:
         ts = load_training_set(
             s, ctx.artifacts, params.sequence_ids, params.constraints, params.min_score, progress=reading
         )
-        seq = s.get(Sequence, params.sequence_ids[0])
-        assert seq is not None  # load_training_set checked it
+        seq = get_sequence(s, params.sequence_ids[0])  # load_training_set checked it
         samples_cfg = sample_config_for(ctx.settings, seq)
         val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none") if params.val_sequence_ids else None
-        job = s.get(Job, ctx.job_id)
-        user_id = None if job is None else job.created_by_id
+        user_id = job_owner(s, ctx.job_id)
     shape = ts.data.samples.shape[1:]
     if params.size is not None and shape[1] != params.size:
         raise Invalid(f"the sequences' samples are {shape[1]}x{shape[2]}, params.size asks for {params.size}")

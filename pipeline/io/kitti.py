@@ -26,7 +26,7 @@ import numpy as np
 from pipeline.errors import DataError
 from pipeline.io.layout import Layout, detect_layout, finite_rows, known_layout
 from pipeline.io.registry import frame_files
-from pipeline.io.semantickitti import read_bin, read_label, read_times_file, sequence_poses
+from pipeline.io.semantickitti import folder_poses, read_bin, read_label
 from pipeline.scan import Scan, input_rows_of
 from pipeline.sensors import SensorModel, get_sensor
 
@@ -80,22 +80,9 @@ class KittiSequence:
         labels = self.root / "labels"
         self._labels = labels if labels.is_dir() else None
         self.warnings: list[str] = []
-        self.poses, self.times = self._load_poses(poses, calib)
-        times = self.root / "times.txt"
-        if self.path.is_dir() and times.is_file():
-            self.times = read_times_file(times, len(self._files))
+        self.poses, self.times = folder_poses(self.path, self.root, len(self._files), poses, calib, self.warnings)
         self._layout = self._pick_layout(sensor)
         self.sensor = self._layout.sensor
-
-    def _load_poses(
-        self, poses: str | Path | None, calib: str | Path | None
-    ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        if poses is None and not self.path.is_dir():
-            return None, None
-        poses_times, warning = sequence_poses(self.root, len(self._files), poses, calib)
-        if warning:
-            self.warnings.append(warning)
-        return poses_times
 
     def _pick_layout(self, sensor: str | SensorModel) -> Layout:
         """The sensor (flag, metadata.json, else found in the first frame) and how rows are read."""

@@ -34,7 +34,7 @@ from pipeline.errors import DataError
 from pipeline.io.layout import Layout, detect_layout, known_layout, measured_sensor
 from pipeline.io.registry import frame_files
 from pipeline.io.rings import rows_from_ring_field
-from pipeline.io.semantickitti import read_times_file, sequence_poses
+from pipeline.io.semantickitti import folder_poses
 from pipeline.scan import Scan, input_rows_of
 from pipeline.sensors import SensorModel, get_sensor
 
@@ -93,7 +93,8 @@ class _PointFileSequence:
         self._files = self._list_files()
         self._names = _frame_names(self._files, self.suffix)
         self.warnings: list[str] = []
-        self.poses, self.times = self._load_poses(poses, calib)
+        root = self.path if self.path.is_dir() else self.path.parent
+        self.poses, self.times = folder_poses(self.path, root, len(self._files), poses, calib, self.warnings)
         first = self._table(0)
         intensity = _field(first[0], INTENSITY_FIELDS)
         self._intensity_scale = 1.0 if intensity is None else _intensity_scale(intensity)
@@ -101,20 +102,6 @@ class _PointFileSequence:
             self.warnings.append(f"{self._files[0]}: no intensity field, intensity set to 0")
         self._layout: Layout | None = None  # None: rows come from a ring field or the PCD's rows
         self.sensor = self._pick_sensor(sensor, first)
-
-    def _load_poses(
-        self, poses: str | Path | None, calib: str | Path | None
-    ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Poses and times from the folder's poses.txt / times.txt or the named files."""
-        root = self.path if self.path.is_dir() else self.path.parent
-        if poses is None and not self.path.is_dir():
-            return None, None
-        (pose_arr, times), warning = sequence_poses(root, len(self._files), poses, calib)
-        if warning:
-            self.warnings.append(warning)
-        if self.path.is_dir() and (root / "times.txt").is_file():
-            times = read_times_file(root / "times.txt", len(self._files))
-        return pose_arr, times
 
     def _list_files(self) -> list[Path]:
         if self.path.is_file():

@@ -175,3 +175,20 @@ def sequence_poses(
         calib_file = None
         warning = f"{pose_file}: no calib.txt beside it, poses are taken as T_world_lidar"
     return read_poses_file(pose_file, frames, calib_file), warning
+
+
+def folder_poses(
+    path: Path, root: Path, frames: int, poses: str | Path | None, calib: str | Path | None, warnings: list[str]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(T_world_lidar (F, 4, 4) or None, times (F,) or None) of the sequence at `path`, a folder
+    or one frame file whose sequence folder is `root`: `sequence_poses`, with its warning added to
+    `warnings`. A single file has poses only when they are named; a folder's times.txt wins over
+    the times a poses file holds."""
+    if poses is None and not path.is_dir():
+        return None, None
+    (pose_arr, times), warning = sequence_poses(root, frames, poses, calib)
+    if warning:
+        warnings.append(warning)
+    if path.is_dir() and (root / "times.txt").is_file():
+        times = read_times_file(root / "times.txt", frames)
+    return pose_arr, times

@@ -1,7 +1,6 @@
 from __future__ import annotations
 
 from fastapi import APIRouter
-from sqlalchemy import text
 
 from app.api.deps import DatabaseDep
 from app.schemas import Health
@@ -14,6 +13,5 @@ def health(db: DatabaseDep) -> Health:
     """Liveness and database reachability (no token needed)."""
     from pipeline import __version__
 
-    with db.engine.connect() as conn:
-        conn.execute(text("SELECT 1"))
+    db.ping()
     return Health(status="ok", database=db.dialect, version=__version__)
