@@ -14,6 +14,7 @@ import typer
 
 from app.cli_common import fail, friendly_errors
 from app.cli_experiment import experiment_app
+from app.cli_labelsets import labelset_app
 from app.cli_users import db_app, user_app
 from pipeline.progress import TqdmProgress
 
@@ -189,6 +190,7 @@ def predict(
 app.add_typer(experiment_app, name="experiment")
 app.add_typer(db_app, name="db")
 app.add_typer(user_app, name="user")
+app.add_typer(labelset_app, name="labelset")
 
 
 @app.command()

@@ -75,4 +75,4 @@ def _class_name(data: dict, i: int) -> str:
 
 def dump_label_set(label_set: LabelSet) -> str:
     """The YAML text of a label set (what `read_label_set` reads back)."""
-    return yaml.safe_dump(label_set.model_dump(mode="json"), sort_keys=False)
+    return yaml.safe_dump(label_set.model_dump(mode="json"), sort_keys=False, default_flow_style=None)

@@ -6,6 +6,9 @@ from pathlib import Path
 
 import yaml
 
+# The maps of semantic-kitti-api's config file, for the importer's tests.
+SEMANTIC_KITTI_YAML = Path(__file__).parent / "data" / "semantic-kitti.yaml"
+
 
 def label_set_data(n_classes: int, n_ground: int = 1, name: str = "custom") -> dict:
     """A valid label set mapping: n_classes - n_ground things, then n_ground ground classes."""

@@ -16,9 +16,7 @@ from pipeline.label_sets import (
     read_label_set,
     validate_label_set,
 )
-from tests.pipeline.label_set_factory import label_set_data, write_label_set
-
-SEMANTIC_KITTI_YAML = Path(__file__).parent / "data" / "semantic-kitti.yaml"
+from tests.pipeline.label_set_factory import SEMANTIC_KITTI_YAML, label_set_data, write_label_set
 
 
 def test_label_sets_presets_are_paper_first_then_semantickitti_and_nuscenes():
