@@ -163,6 +163,7 @@ def predict(
     smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     config: ConfigOpt = None,
+    label_set: Annotated[str, typer.Option(help="A preset or label set file; the model must be of it.")] = "paper",
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config
@@ -171,7 +172,8 @@ def predict(
     if model is not None and str(model) == "latest" and not model.is_file():
         model = _latest_model()
         typer.echo(f"model: {model}")
-    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks)
+    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks,
+                             label_set=label_set)
     summary = run_predict(seq, model, out, options, load_config(config), progress=TqdmProgress(),
                           log=lambda m: typer.echo(f"warning: {m}", err=True))
     seg = summary["segments_classified"]
