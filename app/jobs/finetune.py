@@ -51,8 +51,12 @@ def finetune_job_config(params: Any) -> TrainingConfig:
 
 
 def prepare_finetune(s: Any, params: Any) -> None:
+    from app.services.label_sets import require_model_label_set
+    from pipeline.label_sets import DEFAULT_LABEL_SET
+
     model_versions.ready_sequence(s, params.sequence_id)
-    model_versions.get_model_version(s, params.model_id)
+    mv = model_versions.get_model_version(s, params.model_id)
+    require_model_label_set(f"model {mv.id}", mv.path, DEFAULT_LABEL_SET)
 
 
 def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> Any:
