@@ -160,3 +160,15 @@ def test_label_sets_import_names_a_class_without_colour(tmp_path):
     path.write_text("labels: {0: unlabeled, 10: car}\ncolor_map: {0: [0, 0, 0]}\nlearning_map: {0: 0, 10: 1}\n")
     with pytest.raises(ConfigError, match=r"sk.yaml: field color_map: no entry for id 10"):
         from_semantickitti_yaml(path)
+
+
+def test_label_sets_the_documented_example_is_valid():
+    import re
+
+    import yaml
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "label_sets.md").read_text()
+    example = re.search(r"```yaml\n(.*?)```", doc, re.S).group(1)
+    s = validate_label_set(yaml.safe_load(example), "docs/label_sets.md")
+    assert s.point_class_names == ("person", "vehicle", "other", "road", "grass")
+    assert s.to_index_table[81] == s.index("other") and s.to_index_table[1] == UNLABELLED
