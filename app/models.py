@@ -120,6 +120,8 @@ class Sequence(Base):
     # migration 0010: the highest track key handed out (app/crud/track_ids.py); a split's new track
     # takes the next one under this row's lock, so a key is never given twice, even after undo
     last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    # migration 0012: the label set its classes come from (a preset, pipeline/label_sets)
+    label_set: Mapped[str] = mapped_column(String(64), default="paper", server_default="paper")
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 

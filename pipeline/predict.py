@@ -55,9 +55,7 @@ def check_predict_label_set(meta: CheckpointMeta, label_set: LabelSet, path: str
     other than the default, whose ids the prediction files (`pipeline.prediction_files`) and the
     single ground class of `predict_frame_classes` do not speak yet."""
     check_label_set(meta, label_set, path)
-    default = preset(DEFAULT_LABEL_SET)
-    if (label_set.classes, label_set.unlabelled_ids, label_set.fallback) != (
-            default.classes, default.unlabelled_ids, default.fallback):
+    if not label_set.same_classes(preset(DEFAULT_LABEL_SET)):
         raise ConfigError(f"predict writes the classes of label set {DEFAULT_LABEL_SET!r} only; "
                           f"label set {label_set.name!r} is not supported by predict yet")
 

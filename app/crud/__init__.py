@@ -24,6 +24,7 @@ from app.crud.datasets import (
     registered_sequence_id,
     require_ready,
     resolve_registration_path,
+    sequence_label_set,
     sequence_stats,
 )
 from app.crud.jobs import cancel_job, create_job, get_job, list_jobs
@@ -91,6 +92,7 @@ __all__ = [
     "check_tree_inside_roots",
     "check_sensor_file",
     "registered_sequence_id",
+    "sequence_label_set",
     "create_dataset",
     "sequence_stats",
     "check_ready",

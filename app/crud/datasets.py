@@ -83,12 +83,14 @@ def create_dataset(
     fmt: str,
     config: dict[str, Any] | None,
     user_id: int,
+    label_set: str = "paper",
 ) -> tuple[Dataset, Sequence]:
     """Register one sequence path (already resolved and checked). Flushes, does not commit."""
     ds = Dataset(name=name or path.name, path=str(path), created_by_id=user_id)
     session.add(ds)
     session.flush()
-    seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config)
+    seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config,
+                   label_set=label_set)
     session.add(seq)
     session.flush()
     return ds, seq
@@ -152,3 +154,10 @@ def list_sequences(session: Session, status: str | None = None) -> list[Sequence
 
 def get_sequence(session: Session, sequence_id: int) -> Sequence:
     return get_or_404(session, Sequence, sequence_id, "sequence")
+
+
+def sequence_label_set(session: Session, sequence_id: int | None) -> str | None:
+    """The label set of a sequence; None for no id or an unknown one."""
+    if sequence_id is None:
+        return None
+    return session.scalar(select(Sequence.label_set).where(Sequence.id == sequence_id))

@@ -52,11 +52,10 @@ def finetune_job_config(params: Any) -> TrainingConfig:
 
 def prepare_finetune(s: Any, params: Any) -> None:
     from app.services.label_sets import require_model_label_set
-    from pipeline.label_sets import DEFAULT_LABEL_SET
 
-    model_versions.ready_sequence(s, params.sequence_id)
+    seq = model_versions.ready_sequence(s, params.sequence_id)
     mv = model_versions.get_model_version(s, params.model_id)
-    require_model_label_set(f"model {mv.id}", mv.path, DEFAULT_LABEL_SET)
+    require_model_label_set(f"model {mv.id}", mv.path, seq.label_set)
 
 
 def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> Any:

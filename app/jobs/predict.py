@@ -151,11 +151,10 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
 
 def prepare_predict(s: Session, params: PredictParams) -> None:
     from app.services.label_sets import require_model_label_set
-    from pipeline.label_sets import DEFAULT_LABEL_SET
 
     chosen = choose_model(s, params.model_id)
-    ready_sequence(s, params.sequence_id)
-    require_model_label_set(chosen.name, chosen.path, DEFAULT_LABEL_SET)
+    seq = ready_sequence(s, params.sequence_id)
+    require_model_label_set(chosen.name, chosen.path, seq.label_set)
 
 
 register(

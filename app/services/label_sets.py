@@ -1,8 +1,25 @@
-"""Which label set a model speaks: jobs that run a model on a sequence check it when queued."""
+"""Which label set a sequence and a model speak: checked when a sequence is registered and when a
+job that runs a model on a sequence is queued."""
 
 from __future__ import annotations
 
 from app.core.errors import Invalid
+
+
+def check_service_label_set(name: str) -> None:
+    """Invalid (422) unless `name` is a preset whose classes the service speaks: review, training
+    and the exports use the default set's classes, so a sequence of another set would be labelled
+    in classes it does not have."""
+    from pipeline.errors import ConfigError
+    from pipeline.label_sets import DEFAULT_LABEL_SET, preset
+
+    try:
+        label_set = preset(name)
+    except ConfigError as exc:
+        raise Invalid(f"label_set: {exc}") from None
+    if not label_set.same_classes(preset(DEFAULT_LABEL_SET)):
+        raise Invalid(f"label_set: {name!r} is not supported by the service yet: review, training and "
+                      f"the exports speak the classes of {DEFAULT_LABEL_SET!r} only")
 
 
 def require_model_label_set(name: str, path: str, label_set: str) -> None:

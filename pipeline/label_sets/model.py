@@ -86,6 +86,10 @@ class LabelSet(BaseModel):
                 raise ValueError(f"classes: {c.name} writes {c.writes} but does not read it back")
         return self
 
+    def same_classes(self, other: LabelSet) -> bool:
+        """Whether both sets give every SemanticKITTI id and class index the same meaning."""
+        return (self.classes, self.unlabelled_ids, self.fallback) == (other.classes, other.unlabelled_ids, other.fallback)
+
     # Order and lookups --------------------------------------------------------------------
 
     @property
