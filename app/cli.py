@@ -466,7 +466,10 @@ def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None
 
     annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
     typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
-    typer.echo("keys: A accept, D discard, 1-7 class, [ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
+    from pipeline.classes import NUM_SAMPLE_CLASSES
+
+    typer.echo(f"keys: A accept, D discard, 1-{NUM_SAMPLE_CLASSES} class, [ ] truncate, Z undo; "
+               "Ctrl-C stops (the data folder keeps all)")
     pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(settings.data_dir),
                                "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in settings.data_roots)})
     pool.start()
