@@ -37,14 +37,18 @@ MOVING_IDS: dict[str, int] = {c.name: c.moving for c in PAPER.point_classes if c
 CLASS_COLOURS: dict[str, tuple[int, int, int]] = {c.name: c.colour for c in PAPER.point_classes}
 
 
+_TO_OURS = PAPER.to_index_table()
+_TO_SEMANTICKITTI = PAPER.to_semantickitti_table()
+
+
 def to_ours(semantic: np.ndarray) -> np.ndarray:
     """Map SemanticKITTI semantic ids (any int array, low 16 bits used) to our class indices (uint8)."""
-    return PAPER.to_index_table[np.asarray(semantic).astype(np.int64) & 0xFFFF]
+    return _TO_OURS[np.asarray(semantic).astype(np.int64) & 0xFFFF]
 
 
 def to_semantickitti(classes: np.ndarray) -> np.ndarray:
     """Map our class indices (0..7 or 255) to representative SemanticKITTI ids (uint16)."""
-    return PAPER.to_semantickitti_table[np.asarray(classes).astype(np.int64) & 0xFF]
+    return _TO_SEMANTICKITTI[np.asarray(classes).astype(np.int64) & 0xFF]
 
 
 def class_index(name: str) -> int:
@@ -57,4 +61,4 @@ def class_index(name: str) -> int:
 
 def colour_table() -> np.ndarray:
     """(256, 3) uint8 colour per class index; unlabelled is dark grey."""
-    return PAPER.colour_table.copy()
+    return PAPER.colour_table()

@@ -242,7 +242,7 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sourc
     `sources/<frame>.source`: one uint8 per row, the index of its source in `summary.sources`."""
     from pipeline.label_sets import preset
 
-    to_semantickitti = preset(plan.label_set).to_semantickitti_table
+    to_semantickitti = preset(plan.label_set).to_semantickitti_table()
     instances, chunk_map = _instances(plan)
     summary = LabelSummary()
     sink = _Sink()

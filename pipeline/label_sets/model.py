@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Iterable
-from functools import cached_property
 from typing import Annotated, Literal
 
 import numpy as np
@@ -121,9 +120,8 @@ class LabelSet(BaseModel):
             raise KeyError(f"unknown class {name!r} in label set {self.name}; valid: {', '.join(names)}")
         return names.index(name)
 
-    # Lookup tables ------------------------------------------------------------------------
+    # Lookup tables: built on each call (callers that remap often keep them) ---------------
 
-    @cached_property
     def to_index_table(self) -> np.ndarray:
         """(65536,) uint8: class index of each SemanticKITTI id (UNLABELLED where none)."""
         fallback = UNLABELLED if self.fallback is None else self.index(self.fallback)
@@ -131,23 +129,18 @@ class LabelSet(BaseModel):
         lut[list(self.unlabelled_ids)] = UNLABELLED
         for i, c in enumerate(self.point_classes):
             lut[list(c.reads)] = i
-        lut.flags.writeable = False
         return lut
 
-    @cached_property
     def to_semantickitti_table(self) -> np.ndarray:
         """(256,) uint16: SemanticKITTI id written for each class index (UNLABELLED: 0)."""
         lut = np.zeros(UNLABELLED + 1, dtype=np.uint16)
         for i, c in enumerate(self.point_classes):
             lut[i] = c.writes
-        lut.flags.writeable = False
         return lut
 
-    @cached_property
     def colour_table(self) -> np.ndarray:
         """(256, 3) uint8 RGB per class index; unlabelled and unused indices dark grey."""
         table = np.tile(np.array(UNLABELLED_COLOUR, np.uint8), (UNLABELLED + 1, 1))
         for i, c in enumerate(self.point_classes):
             table[i] = c.colour
-        table.flags.writeable = False
         return table
