@@ -16,6 +16,7 @@ from app.cli_common import fail, friendly_errors
 from app.cli_experiment import experiment_app
 from app.cli_labelsets import labelset_app
 from app.cli_users import db_app, user_app
+from pipeline.label_sets import DEFAULT_LABEL_SET
 from pipeline.progress import TqdmProgress
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
@@ -163,7 +164,7 @@ def predict(
     smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     config: ConfigOpt = None,
-    label_set: Annotated[str, typer.Option(help="A preset or label set file; the model must be of it.")] = "paper",
+    label_set: Annotated[str, typer.Option(help="A preset or label set file; the model must be of it.")] = DEFAULT_LABEL_SET,
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config

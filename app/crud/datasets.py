@@ -12,6 +12,7 @@ from app.core.errors import Conflict, Forbidden, Invalid, NotFound
 from app.crud.rows import get_or_404
 from app.data_roots import DataRoots, sensor_file
 from app.models import Dataset, Frame, PairConstraint, Sequence, Track
+from pipeline.label_sets import DEFAULT_LABEL_SET
 
 
 def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
@@ -83,7 +84,7 @@ def create_dataset(
     fmt: str,
     config: dict[str, Any] | None,
     user_id: int,
-    label_set: str = "paper",
+    label_set: str = DEFAULT_LABEL_SET,
 ) -> tuple[Dataset, Sequence]:
     """Register one sequence path (already resolved and checked). Flushes, does not commit."""
     ds = Dataset(name=name or path.name, path=str(path), created_by_id=user_id)

@@ -13,6 +13,7 @@ from app.schemas.base import (
     _Public,
     _Request,
 )
+from pipeline.label_sets import DEFAULT_LABEL_SET
 
 # ----------------------------------------------------------------------------- datasets
 IngestPoses = Literal["file", "icp"]
@@ -35,7 +36,7 @@ class DatasetCreate(DatasetBase):
         default=False, description="Register the folder again although a sequence of it exists (else 409)."
     )
     label_set: str = Field(
-        default="paper", min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$",
+        default=DEFAULT_LABEL_SET, min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$",
         description="The preset label set of its classes (`tracklabel labelset list`); unknown: 422.",
     )
 

@@ -19,6 +19,7 @@ from app.artifacts import ArtifactStore
 from app.models import Frame, Sequence, Track
 from pipeline.assist import NO_OBJECT
 from pipeline.classes import GROUND, POINT_CLASSES
+from pipeline.label_sets import DEFAULT_LABEL_SET
 from pipeline.propagation import (
     SOURCE,
     SOURCES,
@@ -70,7 +71,7 @@ class PointLabelPlan:
     predicted: list[TrackRow]
     options: ExportOptions
     no_object: list[TrackRow] = field(default_factory=list)  # discarded, or predicted to be no object
-    label_set: str = "paper"  # the sequence's: the SemanticKITTI ids its classes are written as
+    label_set: str = DEFAULT_LABEL_SET  # the sequence's: the SemanticKITTI ids its classes are written as
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
