@@ -30,13 +30,19 @@ class Action:
     icon: str | None = None
 
 
+def _class_group(i: int, n: int) -> str:
+    """The button group of class button i of n: four a row ('Class 1-4', 'Class 5-7')."""
+    first = i // 4 * 4
+    return f"Class {first + 1}-{min(first + 4, n)}"
+
+
 ACTIONS: tuple[Action, ...] = (
     Action("Accept track", "A", "accept", "accept the track as it is and load the next one", review="accept",
            button="Accept (A)", colour="green", icon="CHECK"),
     Action("Discard track", "D", "discard", "discard the track (a wrong association) and load the next one",
            review="discard", button="Discard (D)", colour="red", icon="TRASH"),
     *(Action(f"Class {name}", str(i + 1), "class", f"label the track '{name}' (accepts it) and load the next one",
-             review="label", arg=name, button=f"{i + 1} {name}", group="Class 1-4" if i < 4 else "Class 5-7")
+             review="label", arg=name, button=f"{i + 1} {name}", group=_class_group(i, len(SAMPLE_CLASSES)))
       for i, name in enumerate(SAMPLE_CLASSES)),
     Action("Truncate before frame", "[", "truncate before / after", "keep the current frame and the ones after it",
            review="truncate_before", button="[ before frame", group="Truncate"),

@@ -14,7 +14,9 @@ import typer
 
 from app.cli_common import fail, friendly_errors
 from app.cli_experiment import experiment_app
+from app.cli_labelsets import labelset_app
 from app.cli_users import db_app, user_app
+from pipeline.label_sets import DEFAULT_LABEL_SET
 from pipeline.progress import TqdmProgress
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Track-level LiDAR annotation.")
@@ -162,6 +164,7 @@ def predict(
     smooth_tracks: Annotated[bool, typer.Option(help="Average class probabilities along each track (causal).")] = False,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
     config: ConfigOpt = None,
+    label_set: Annotated[str, typer.Option(help="A preset or label set file; the model must be of it.")] = DEFAULT_LABEL_SET,
 ) -> None:
     """Classify every valid segment: OUT/labels/*.label (SemanticKITTI), OUT/confidence/*.conf, summary.json."""
     from pipeline.config import load_config
@@ -170,7 +173,8 @@ def predict(
     if model is not None and str(model) == "latest" and not model.is_file():
         model = _latest_model()
         typer.echo(f"model: {model}")
-    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks)
+    options = PredictOptions(size=size, sensor=sensor, poses=poses, device=device, smooth_tracks=smooth_tracks,
+                             label_set=label_set)
     summary = run_predict(seq, model, out, options, load_config(config), progress=TqdmProgress(),
                           log=lambda m: typer.echo(f"warning: {m}", err=True))
     seg = summary["segments_classified"]
@@ -189,6 +193,7 @@ def predict(
 app.add_typer(experiment_app, name="experiment")
 app.add_typer(db_app, name="db")
 app.add_typer(user_app, name="user")
+app.add_typer(labelset_app, name="labelset")
 
 
 @app.command()
@@ -462,7 +467,10 @@ def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None
 
     annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
     typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
-    typer.echo("keys: A accept, D discard, 1-7 class, [ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
+    from pipeline.classes import NUM_SAMPLE_CLASSES
+
+    typer.echo(f"keys: A accept, D discard, 1-{NUM_SAMPLE_CLASSES} class, [ ] truncate, Z undo; "
+               "Ctrl-C stops (the data folder keeps all)")
     pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(settings.data_dir),
                                "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in settings.data_roots)})
     pool.start()

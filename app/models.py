@@ -27,6 +27,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
+from pipeline.label_sets import DEFAULT_LABEL_SET
+
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
     "uq": "uq_%(table_name)s_%(column_0_N_name)s",
@@ -120,6 +122,8 @@ class Sequence(Base):
     # migration 0010: the highest track key handed out (app/crud/track_ids.py); a split's new track
     # takes the next one under this row's lock, so a key is never given twice, even after undo
     last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    # migration 0012: the label set its classes come from (a preset, pipeline/label_sets)
+    label_set: Mapped[str] = mapped_column(String(64), default=DEFAULT_LABEL_SET, server_default=DEFAULT_LABEL_SET)
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 

@@ -1,78 +1,44 @@
-"""The class table: our classes and the one mapping to and from SemanticKITTI ids.
+"""The default class table, read from the `paper` label set (pipeline/label_sets/paper.yaml).
 
 Our sample classes (index = CNN output index)::
 
     0 person   1 car   2 cyclist   3 trunk   4 bush   5 building   6 unknown
 
-`GROUND` (7) is a point class only, never a sample class, and `UNLABELLED` (255) marks
-points that carry no class (unlabelled or outlier in SemanticKITTI, or unsegmented).
-Remapping goes through numpy lookup tables over the 16-bit semantic id.
+`GROUND` (7) is a point class only, never a sample class, and `UNLABELLED` (255) marks points
+that carry no class (unlabelled or outlier in SemanticKITTI, or unsegmented). Remapping goes
+through the label set's numpy lookup tables over the 16-bit semantic id. Other label sets are
+data (`pipeline.label_sets`); these names keep the callers that predate them unchanged.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-SAMPLE_CLASSES: tuple[str, ...] = ("person", "car", "cyclist", "trunk", "bush", "building", "unknown")
-NUM_SAMPLE_CLASSES = len(SAMPLE_CLASSES)  # K = 7
-GROUND = NUM_SAMPLE_CLASSES  # 7: the point class after the sample classes
-UNLABELLED = 255
-POINT_CLASSES: tuple[str, ...] = (*SAMPLE_CLASSES, "ground")
+from pipeline.label_sets import DEFAULT_LABEL_SET, preset
+from pipeline.label_sets import UNLABELLED as UNLABELLED  # re-exported: many callers import it here
+
+PAPER = preset(DEFAULT_LABEL_SET)
+
+SAMPLE_CLASSES: tuple[str, ...] = PAPER.sample_class_names
+NUM_SAMPLE_CLASSES = len(SAMPLE_CLASSES)
+POINT_CLASSES: tuple[str, ...] = PAPER.point_class_names
 CLASS_INDEX: dict[str, int] = {name: i for i, name in enumerate(POINT_CLASSES)}
+# The paper set has one ground class, right after the sample classes.
+GROUND = CLASS_INDEX[PAPER.ground_classes[0].name]
 
-# SemanticKITTI ids of each of our classes. "unknown" takes every other id that is not
-# unlabelled (0) or outlier (1); see `to_ours`.
-SEMANTICKITTI_IDS: dict[str, tuple[int, ...]] = {
-    "person": (30, 254),
-    "car": (10, 13, 18, 20, 252, 256, 257, 258, 259),
-    "cyclist": (31, 32, 253, 255),
-    "trunk": (71,),
-    "bush": (70,),
-    "building": (50,),
-    "ground": (40, 44, 48, 49, 60, 72),
-}
-SEMANTICKITTI_UNLABELLED_IDS: tuple[int, ...] = (0, 1)
-
-# Representative SemanticKITTI id written for each of our classes (static variant).
-SEMANTICKITTI_WRITE_ID: dict[str, int] = {
-    "person": 30,
-    "car": 10,
-    "cyclist": 31,
-    "trunk": 71,
-    "bush": 70,
-    "building": 50,
-    "unknown": 80,  # pole: any id outside the table maps back to unknown
-    "ground": 40,
-}
-MOVING_IDS: dict[str, int] = {"car": 252, "cyclist": 253, "person": 254}
-
+# SemanticKITTI ids read as each class; "unknown" (the set's fallback) takes every id no class
+# reads that is not unlabelled (0) or outlier (1); see `to_ours`.
+SEMANTICKITTI_IDS: dict[str, tuple[int, ...]] = {c.name: c.reads for c in PAPER.point_classes if c.reads}
+SEMANTICKITTI_UNLABELLED_IDS: tuple[int, ...] = PAPER.unlabelled_ids
+# Representative SemanticKITTI id written for each class (static variant, then moving).
+SEMANTICKITTI_WRITE_ID: dict[str, int] = {c.name: c.writes for c in PAPER.point_classes}
+MOVING_IDS: dict[str, int] = {c.name: c.moving for c in PAPER.point_classes if c.moving is not None}
 # Colours (RGB uint8) used by viewers and plots, per point class.
-CLASS_COLOURS: dict[str, tuple[int, int, int]] = {
-    "person": (255, 30, 30),
-    "car": (100, 150, 245),
-    "cyclist": (255, 200, 20),
-    "trunk": (135, 60, 0),
-    "bush": (0, 175, 0),
-    "building": (200, 200, 200),
-    "unknown": (150, 0, 255),
-    "ground": (80, 80, 80),
-}
+CLASS_COLOURS: dict[str, tuple[int, int, int]] = {c.name: c.colour for c in PAPER.point_classes}
 
 
-def _build_to_ours() -> np.ndarray:
-    lut = np.full(1 << 16, CLASS_INDEX["unknown"], dtype=np.uint8)
-    for sk in SEMANTICKITTI_UNLABELLED_IDS:
-        lut[sk] = UNLABELLED
-    for name, ids in SEMANTICKITTI_IDS.items():
-        lut[list(ids)] = CLASS_INDEX[name]
-    return lut
-
-
-_TO_OURS = _build_to_ours()
-_TO_SEMANTICKITTI = np.zeros(256, dtype=np.uint16)
-for _name, _sk in SEMANTICKITTI_WRITE_ID.items():
-    _TO_SEMANTICKITTI[CLASS_INDEX[_name]] = _sk
-_TO_SEMANTICKITTI[UNLABELLED] = 0
+_TO_OURS = PAPER.to_index_table()
+_TO_SEMANTICKITTI = PAPER.to_semantickitti_table()
 
 
 def to_ours(semantic: np.ndarray) -> np.ndarray:
@@ -95,7 +61,4 @@ def class_index(name: str) -> int:
 
 def colour_table() -> np.ndarray:
     """(256, 3) uint8 colour per class index; unlabelled is dark grey."""
-    table = np.full((256, 3), 40, dtype=np.uint8)
-    for name, rgb in CLASS_COLOURS.items():
-        table[CLASS_INDEX[name]] = rgb
-    return table
+    return PAPER.colour_table()

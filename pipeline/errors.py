@@ -23,3 +23,7 @@ class DataError(TracklabelError, ValueError):
 
 class ConfigError(TracklabelError, ValueError):
     """A configuration value that is missing or out of range."""
+
+
+class LabelSetMismatch(ConfigError):
+    """A model used with a label set other than the one it was trained on."""

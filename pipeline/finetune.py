@@ -181,7 +181,8 @@ def finetune(
     if checkpoint_dir is not None and result.selected_epoch >= 0:
         ckpt = save_checkpoint(
             Path(checkpoint_dir) / "best.pt", result.model, meta.model_config, meta.sample_config, metrics, cfg, classes,
-            input_stats=meta.input_stats,
+            input_stats=meta.input_stats, label_set=meta.label_set,
         )
-    new_meta = CheckpointMeta(meta.net, meta.model_config, meta.sample_config, classes, metrics, cfg, meta.input_stats)
+    new_meta = CheckpointMeta(meta.net, meta.model_config, meta.sample_config, classes, metrics, cfg, meta.input_stats,
+                              meta.label_set)
     return FinetuneResult(result.model, new_meta, metrics, ckpt, result.val_report, result.history, result.cancelled)

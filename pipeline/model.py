@@ -28,7 +28,8 @@ from torch import nn
 
 from pipeline.classes import NUM_SAMPLE_CLASSES, SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
-from pipeline.errors import ConfigError, DataError
+from pipeline.errors import ConfigError, DataError, LabelSetMismatch
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet
 
 CHECKPOINT_FORMAT = "tracklabel-cnn/1"
 
@@ -182,6 +183,8 @@ class CheckpointMeta:
     training_config: TrainingConfig | None = None
     # statistics of the training inputs (`pipeline.input_stats`), {} for older checkpoints
     input_stats: dict[str, Any] = field(default_factory=dict)
+    # the label set the model was trained on; checkpoints written before label sets were paper's
+    label_set: str = DEFAULT_LABEL_SET
 
 
 def save_checkpoint(
@@ -193,10 +196,11 @@ def save_checkpoint(
     training_config: TrainingConfig | None = None,
     classes: tuple[str, ...] = SAMPLE_CLASSES,
     input_stats: dict[str, Any] | None = None,
+    label_set: str = DEFAULT_LABEL_SET,
 ) -> Path:
     """Write a self-describing checkpoint (plain types + tensors, loadable with weights_only);
     `input_stats`: statistics of the training inputs (`pipeline.input_stats`) that predict
-    compares a sequence's inputs with."""
+    compares a sequence's inputs with; `label_set`: the name of the set `classes` come from."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
@@ -205,6 +209,7 @@ def save_checkpoint(
         "model_config": model_config.model_dump(mode="json"),
         "sample_config": sample_config.model_dump(mode="json"),
         "training_config": None if training_config is None else training_config.model_dump(mode="json"),
+        "label_set": label_set,
         "classes": list(classes),
         "metrics": metrics or {},
         "input_stats": input_stats or {},
@@ -241,6 +246,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
             if payload.get("training_config") is None
             else _training_config(payload["training_config"]),
             input_stats=dict(payload.get("input_stats") or {}),
+            label_set=str(payload.get("label_set") or DEFAULT_LABEL_SET),
         )
         model = build_model(net)
         model.load_state_dict(payload["state_dict"])
@@ -249,6 +255,18 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> tup
     model.to(resolve_device(str(device)) if isinstance(device, str) else device)
     model.eval()
     return model, meta
+
+
+def check_label_set(meta: CheckpointMeta, label_set: LabelSet, path: str | Path) -> None:
+    """LabelSetMismatch unless the checkpoint at `path` was trained on `label_set`: the same
+    name and the same sample classes, in order (its outputs are those classes)."""
+    if meta.label_set == label_set.name and tuple(meta.classes) == label_set.sample_class_names:
+        return
+    raise LabelSetMismatch(
+        f"{path}: the model was trained on label set {meta.label_set!r} ({', '.join(meta.classes)}), "
+        f"not on {label_set.name!r} ({', '.join(label_set.sample_class_names)}): use a model of "
+        f"{label_set.name!r}, or ask for label set {meta.label_set!r}"
+    )
 
 
 def _sample_config(stored: dict[str, Any]) -> SampleConfig:

@@ -23,6 +23,7 @@ from pipeline.errors import DataError
 from pipeline.evaluation import FrameTruth, evaluate_frames, evaluate_stitches, object_keys, quality_summary
 from pipeline.frames import FrameResult
 from pipeline.io import open_reader
+from pipeline.label_sets import DEFAULT_LABEL_SET, load_label_set
 from pipeline.processing import SequenceProcessor
 from pipeline.progress import QUIET, Progress
 from pipeline.sequence import Sequence, open_sequence
@@ -203,6 +204,7 @@ class PredictOptions:
     checkpoint is a DataError. evaluate: compute point IoU when the sequence carries labels.
     smooth_tracks: average class probabilities along each track (causal). The samples of up to
     `batch_frames` frames (or `batch_samples` samples) go through the CNN in one forward pass.
+    label_set: a preset name or a label set file; the checkpoint must have been trained on it.
     """
 
     size: int | None = None
@@ -214,6 +216,7 @@ class PredictOptions:
     evaluate: bool = True
     batch_frames: int = 8
     batch_samples: int = 512
+    label_set: str = DEFAULT_LABEL_SET
 
 
 def run_predict(
@@ -229,13 +232,14 @@ def run_predict(
     `pipeline.prediction_files`); returns the summary. checkpoint: None = the shipped default
     model (`pipeline.model.default_model_path`)."""
     from pipeline.model import default_model_path
-    from pipeline.predict import InputCheck, SegmentClassifier, model_sample_config
+    from pipeline.predict import InputCheck, SegmentClassifier, check_predict_label_set, model_sample_config
     from pipeline.prediction_files import PredictionWriter, prediction_summary
 
     log = log or (lambda _m: None)
     o = options
     # 1. the model, the config its samples need, the sequence and the output folder
     clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, o.device)
+    check_predict_label_set(clf.meta, load_label_set(o.label_set), clf.path)
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, o.size)
     out = Path(out)
     opened = open_sequence(seq, o.fmt, o.sensor if o.sensor != "auto" else config.sensor.name, o.poses, progress)

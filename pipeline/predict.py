@@ -26,12 +26,13 @@ import numpy as np
 
 from pipeline.classes import GROUND, UNLABELLED
 from pipeline.config import PipelineConfig
-from pipeline.errors import DataError
+from pipeline.errors import ConfigError, DataError
 from pipeline.frames import FrameResult
 from pipeline.input_stats import input_warnings
-from pipeline.model import load_checkpoint, predict
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
+from pipeline.model import CheckpointMeta, check_label_set, load_checkpoint, predict
 
-__all__ = ["FramePrediction", "InputCheck", "SegmentClassifier", "TrackSmoother", "model_sample_config",
+__all__ = ["FramePrediction", "InputCheck", "SegmentClassifier", "TrackSmoother", "check_predict_label_set", "model_sample_config",
            "point_accuracy", "predict_frame_classes"]
 
 
@@ -47,6 +48,16 @@ def model_sample_config(config: PipelineConfig, checkpoint_samples: Any, explici
             f"{checkpoint_samples.size}x{checkpoint_samples.size} samples",
         )
     return config.override({"samples": checkpoint_samples.model_dump()})
+
+
+def check_predict_label_set(meta: CheckpointMeta, label_set: LabelSet, path: str | Path) -> None:
+    """LabelSetMismatch unless the model was trained on `label_set`; ConfigError for a label set
+    other than the default, whose ids the prediction files (`pipeline.prediction_files`) and the
+    single ground class of `predict_frame_classes` do not speak yet."""
+    check_label_set(meta, label_set, path)
+    if not label_set.same_classes(preset(DEFAULT_LABEL_SET)):
+        raise ConfigError(f"predict writes the classes of label set {DEFAULT_LABEL_SET!r} only; "
+                          f"label set {label_set.name!r} is not supported by predict yet")
 
 
 class SegmentClassifier:

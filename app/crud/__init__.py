@@ -27,6 +27,7 @@ from app.crud.datasets import (
     require_ready,
     resolve_registration_path,
     sequence_at_path,
+    sequence_label_set,
     sequence_paths,
     sequence_stats,
 )
@@ -98,6 +99,7 @@ __all__ = [
     "check_tree_inside_roots",
     "check_sensor_file",
     "registered_sequence_id",
+    "sequence_label_set",
     "create_dataset",
     "sequence_stats",
     "check_ready",

@@ -12,6 +12,7 @@ from app.core.errors import Conflict, Forbidden, Invalid, NotFound
 from app.crud.rows import get_or_404
 from app.data_roots import DataRoots, sensor_file
 from app.models import Dataset, Frame, PairConstraint, Sequence, Track
+from pipeline.label_sets import DEFAULT_LABEL_SET
 
 
 def resolve_registration_path(raw: str, roots: list[Path]) -> Path:
@@ -83,12 +84,14 @@ def create_dataset(
     fmt: str,
     config: dict[str, Any] | None,
     user_id: int,
+    label_set: str = DEFAULT_LABEL_SET,
 ) -> tuple[Dataset, Sequence]:
     """Register one sequence path (already resolved and checked). Flushes, does not commit."""
     ds = Dataset(name=name or path.name, path=str(path), created_by_id=user_id)
     session.add(ds)
     session.flush()
-    seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config)
+    seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config,
+                   label_set=label_set)
     session.add(seq)
     session.flush()
     return ds, seq
@@ -171,3 +174,10 @@ def sequence_paths(session: Session) -> list[tuple[int, str]]:
 def ready_sequence_ids(session: Session) -> list[int]:
     """The ids of the ready sequences, in order."""
     return [int(i) for i in session.scalars(select(Sequence.id).where(Sequence.status == "ready").order_by(Sequence.id))]
+
+
+def sequence_label_set(session: Session, sequence_id: int | None) -> str | None:
+    """The label set of a sequence; None for no id or an unknown one."""
+    if sequence_id is None:
+        return None
+    return session.scalar(select(Sequence.label_set).where(Sequence.id == sequence_id))

@@ -141,8 +141,11 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
 
 
 def prepare_predict(s: Session, params: PredictParams) -> None:
-    choose_model(s, params.model_id)
-    ready_sequence(s, params.sequence_id)
+    from app.services.label_sets import require_model_label_set
+
+    chosen = choose_model(s, params.model_id)
+    seq = ready_sequence(s, params.sequence_id)
+    require_model_label_set(chosen.name, chosen.path, seq.label_set)
 
 
 register(

@@ -13,6 +13,7 @@ from app.schemas.base import (
     _Public,
     _Request,
 )
+from pipeline.label_sets import DEFAULT_LABEL_SET
 
 # ----------------------------------------------------------------------------- datasets
 IngestPoses = Literal["file", "icp"]
@@ -33,6 +34,10 @@ class DatasetCreate(DatasetBase):
     poses: IngestPoses = Field(default="file", description=POSES_HELP)
     reregister: bool = Field(
         default=False, description="Register the folder again although a sequence of it exists (else 409)."
+    )
+    label_set: str = Field(
+        default=DEFAULT_LABEL_SET, min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$",
+        description="The preset label set of its classes (`tracklabel labelset list`); unknown: 422.",
     )
 
 
@@ -58,6 +63,7 @@ class SequencePublic(_Public):
     sensor: dict[str, Any] | None
     status: SequenceStatus
     n_frames: int
+    label_set: str = Field(description="The label set its classes come from (a preset).")
     ingest_job_id: int | None
     created_at: UtcDateTime
 

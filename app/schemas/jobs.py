@@ -97,6 +97,8 @@ class ProgressStats(BaseModel):
     samples_labelled_per_source: dict[str, int]
     bulk_actions: int = Field(description="Bulk accepts (undone ones included).")
     operations: int | None = Field(description="Label-changing operations on the sequence (None over all sequences).")
+    label_set: str | None = Field(default=None, description="The sequence's label set (None over all sequences).")
+    classes: list[str] = Field(default=[], description="The classes samples are labelled in: its label set's, in index order.")
     audit: AuditStats
 
 

@@ -220,12 +220,11 @@ def _spread(values: np.ndarray, input_rows: np.ndarray) -> np.ndarray:
     return out
 
 
-def _label_words(fl: FrameLabels, instances: dict[int, int]) -> np.ndarray:
+def _label_words(fl: FrameLabels, instances: dict[int, int], to_semantickitti: np.ndarray) -> np.ndarray:
     """(N,) uint32 SemanticKITTI words of one frame's points: class | instance << 16, the instance
-    being the point's own track's where it took that track's class."""
-    from pipeline.classes import to_semantickitti
-
-    words = to_semantickitti(fl.labels.class_).astype(np.uint32)
+    being the point's own track's where it took that track's class; `to_semantickitti` (256,) is
+    the sequence's label set's id per class index."""
+    words = to_semantickitti[fl.labels.class_].astype(np.uint32)
     if instances:
         ids = np.array(sorted(instances), np.int64)
         pos = np.minimum(np.searchsorted(ids, fl.track), len(ids) - 1)
@@ -241,6 +240,9 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sourc
     then `summary.json`: the points per label source and class, confidence histograms, and why
     points stayed unlabelled (app/services/point_labels.py). `with_sources` adds
     `sources/<frame>.source`: one uint8 per row, the index of its source in `summary.sources`."""
+    from pipeline.label_sets import preset
+
+    to_semantickitti = preset(plan.label_set).to_semantickitti_table()
     instances, chunk_map = _instances(plan)
     summary = LabelSummary()
     sink = _Sink()
@@ -248,7 +250,7 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sourc
     prefix = f"sequences/{plan.sequence_name}"
     for fl in iter_frame_labels(plan, artifacts):
         summary.add(fl)
-        words = _label_words(fl, instances.get(fl.index, {}))
+        words = _label_words(fl, instances.get(fl.index, {}), to_semantickitti)
         sources = fl.labels.source
         if fl.input_rows is not None:
             words, sources = _spread(words, fl.input_rows), _spread(sources, fl.input_rows)

@@ -19,6 +19,7 @@ from app.artifacts import ArtifactStore
 from app.models import Frame, Sequence, Track
 from pipeline.assist import NO_OBJECT
 from pipeline.classes import GROUND, POINT_CLASSES
+from pipeline.label_sets import DEFAULT_LABEL_SET
 from pipeline.propagation import (
     SOURCE,
     SOURCES,
@@ -70,6 +71,7 @@ class PointLabelPlan:
     predicted: list[TrackRow]
     options: ExportOptions
     no_object: list[TrackRow] = field(default_factory=list)  # discarded, or predicted to be no object
+    label_set: str = DEFAULT_LABEL_SET  # the sequence's: the SemanticKITTI ids its classes are written as
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
@@ -103,7 +105,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object)
+    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, sequence.label_set)
 
 
 def _in_frame(rows: list[TrackRow], index: int) -> TrackClasses:

@@ -174,3 +174,34 @@ def test_shipped_default_model_is_small_and_trained_with_the_product_defaults():
     assert meta.metrics["default_model"]["config"] == DefaultModelConfig().model_dump(mode="json")
     assert meta.metrics["default_model"]["command"] == "tracklabel experiment default-model"
     assert json.loads(DEFAULT_MODEL.with_suffix(".json").read_text()) == meta.metrics["default_model"]
+
+
+@pytest.fixture(scope="module")
+def semantickitti_ckpt(tmp_path_factory) -> Path:
+    from pipeline.label_sets import preset
+
+    classes = preset("semantickitti").sample_class_names
+    config = TINY.model_copy(update={"num_classes": len(classes)})
+    samples = SampleConfig(size=SIZE)
+    return save_checkpoint(tmp_path_factory.mktemp("sk") / "sk.pt", get_model(config, samples), config, samples,
+                           classes=classes, label_set="semantickitti")
+
+
+def test_cli_predict_model_of_another_label_set_exits_2(sim, semantickitti_ckpt, tmp_path):
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(semantickitti_ckpt), "--out", str(tmp_path / "p")])
+    assert r.exit_code == 2
+    assert "trained on label set 'semantickitti'" in r.output and "not on 'paper'" in r.output
+    assert not (tmp_path / "p").exists()
+
+
+def test_cli_predict_label_set_the_model_lacks_exits_2(sim, ckpt, tmp_path):
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(ckpt), "--out", str(tmp_path / "p"),
+                            "--label-set", "nuscenes"])
+    assert r.exit_code == 2
+    assert "trained on label set 'paper'" in r.output and "not on 'nuscenes'" in r.output
+
+
+def test_cli_predict_unknown_label_set_exits_2(sim, ckpt, tmp_path):
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(ckpt), "--out", str(tmp_path / "p"),
+                            "--label-set", "nope"])
+    assert r.exit_code == 2 and "unknown label set 'nope'" in r.output

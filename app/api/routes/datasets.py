@@ -20,6 +20,7 @@ from app.schemas import (
     SequenceStats,
     SequenceStatus,
 )
+from app.services.label_sets import check_service_label_set
 
 router = APIRouter(tags=["datasets"])
 
@@ -82,7 +83,8 @@ def register_dataset(
         fmt = detect_format(path) if body.format == "auto" else body.format
     except TracklabelError as exc:
         raise Invalid(str(exc)) from exc
-    ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id)
+    check_service_label_set(body.label_set)
+    ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id, body.label_set)
     if body.ingest:
         _queue_ingest(session, seq.id, False, admin.id, body.poses)
     session.commit()

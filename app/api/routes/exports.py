@@ -104,5 +104,10 @@ def export_semantickitti(
 @router.get("/stats")
 def export_stats(_user: CurrentUser, session: SessionDep, sequence_id: SeqQuery = None) -> ProgressStats:
     """Progress: tracks by status and reviewed, samples labelled per class, constraint counts, and
-    the audits' agreement per operator and per class."""
-    return ProgressStats(**crud.progress_stats(session, sequence_id), audit=audits.audit_stats(session, sequence_id))
+    the audits' agreement per operator and per class; for one sequence, its label set and classes."""
+    from pipeline.label_sets import preset
+
+    label_set = crud.sequence_label_set(session, sequence_id)
+    classes = [] if label_set is None else list(preset(label_set).sample_class_names)
+    return ProgressStats(**crud.progress_stats(session, sequence_id), label_set=label_set, classes=classes,
+                         audit=audits.audit_stats(session, sequence_id))

@@ -1,0 +1,74 @@
+"""A sequence carries its label set: registered with it (a preset; default paper), shown by GET
+and /exports/stats, and added to existing sequences as paper by migration 0012."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sqlalchemy import create_engine, text
+
+from app.core.migrate import upgrade
+from pipeline.classes import SAMPLE_CLASSES
+
+
+def _register(client, factory, settings, **body):
+    folder = settings.data_roots[0] / "seq"
+    (folder / "velodyne").mkdir(parents=True, exist_ok=True)
+    np.zeros((4, 4), np.float32).tofile(folder / "velodyne" / "000000.bin")
+    admin = factory.user("admin")
+    return client.post("/api/v1/datasets", json={"path": str(folder), "ingest": False, **body}, headers=admin.headers), admin
+
+
+def test_label_sets_api_sequence_is_paper_by_default_and_get_shows_it(client, factory, settings):
+    r, admin = _register(client, factory, settings)
+    assert r.status_code == 201, r.text
+    seq = r.json()["sequences"][0]
+    assert seq["label_set"] == "paper"
+    got = client.get(f"/api/v1/sequences/{seq['id']}", headers=admin.headers).json()
+    assert got["label_set"] == "paper"
+
+
+def test_label_sets_api_explicit_paper_is_registered(client, factory, settings):
+    r, _ = _register(client, factory, settings, label_set="paper")
+    assert r.status_code == 201 and r.json()["sequences"][0]["label_set"] == "paper"
+
+
+def test_label_sets_api_unknown_label_set_is_422_naming_the_presets(client, factory, settings):
+    r, admin = _register(client, factory, settings, label_set="kitti360")
+    assert r.status_code == 422
+    assert "unknown label set 'kitti360'" in r.text and "semantickitti" in r.text
+    assert client.get("/api/v1/sequences", headers=admin.headers).json() == []
+
+
+@pytest.mark.parametrize("name", ["semantickitti", "nuscenes"])
+def test_label_sets_api_preset_the_review_does_not_speak_yet_is_422(client, factory, settings, name):
+    r, _ = _register(client, factory, settings, label_set=name)
+    assert r.status_code == 422 and "not supported by the service yet" in r.text
+
+
+def test_label_sets_api_path_like_label_set_is_refused_by_the_schema(client, factory, settings):
+    r, _ = _register(client, factory, settings, label_set="../paper.yaml")
+    assert r.status_code == 422 and "label_set" in r.text
+
+
+def test_label_sets_api_stats_name_the_sequence_label_set_and_classes(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    one = client.get("/api/v1/exports/stats", params={"sequence_id": seq}, headers=op.headers).json()
+    assert one["label_set"] == "paper" and one["classes"] == list(SAMPLE_CLASSES)
+    every = client.get("/api/v1/exports/stats", headers=op.headers).json()
+    assert every["label_set"] is None and every["classes"] == []
+
+
+def test_label_sets_api_migration_makes_existing_sequences_paper(tmp_path):
+    url = f"sqlite:///{tmp_path / 'm.db'}"
+    upgrade(url, "0011")
+    engine = create_engine(url)
+    with engine.begin() as conn:
+        conn.execute(text("INSERT INTO datasets (id, name, path, created_at) VALUES (1, 'd', '/d', '2026-01-01')"))
+        conn.execute(text("INSERT INTO sequences (id, dataset_id, name, path, format, status, n_frames, created_at) "
+                          "VALUES (1, 1, 's', '/d', 'semantickitti', 'ready', 0, '2026-01-01')"))
+    upgrade(url, "0012")
+    with engine.connect() as conn:
+        assert conn.execute(text("SELECT label_set FROM sequences")).scalar_one() == "paper"
+    engine.dispose()
