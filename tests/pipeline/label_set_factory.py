@@ -7,7 +7,7 @@ from pathlib import Path
 import yaml
 
 # The maps of semantic-kitti-api's config file, for the importer's tests.
-SEMANTIC_KITTI_YAML = Path(__file__).parent / "data" / "semantic-kitti.yaml"
+SEMANTIC_KITTI_YAML = Path(__file__).parent / "fixtures" / "semantic-kitti.yaml"
 
 
 def label_set_data(n_classes: int, n_ground: int = 1, name: str = "custom") -> dict:
