@@ -25,6 +25,7 @@ from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
+from annotator_ui.prefetch import prefetch_next
 from annotator_ui.repair_panel import RepairPanel
 from annotator_ui.review import NoChange, ReviewSession
 from annotator_ui.review_panel import (
@@ -85,7 +86,9 @@ class ClientTab:
                                       lambda: self.later(self.render_frame), self.viewer.config.follow_camera)
         self.playback: Playback = self.review.playback
         self.views = self.review.views
-        self.scene = SceneView(self.client, self.api, self.cache, self.session, self.views, self.notify)
+        cfg = self.viewer.config
+        self.scene = SceneView(self.client, self.api, self.cache, self.session, self.views, self.notify,
+                               cfg.cloud_budget, cfg.cloud_voxel_m)
         self.scene.follow_camera = self.viewer.config.follow_camera
         r = self.review
         r.gui_sequence.on_update(lambda e: self.later(self._switch_sequence) if e.client is not None else None)
@@ -174,11 +177,12 @@ class ClientTab:
         with self._busy:
             if chosen is None or chosen == self.session.sequence_id:
                 return
-            if self.session.track is not None and self.session.from_queue:
-                try:
+            try:
+                self.session.drop_ahead()
+                if self.session.track is not None and self.session.from_queue:
                     self.api.release(self.session.track["id"])
-                except ApiError:
-                    pass
+            except ApiError:
+                pass
             self.session.sequence_id = chosen
             self._load(lambda: self.session.next())
         self.later(self.progress.refresh)
@@ -430,6 +434,8 @@ class ClientTab:
         with self.client.atomic():
             self.playback.fit()
         self.render_frame(reset_camera=reset_camera)
+        if self.viewer.config.prefetch:  # after the draw is on its way: the next track while the operator decides
+            self.later(lambda: prefetch_next(self.session, self.api, self.cache, self.scene.prepare_cloud))
 
     def render_frame(self, reset_camera: bool = False) -> bool:
         """Draw the current frame of the session's track. False when it could not be read."""

@@ -19,6 +19,7 @@ import viser
 
 from annotator_ui.change_feed import ChangeFeed
 from annotator_ui.client import ApiClient, ApiError
+from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.review import QueueCoordinator
 from annotator_ui.tab import ClientTab
@@ -37,6 +38,9 @@ class ViewerConfig:
     port: int = 8080
     cache_mb: int = 256
     follow_camera: bool = True
+    prefetch: bool = True  # lease and fetch the next track while the operator decides
+    cloud_budget: int = MAX_CLOUD_POINTS  # the background cloud's level of detail (annotator_ui.cloud_lod)
+    cloud_voxel_m: float = VOXEL_M
 
 
 class AnnotatorViewer:
