@@ -52,6 +52,9 @@ TRACK_POINT_SIZE = 0.08  # a little larger than the rest: dense enough to read t
 NODE_SIZE = 0.12  # path markers small enough not to cover a pedestrian
 OUTSIDE_KEPT = (150, 150, 150)
 PATH_KEPT = (255, 140, 0)
+# the side panels (sample, route, stitches) follow a draw by this long after the client applied it:
+# their images and rows then reach the browser after the track is drawn, not while it draws it
+SIDE_PANELS_DELAY_S = 0.3
 TRACK_NODES = ("/frame/track", "/frame/outline", "/track/aggregate", "/track/path", "/track/nodes")
 
 
@@ -68,9 +71,9 @@ class Shown:
 class SceneView:
     def __init__(self, client: viser.ClientHandle, api: ApiClient, cache: FrameCache, session: ReviewSession,
                  views: TrackViewsPanel, notify: Callable[[str, str, str], None], budget: int = MAX_CLOUD_POINTS,
-                 voxel_m: float = VOXEL_M) -> None:
+                 voxel_m: float = VOXEL_M, side_panels_delay_s: float | None = SIDE_PANELS_DELAY_S) -> None:
         self.client, self.api, self.cache, self.session, self.views, self.notify = client, api, cache, session, views, notify
-        self.budget, self.voxel_m = budget, voxel_m
+        self.budget, self.voxel_m, self.side_panels_delay_s = budget, voxel_m, side_panels_delay_s
         self.memo = CloudMemo()
         self.colour_mode: ColourMode = "track"
         self.follow_camera = True
@@ -85,6 +88,8 @@ class SceneView:
         self._cloud_keep: np.ndarray | None = None  # (M,) its points' indices into the frame
         self._cloud_colours: np.ndarray | None = None  # (M, 3) uint8, as the client holds them
         self._receipts: dict[str, Shown] = {}  # request uuid -> the draw it follows
+        self._after: list[Callable[[], None]] = []  # to run once the client applied the last draw
+        self._after_lock = threading.Lock()
         self.timings_ms: dict[str, float] = {}
         self._conn = client._websock_connection  # noqa: SLF001 - see the module docstring
         self._conn.register_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
@@ -102,6 +107,23 @@ class SceneView:
         sent = self._receipts.pop(message.request_uuid, None)
         if sent is not None and sent is self._sent:
             self.shown = sent
+            self._run_after()
+
+    def after_shown(self, fn: Callable[[], None]) -> None:
+        """Run `fn` (nothing a key waits for) SIDE_PANELS_DELAY_S after the client applied the last
+        draw; at once when nothing is drawn or side_panels_delay_s is None."""
+        with self._after_lock:
+            self._after.append(fn)
+        if self._sent is None or self.shown is self._sent or self.side_panels_delay_s is None:
+            self._run_after()
+
+    def _run_after(self) -> None:
+        with self._after_lock:
+            fns, self._after = self._after, []
+        if fns:
+            timer = threading.Timer(self.side_panels_delay_s or 0.0, lambda: [fn() for fn in fns])
+            timer.daemon = True
+            timer.start()
 
     @property
     def sent(self) -> Shown | None:

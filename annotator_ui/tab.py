@@ -88,7 +88,7 @@ class ClientTab:
         self.views = self.review.views
         cfg = self.viewer.config
         self.scene = SceneView(self.client, self.api, self.cache, self.session, self.views, self.notify,
-                               cfg.cloud_budget, cfg.cloud_voxel_m)
+                               cfg.cloud_budget, cfg.cloud_voxel_m, cfg.side_panels_delay_s)
         self.scene.follow_camera = self.viewer.config.follow_camera
         r = self.review
         r.gui_sequence.on_update(lambda e: self.later(self._switch_sequence) if e.client is not None else None)
@@ -158,7 +158,8 @@ class ClientTab:
 
     def later(self, fn: Any) -> None:
         """Run `fn` in the viewer's pool unless this tab has closed by then."""
-        self.viewer.background(lambda: None if self._closed.is_set() else fn())
+        if not self._closed.is_set():  # a side panel's timer may fire after the viewer stopped
+            self.viewer.background(lambda: None if self._closed.is_set() else fn())
 
     def close(self) -> None:
         self._closed.set()
@@ -273,7 +274,7 @@ class ClientTab:
         self.scene.timings_ms["action_and_next"] = 1e3 * (time.perf_counter() - t0)
         self.render_track(reset_camera=self.session.track_id != before)
         self._refresh_progress_soon()
-        self.later(self.stitches.refresh)
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))
 
     def _refresh_progress_soon(self) -> None:
         """Refresh the progress panel PROGRESS_DELAY_S from now, once for every action until then."""
@@ -315,7 +316,7 @@ class ClientTab:
                 self.notify("Track changed elsewhere", f"track {t['id']} is now v{self.session.track['version']}; "  # type: ignore[index]
                             "redrawn as the service holds it.", "blue")
             self.render_track(reset_camera=False)
-        self.later(self.stitches.refresh)
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))
 
     def split(self, region: dict[str, Any], this_frame_only: bool) -> None:
         """Cut the shown track by a region (repair panel); the shown track stays on screen."""
@@ -396,7 +397,7 @@ class ClientTab:
         except ApiError as exc:
             self.notify("Cannot load a track", exc.detail, "red")
         self.render_track(reset_camera=True)
-        self.later(self.stitches.refresh)  # the shown track's stitches
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))  # the shown track's stitches
 
     # ------------------------------------------------------------------ picking and colours
     def _on_click(self, event: viser.SceneClickEvent) -> None:
@@ -455,10 +456,10 @@ class ClientTab:
         if not self.scene.render(texts, reset_camera=reset_camera):
             return False
         gen, seg = self.scene.generation, self.session.segment_at(fi)
-        self.later(lambda: self._load_sample(gen, seg))
+        self.scene.after_shown(lambda: self.later(lambda: self._load_sample(gen, seg)))
         if reset_camera:
             self.repair.place(self.track_centre())
-            self.later(lambda: self._draw_route(t))
+            self.scene.after_shown(lambda: self.later(lambda: self._draw_route(t)))
         elif self.repair.gizmo is not None:
             self.repair.preview()  # the count follows the frame
         return True

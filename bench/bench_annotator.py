@@ -27,7 +27,8 @@ REAL_FRAMES frames of SemanticKITTI sequence 00 (about 124k points a frame) inge
 real pipeline. Skipped without chromium.
 
 `--browser` (`compare_browser`) measures both scenes with two viewers side by side against one
-service (VARIANTS: `before` = no prefetch and the old level of detail, `after` = as configured),
+service (VARIANTS: `before` = no prefetch, the old level of detail, side panels sent with the draw;
+`after` = as configured),
 in alternating blocks of keys (ABBA), each block on a fresh page after a warm-up key, and gives
 each variant's real / demo ratio of p95.
 """
@@ -201,7 +202,8 @@ def _prepare_real(tmp_path: Path, port: int) -> Any:
 # the viewer as main had it before issue 37's latency work (no prefetch, every 2nd point of a real
 # frame), and as it is: both are measured in one run, in alternating blocks of keys, because the
 # shared machine's speed drifts by more than the difference between them
-VARIANTS = {"before": {"prefetch": False, "cloud_budget": 65_536, "cloud_voxel_m": 0.0}, "after": {}}
+VARIANTS = {"before": {"prefetch": False, "cloud_budget": 65_536, "cloud_voxel_m": 0.0, "side_panels_delay_s": None},
+            "after": {}}
 
 
 def _serve_viewer(api_url: str, token: str, port: int, variant: str) -> None:
