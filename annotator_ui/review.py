@@ -98,6 +98,11 @@ class QueueCoordinator:
             shown = session.track_id
             exclude = self._held(session) | session.skipped | ({shown} if shown is not None else set())
             track = session.api.next_track(exclude=exclude, sequence_id=session.sequence_id)
+            with self._lock:
+                closed = id(session) not in self._sessions
+            if track is not None and closed:  # the tab closed meanwhile: its leases went back already
+                session.api.release(int(track["id"]))
+                return None
             if track is not None:
                 session.leased.add(int(track["id"]))
                 session.ahead_id = int(track["id"])  # other tabs pass it over from here on

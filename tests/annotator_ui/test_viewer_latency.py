@@ -125,6 +125,15 @@ def test_prefetch_ahead_lease_is_given_back_when_the_queue_changes():
     assert ("release", 2) in service.calls and session.ahead_id is None and 2 not in session.leased
 
 
+def test_prefetch_after_the_tab_closed_keeps_no_lease():
+    service = FakeService()
+    session = ReviewSession(service)  # type: ignore[arg-type]
+    session.next()
+    session.close()  # a prefetch still in flight when the tab closes
+    assert prefetch_next(session, service, FrameCache(), lambda *_: None) is None  # type: ignore[arg-type]
+    assert service.leased == set()
+
+
 def test_lod_keeps_one_point_per_voxel_and_the_sparse_far_field():
     rng = np.random.default_rng(0)
     crowded = rng.uniform(0.0, 0.19, size=(50, 3)).astype(np.float32)  # one 0.2 m cube
@@ -167,3 +176,4 @@ def test_viewer_same_frame_sends_only_the_colours(tiny_budget_tab):
     update = client.wait_for(lambda m: m.type == "SceneNodeUpdateMessage" and m.name == "/frame/points", since=since)
     assert set(update.fields["updates"]) == {"colors"} and update.fields["updates"]["colors"]["nbytes"] == 16 * 3
     assert not any(is_points("/frame/points")(m) for m in client.messages[since:])
+
