@@ -8,7 +8,9 @@ field, where each point matters, is kept. Over `budget` the survivors are thinne
 reviewed track is drawn from all of its points apart from this cloud (scene_view's
 /frame/track), so the level of detail never thins what the operator judges.
 
-On kitti_seq00 frame 0: 124,668 points -> 31,583 voxels of 0.2 m -> the budget of 24,576.
+On kitti_seq00 frame 0: 124,668 points -> 31,583 voxels of 0.2 m -> the budget of 16,384; a demo
+frame: 60,945 -> 17,694 -> 16,384. A real frame then costs the browser what a demo frame does
+(docs/annotator.md has the measurements).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 VOXEL_M = 0.2
-MAX_CLOUD_POINTS = 24_576
+MAX_CLOUD_POINTS = 16_384
 
 
 def lod(points: np.ndarray, budget: int = MAX_CLOUD_POINTS, voxel_m: float = VOXEL_M) -> np.ndarray:
