@@ -17,6 +17,11 @@ Rules:
 
 Several tabs of one user (one token) share the queue through a `QueueCoordinator`, which makes
 each tab exclude the tracks the other tabs show, so no two tabs get the same track.
+
+The track after the shown one is leased ahead (`lease_ahead`, while the operator decides): the
+service hands a user's own live lease out first, so the key's `next` returns that same track,
+and its detail read ahead is used when the version still matches. Other tabs of the token pass
+it over like a shown track; closing the tab gives its lease back with the others.
 """
 
 from __future__ import annotations
@@ -29,6 +34,14 @@ from typing import Any
 from annotator_ui.client import ApiClient, NothingToUndo, StaleEdit
 
 FINISHING = ("accept", "discard", "label")
+
+
+def best_frame(track: dict[str, Any]) -> int:
+    """The frame to open a track (TrackDetail) at: its kept segment with the most points."""
+    kept = [s for s in track["segments"] if s["in_kept_range"]] or track["segments"]
+    if not kept:
+        return int(track["keep_start"])
+    return int(max(kept, key=lambda s: (s["n_points"], -s["frame_index"]))["frame_index"])
 
 
 class NoChange(Exception):
@@ -56,20 +69,44 @@ class QueueCoordinator:
         with self._lock:
             return list(self._sessions.values())
 
+    def _token_lock(self, session: ReviewSession) -> threading.Lock:
+        with self._lock:
+            return self._token_locks.setdefault(session.api.token, threading.Lock())
+
+    def _held(self, session: ReviewSession) -> set[int]:
+        """The tracks the other tabs of `session`'s token show or hold ahead."""
+        return {
+            i
+            for s in self.sessions()
+            if s is not session and s.api.token == session.api.token
+            for i in (s.track_id, s.ahead_id)
+            if i is not None
+        }
+
     def lease_next(self, session: ReviewSession) -> dict[str, Any] | None:
         """Lease the next track for `session`, passing over the tracks that the other tabs of the
         same token show and the ones this tab skipped. Serialised per process, so two tabs of one
         user cannot both receive the user's live lease."""
-        with self._lock:
-            token_lock = self._token_locks.setdefault(session.api.token, threading.Lock())
-        with token_lock:  # one token's tabs take turns; other operators' tabs do not wait
-            held = {
-                s.track_id
-                for s in self.sessions()
-                if s is not session and s.api.token == session.api.token and s.track_id is not None
-            }
-            track = session.api.next_track(exclude=held | session.skipped, sequence_id=session.sequence_id)
+        with self._token_lock(session):  # one token's tabs take turns; other operators' tabs do not wait
+            track = session.api.next_track(exclude=self._held(session) | session.skipped, sequence_id=session.sequence_id)
             session._set_queue_track(track)
+            return track
+
+    def lease_ahead(self, session: ReviewSession) -> dict[str, Any] | None:
+        """Lease the track the queue gives `session` after the shown one (TrackPublic; None when
+        nothing else is left), and mark it as `session`'s track ahead."""
+        with self._token_lock(session):
+            shown = session.track_id
+            exclude = self._held(session) | session.skipped | ({shown} if shown is not None else set())
+            track = session.api.next_track(exclude=exclude, sequence_id=session.sequence_id)
+            with self._lock:
+                closed = id(session) not in self._sessions
+            if track is not None and closed:  # the tab closed meanwhile: its leases went back already
+                session.api.release(int(track["id"]))
+                return None
+            if track is not None:
+                session.leased.add(int(track["id"]))
+                session.ahead_id = int(track["id"])  # other tabs pass it over from here on
             return track
 
 
@@ -88,6 +125,8 @@ class ReviewSession:
         self.done = False  # the queue had nothing left
         self.held_by: str | None = None  # why the shown out-of-queue track could not be leased (None = leased)
         self.leased: set[int] = set()  # tracks this tab leased (queue and picked), given back on close
+        self.ahead_id: int | None = None  # the queue's track after the shown one, leased ahead
+        self.ahead: dict[str, Any] | None = None  # its TrackDetail, once read
         self.lock = threading.RLock()
         self.coordinator.register(self)
 
@@ -123,20 +162,46 @@ class ReviewSession:
         return int(self.track["first_frame"]), int(self.track["last_frame"])
 
     def best_frame(self) -> int:
-        """The frame to open a track at: its kept segment with the most points."""
+        """The frame to open the shown track at (`best_frame`)."""
         assert self.track is not None
-        kept = [s for s in self.track["segments"] if s["in_kept_range"]] or self.track["segments"]
-        if not kept:
-            return int(self.track["keep_start"])
-        return int(max(kept, key=lambda s: (s["n_points"], -s["frame_index"]))["frame_index"])
+        return best_frame(self.track)
 
     # ------------------------------------------------------------------ loading
     def _set_queue_track(self, track: dict[str, Any] | None) -> None:
+        ahead, self.ahead, self.ahead_id = self.ahead, None, None
         if track is None:
             self.track, self.frame_index, self.from_queue, self.done = None, None, False, True
             return
         self.leased.add(int(track["id"]))
-        self._show(self.api.track(track["id"]), from_queue=True)
+        if ahead is not None and (ahead["id"], ahead["version"]) == (track["id"], track["version"]):
+            self._show(ahead, from_queue=True)  # read ahead, and unchanged since
+        else:
+            self._show(self.api.track(track["id"]), from_queue=True)
+
+    def read_ahead(self) -> dict[str, Any] | None:
+        """Lease the track after the shown one (if none is yet) and read its TrackDetail; None when
+        the queue has nothing else. Runs beside the keys: a key that takes the track meanwhile
+        reads it itself."""
+        if self.ahead is not None:
+            return self.ahead
+        if self.ahead_id is None and self.coordinator.lease_ahead(self) is None:
+            return None
+        track_id = self.ahead_id
+        if track_id is None:  # a key took it meanwhile
+            return None
+        detail = self.api.track(track_id)
+        with self.lock:
+            if self.ahead_id == track_id:
+                self.ahead = detail
+        return detail
+
+    def drop_ahead(self) -> None:
+        """Give back the track leased ahead (the queue changes, e.g. another sequence)."""
+        with self.lock:
+            track_id, self.ahead, self.ahead_id = self.ahead_id, None, None
+        if track_id is not None:
+            self.leased.discard(track_id)
+            self.api.release(track_id)
 
     def _show(self, detail: dict[str, Any], from_queue: bool, frame_index: int | None = None) -> None:
         self.track = detail

@@ -11,9 +11,11 @@ Scene (the current frame's lidar frame, sensor at the origin, z up, points in fl
   /track/nodes    those centroids, small; orange inside the kept range, grey outside, white = this frame
 
 The background cloud is faded as a whole (the track is drawn on top of it in its own colours), so
-in the *track* colour mode it does not depend on which track is reviewed: it is sent once per
-frame version and left on the client while the next track is in the same frame (only the track,
-its outline and its path are sent then).
+in the *track* colour mode it does not depend on which track is reviewed. Its points are the
+frame's level of detail (annotator_ui.cloud_lod), sent as binary once per frame; while the same
+frame stays on screen only what changed is sent: nothing for the next track in that frame, the
+colour array alone after an edit rewrote the frame's tracks or when another colour mode (or a
+review, in the class and status modes) recolours it. The points of a frame never change.
 
 `shown` is what the client has applied (track id, version, frame id, frame ETag): a key is bound
 to it. A draw becomes `shown` when the client answers a request sent in the same atomic update
@@ -37,6 +39,7 @@ import viser
 from viser import _messages as viser_messages
 
 from annotator_ui.client import ApiClient, ApiError, FramePayload
+from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M, CloudMemo, lod
 from annotator_ui.colours import ColourMode, fade, point_colours
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.geometry import polyline_segments, pose_matrix, world_to_lidar
@@ -49,18 +52,10 @@ TRACK_POINT_SIZE = 0.08  # a little larger than the rest: dense enough to read t
 NODE_SIZE = 0.12  # path markers small enough not to cover a pedestrian
 OUTSIDE_KEPT = (150, 150, 150)
 PATH_KEPT = (255, 140, 0)
-# the background cloud's level of detail: a frame over this is thinned evenly (every k-th point in
-# scan order) before it is sent; the track's own points are always all drawn (/frame/track).
-# Real KITTI frames hold ~124k points, the demo's ~60k (sent whole).
-MAX_CLOUD_POINTS = 65_536
+# the side panels (sample, route, stitches) follow a draw by this long after the client applied it:
+# their images and rows then reach the browser after the track is drawn, not while it draws it
+SIDE_PANELS_DELAY_S = 0.3
 TRACK_NODES = ("/frame/track", "/frame/outline", "/track/aggregate", "/track/path", "/track/nodes")
-
-
-def lod(n: int, budget: int) -> np.ndarray:
-    """Indices of an even thinning of n points to at most `budget` (all of them when n fits)."""
-    if n <= budget:
-        return np.arange(n)
-    return np.linspace(0, n - 1, budget).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -75,8 +70,11 @@ class Shown:
 
 class SceneView:
     def __init__(self, client: viser.ClientHandle, api: ApiClient, cache: FrameCache, session: ReviewSession,
-                 views: TrackViewsPanel, notify: Callable[[str, str, str], None]) -> None:
+                 views: TrackViewsPanel, notify: Callable[[str, str, str], None], budget: int = MAX_CLOUD_POINTS,
+                 voxel_m: float = VOXEL_M, side_panels_delay_s: float | None = SIDE_PANELS_DELAY_S) -> None:
         self.client, self.api, self.cache, self.session, self.views, self.notify = client, api, cache, session, views, notify
+        self.budget, self.voxel_m, self.side_panels_delay_s = budget, voxel_m, side_panels_delay_s
+        self.memo = CloudMemo()
         self.colour_mode: ColourMode = "track"
         self.follow_camera = True
         self.lock = threading.Lock()
@@ -85,8 +83,13 @@ class SceneView:
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
         self.shown: Shown | None = None
         self._sent: Shown | None = None
-        self._cloud: tuple[int, str, str] | None = None  # (frame id, ETag, colour mode) of the cloud on the client
+        self._cloud: viser.PointCloudHandle | None = None  # the background cloud on the client
+        self._cloud_frame: int | None = None  # its frame id
+        self._cloud_keep: np.ndarray | None = None  # (M,) its points' indices into the frame
+        self._cloud_colours: np.ndarray | None = None  # (M, 3) uint8, as the client holds them
         self._receipts: dict[str, Shown] = {}  # request uuid -> the draw it follows
+        self._after: list[Callable[[], None]] = []  # to run once the client applied the last draw
+        self._after_lock = threading.Lock()
         self.timings_ms: dict[str, float] = {}
         self._conn = client._websock_connection  # noqa: SLF001 - see the module docstring
         self._conn.register_handler(viser_messages.LocalStorageGetItemResponseMessage, self._on_receipt)
@@ -104,6 +107,23 @@ class SceneView:
         sent = self._receipts.pop(message.request_uuid, None)
         if sent is not None and sent is self._sent:
             self.shown = sent
+            self._run_after()
+
+    def after_shown(self, fn: Callable[[], None]) -> None:
+        """Run `fn` (nothing a key waits for) SIDE_PANELS_DELAY_S after the client applied the last
+        draw; at once when nothing is drawn or side_panels_delay_s is None."""
+        with self._after_lock:
+            self._after.append(fn)
+        if self._sent is None or self.shown is self._sent or self.side_panels_delay_s is None:
+            self._run_after()
+
+    def _run_after(self) -> None:
+        with self._after_lock:
+            fns, self._after = self._after, []
+        if fns:
+            timer = threading.Timer(self.side_panels_delay_s or 0.0, lambda: [fn() for fn in fns])
+            timer.daemon = True
+            timer.start()
 
     @property
     def sent(self) -> Shown | None:
@@ -112,7 +132,7 @@ class SceneView:
 
     def clear(self) -> None:
         self.shown = self._sent = None
-        self._cloud = None
+        self._cloud_frame = None
         for name in TRACK_NODES:
             self.client.scene.remove_by_name(name)
 
@@ -139,22 +159,17 @@ class SceneView:
                 self.notify("Cannot load the frame", exc.detail, "red")
                 return False
             mask = payload.track == int(t["id"])
-            cloud = (int(frame["id"]), payload.etag, self.colour_mode)
-            resend = cloud != self._cloud or self.colour_mode != "track"  # other modes follow the reviews
-            if resend:
-                keep = lod(len(payload.points), MAX_CLOUD_POINTS)
-                colours = fade(point_colours(payload.segment[keep], payload.track[keep], self.colour_mode, info),
-                               np.zeros(len(keep), bool))
+            if self.colour_mode == "track":  # the same for every track: the prefetch may have made it
+                keep, colours = self.prepare_cloud(int(frame["id"]), payload)
+            else:  # other modes follow the reviews
+                keep, colours = self._background(payload, self.colour_mode, info)
             t_coloured = time.perf_counter()
             # what the canvas shows is known before the client sees it (a click or a cut may
             # arrive as soon as the cloud does)
             self.frame_points, self.frame_tracks = payload.points, payload.track
             self.generation += 1
             with self.client.atomic():
-                if resend:
-                    self.client.scene.add_point_cloud("/frame/points", payload.points[keep], colours,
-                                                      point_size=POINT_SIZE, precision="float32", point_shading="flat")
-                    self._cloud = cloud
+                self._draw_cloud(int(frame["id"]), payload, keep, colours)
                 self._draw_track(t, fi, payload, mask, aggregated)
                 self._draw_path(t, fi, pose_matrix(frame.get("pose")))
                 texts()
@@ -167,6 +182,31 @@ class SceneView:
             self.timings_ms.update(frame_fetch=1e3 * (t_fetched - t0), colour=1e3 * (t_coloured - t_fetched),
                                    send=1e3 * (t_sent - t_coloured))
             return True
+
+    def prepare_cloud(self, frame_id: int, payload: FramePayload) -> tuple[np.ndarray, np.ndarray]:
+        """(M,) indices and (M, 3) uint8 colours of a frame's background cloud in the track colour
+        mode, made once per frame version (the prefetch calls this for the next track's frame)."""
+        return self.memo.get((frame_id, payload.etag, "track"), lambda: self._background(payload, "track", None))
+
+    def _background(self, payload: FramePayload, mode: ColourMode,
+                    info: dict[int, dict[str, Any]] | None) -> tuple[np.ndarray, np.ndarray]:
+        keep = lod(payload.points, self.budget, self.voxel_m)
+        colours = point_colours(payload.segment[keep], payload.track[keep], mode, info)
+        return keep, fade(colours, np.zeros(len(keep), bool))
+
+    def _draw_cloud(self, frame_id: int, payload: FramePayload, keep: np.ndarray, colours: np.ndarray) -> None:
+        """Send the background cloud: whole when the client holds another frame's, else only its
+        colours, and only when they changed."""
+        same_points = (self._cloud is not None and self._cloud_frame == frame_id and self._cloud_keep is not None
+                       and np.array_equal(self._cloud_keep, keep))
+        if not same_points:
+            self._cloud = self.client.scene.add_point_cloud("/frame/points", payload.points[keep], colours,
+                                                            point_size=POINT_SIZE, precision="float32",
+                                                            point_shading="flat")
+            self._cloud_frame, self._cloud_keep = frame_id, keep
+        elif not np.array_equal(self._cloud_colours, colours):
+            self._cloud.colors = colours  # type: ignore[union-attr]  # the delta: one uint8 array
+        self._cloud_colours = colours
 
     def drawn_points(self, track_id: int) -> int:
         """How many points of `track_id` the shown frame has (what the canvas draws)."""

@@ -25,6 +25,7 @@ from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
+from annotator_ui.prefetch import prefetch_next
 from annotator_ui.repair_panel import RepairPanel
 from annotator_ui.review import NoChange, ReviewSession
 from annotator_ui.review_panel import (
@@ -85,7 +86,9 @@ class ClientTab:
                                       lambda: self.later(self.render_frame), self.viewer.config.follow_camera)
         self.playback: Playback = self.review.playback
         self.views = self.review.views
-        self.scene = SceneView(self.client, self.api, self.cache, self.session, self.views, self.notify)
+        cfg = self.viewer.config
+        self.scene = SceneView(self.client, self.api, self.cache, self.session, self.views, self.notify,
+                               cfg.cloud_budget, cfg.cloud_voxel_m, cfg.side_panels_delay_s)
         self.scene.follow_camera = self.viewer.config.follow_camera
         r = self.review
         r.gui_sequence.on_update(lambda e: self.later(self._switch_sequence) if e.client is not None else None)
@@ -155,7 +158,8 @@ class ClientTab:
 
     def later(self, fn: Any) -> None:
         """Run `fn` in the viewer's pool unless this tab has closed by then."""
-        self.viewer.background(lambda: None if self._closed.is_set() else fn())
+        if not self._closed.is_set():  # a side panel's timer may fire after the viewer stopped
+            self.viewer.background(lambda: None if self._closed.is_set() else fn())
 
     def close(self) -> None:
         self._closed.set()
@@ -174,11 +178,12 @@ class ClientTab:
         with self._busy:
             if chosen is None or chosen == self.session.sequence_id:
                 return
-            if self.session.track is not None and self.session.from_queue:
-                try:
+            try:
+                self.session.drop_ahead()
+                if self.session.track is not None and self.session.from_queue:
                     self.api.release(self.session.track["id"])
-                except ApiError:
-                    pass
+            except ApiError:
+                pass
             self.session.sequence_id = chosen
             self._load(lambda: self.session.next())
         self.later(self.progress.refresh)
@@ -269,7 +274,7 @@ class ClientTab:
         self.scene.timings_ms["action_and_next"] = 1e3 * (time.perf_counter() - t0)
         self.render_track(reset_camera=self.session.track_id != before)
         self._refresh_progress_soon()
-        self.later(self.stitches.refresh)
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))
 
     def _refresh_progress_soon(self) -> None:
         """Refresh the progress panel PROGRESS_DELAY_S from now, once for every action until then."""
@@ -311,7 +316,7 @@ class ClientTab:
                 self.notify("Track changed elsewhere", f"track {t['id']} is now v{self.session.track['version']}; "  # type: ignore[index]
                             "redrawn as the service holds it.", "blue")
             self.render_track(reset_camera=False)
-        self.later(self.stitches.refresh)
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))
 
     def split(self, region: dict[str, Any], this_frame_only: bool) -> None:
         """Cut the shown track by a region (repair panel); the shown track stays on screen."""
@@ -392,7 +397,7 @@ class ClientTab:
         except ApiError as exc:
             self.notify("Cannot load a track", exc.detail, "red")
         self.render_track(reset_camera=True)
-        self.later(self.stitches.refresh)  # the shown track's stitches
+        self.scene.after_shown(lambda: self.later(self.stitches.refresh))  # the shown track's stitches
 
     # ------------------------------------------------------------------ picking and colours
     def _on_click(self, event: viser.SceneClickEvent) -> None:
@@ -430,6 +435,8 @@ class ClientTab:
         with self.client.atomic():
             self.playback.fit()
         self.render_frame(reset_camera=reset_camera)
+        if self.viewer.config.prefetch:  # after the draw is on its way: the next track while the operator decides
+            self.later(lambda: prefetch_next(self.session, self.api, self.cache, self.scene.prepare_cloud))
 
     def render_frame(self, reset_camera: bool = False) -> bool:
         """Draw the current frame of the session's track. False when it could not be read."""
@@ -449,10 +456,10 @@ class ClientTab:
         if not self.scene.render(texts, reset_camera=reset_camera):
             return False
         gen, seg = self.scene.generation, self.session.segment_at(fi)
-        self.later(lambda: self._load_sample(gen, seg))
+        self.scene.after_shown(lambda: self.later(lambda: self._load_sample(gen, seg)))
         if reset_camera:
             self.repair.place(self.track_centre())
-            self.later(lambda: self._draw_route(t))
+            self.scene.after_shown(lambda: self.later(lambda: self._draw_route(t)))
         elif self.repair.gizmo is not None:
             self.repair.preview()  # the count follows the frame
         return True

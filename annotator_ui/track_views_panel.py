@@ -1,6 +1,7 @@
 """The track views panel: how the reviewed track is coloured (height or intensity), its
 aggregated view (the points of all its kept frames overlaid, loaded only when ticked) and its
-top and side orthographic images.
+top and side orthographic images, in a panel docked at the left edge of the 3D view (beside it,
+never below the fold of the control panel), shown while they are ticked.
 
 The aggregated cloud is built from the frame payloads of the kept frames (the viewer's frame
 cache): each frame's track points go to the world frame with that frame's pose; with motion
@@ -65,8 +66,12 @@ class TrackViewsPanel:
         self.gui_ortho = gui.add_checkbox("Top and side views", False, hint="orthographic images of the track")
         for h in (self.gui_look, self.gui_aggregate, self.gui_auto, self.gui_compensate, self.gui_ortho):
             h.on_update(lambda e: changed() if e.client is not None else None)
-        self.gui_top = gui.add_image(blank_image(), label="Top view (1 m grid)", format="png", visible=False)
-        self.gui_side = gui.add_image(blank_image(), label="Side view (1 m grid)", format="png", visible=False)
+        self.gui_views = gui.add_panel(visible=False)  # a top-level window, beside the canvas
+        with self.gui_views.add_tab("Track views", viser.Icon.VIEW_360):
+            self.gui_top = gui.add_image(blank_image(), label="Top view (1 m grid)", format="png")
+            self.gui_side = gui.add_image(blank_image(), label="Side view (1 m grid)", format="png")
+        self.gui_views.dock_left()
+        self.gui_views.set_width(ORTHO_SIZE + 40)
 
     @property
     def look(self) -> str:
@@ -84,8 +89,8 @@ class TrackViewsPanel:
         """The orthographic images of (N, 3) scene points with their (N, 3) uint8 colours (when
         the views are ticked)."""
         shown = bool(self.gui_ortho.value)
-        if self.gui_top.visible != shown:
-            self.gui_top.visible = self.gui_side.visible = shown
+        if self.gui_views.visible != shown:
+            self.gui_views.visible = shown
         if shown:
             self.gui_top.image = ortho_image(points, colours, "top", ORTHO_SIZE)
             self.gui_side.image = ortho_image(points, colours, "side", ORTHO_SIZE)

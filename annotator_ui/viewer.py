@@ -19,8 +19,10 @@ import viser
 
 from annotator_ui.change_feed import ChangeFeed
 from annotator_ui.client import ApiClient, ApiError
+from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.review import QueueCoordinator
+from annotator_ui.scene_view import SIDE_PANELS_DELAY_S
 from annotator_ui.tab import ClientTab
 
 __all__ = ["AnnotatorViewer", "ClientTab", "ViewerConfig"]
@@ -37,6 +39,10 @@ class ViewerConfig:
     port: int = 8080
     cache_mb: int = 256
     follow_camera: bool = True
+    prefetch: bool = True  # lease and fetch the next track while the operator decides
+    cloud_budget: int = MAX_CLOUD_POINTS  # the background cloud's level of detail (annotator_ui.cloud_lod)
+    cloud_voxel_m: float = VOXEL_M
+    side_panels_delay_s: float | None = SIDE_PANELS_DELAY_S  # None: sample, route and stitches sent with the draw
 
 
 class AnnotatorViewer:

@@ -22,9 +22,15 @@ real pipeline), the service and the viewer each in its own process, and headless
 (software WebGL) driven by playwright as an operator: a key (A / D / 1-7, as in ACTIONS) is
 pressed, and the clock stops when the page shows the next track's id and two animation frames
 have passed (the frame that draws the new point cloud has been rendered). Playwright's round
-trips count too, so this overestimates what the operator sees. `--real`: the same on the first
+trips count too, so this overestimates what the operator sees. `real`: the same on the first
 REAL_FRAMES frames of SemanticKITTI sequence 00 (about 124k points a frame) ingested with the
 real pipeline. Skipped without chromium.
+
+`--browser` (`compare_browser`) measures both scenes with two viewers side by side against one
+service (VARIANTS: `before` = no prefetch, the old level of detail, side panels sent with the draw;
+`after` = as configured),
+in alternating blocks of keys (ABBA), each block on a fresh page after a warm-up key, and gives
+each variant's real / demo ratio of p95.
 """
 
 from __future__ import annotations
@@ -193,13 +199,28 @@ def _prepare_real(tmp_path: Path, port: int) -> Any:
     return prepare(settings, Source(folder, name="kitti_seq00", fmt="kitti"), log=lambda _m: None)
 
 
-def _serve_demo(tmp_path: Path, real: bool = False) -> tuple[list[subprocess.Popen], str, str]:
-    """The demo scene (or real kitti_seq00 frames), its service and the viewer, each in its own
-    process as deployed; (processes, viewer URL, operator token)."""
+# the viewer as main had it before issue 37's latency work (no prefetch, every 2nd point of a real
+# frame), and as it is: both are measured in one run, in alternating blocks of keys, because the
+# shared machine's speed drifts by more than the difference between them
+VARIANTS = {"before": {"prefetch": False, "cloud_budget": 65_536, "cloud_voxel_m": 0.0, "side_panels_delay_s": None},
+            "after": {}}
+
+
+def _serve_viewer(api_url: str, token: str, port: int, variant: str) -> None:
+    """The viewer of one variant, in this process (the benchmark starts it as its own process)."""
+    from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
+
+    AnnotatorViewer(ViewerConfig(api_url=api_url, token=token, port=port, **VARIANTS[variant])).serve_forever()
+
+
+def _serve_demo(tmp_path: Path, real: bool = False,
+                variants: tuple[str, ...] = ("after",)) -> tuple[list[subprocess.Popen], dict[str, str], str]:
+    """The demo scene (or real kitti_seq00 frames), its service and one viewer per variant, each in
+    its own process as deployed; (processes, viewer URL per variant, operator token)."""
     from app.demo import prepare_demo
     from bench.bench_api import _free_port
 
-    api_port, viewer_port = _free_port(), _free_port()
+    api_port = _free_port()
     if real:
         info = _prepare_real(tmp_path, api_port)
     else:
@@ -210,37 +231,62 @@ def _serve_demo(tmp_path: Path, real: bool = False) -> tuple[list[subprocess.Pop
         [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app", "--host", "127.0.0.1",
          "--port", str(api_port), "--log-level", "warning", "--no-access-log"], cwd=REPO, env=env)]
     _wait_http(f"http://127.0.0.1:{api_port}/api/v1/health", procs[0])
-    procs.append(subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "annotate", "--api", f"http://127.0.0.1:{api_port}",
-         "--token", info.operator_token, "--port", str(viewer_port)],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-    _wait_http(f"http://127.0.0.1:{viewer_port}/", procs[1])
-    return procs, f"http://127.0.0.1:{viewer_port}", info.operator_token
+    urls = {}
+    for variant in variants:
+        port = _free_port()
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "bench.bench_annotator", "--serve-viewer", f"http://127.0.0.1:{api_port}",
+             info.operator_token, str(port), variant], cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        _wait_http(f"http://127.0.0.1:{port}/", procs[-1])
+        urls[variant] = f"http://127.0.0.1:{port}"
+    return procs, urls, info.operator_token
 
 
-def _key_to_drawn(page: Any, key: str, shown: str) -> tuple[float, str]:
-    """Press `key`; ms until a new track id is on the page and two animation frames have passed."""
+TRACK_ID_JS = "/Track (\\d+) \\((queue|picked)\\)/"
+
+
+def _key_to_drawn(page: Any, key: str, shown: str) -> tuple[float, float, str]:
+    """Press `key`; (ms until a new track id is on the page, ms until two animation frames later,
+    that track id)."""
     import re
 
     t0 = time.perf_counter()
     page.keyboard.press(key)
     page.wait_for_function(
-        "old => { const m = document.body.innerText.match(/Track (\\d+) \\((queue|picked)\\)/);"
-        " return m !== null && m[1] !== old; }", arg=shown, polling="raf", timeout=30_000)
+        f"old => {{ const m = document.body.innerText.match({TRACK_ID_JS}); return m !== null && m[1] !== old; }}",
+        arg=shown, polling="raf", timeout=30_000)
     t_text = time.perf_counter()
     page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
-    ms = 1e3 * (time.perf_counter() - t0)
-    _key_to_drawn.text_ms.append(1e3 * (t_text - t0))  # type: ignore[attr-defined]
-    return ms, re.search(r"Track (\d+) \((queue|picked)\)", page.inner_text("body")).group(1)
+    t_drawn = time.perf_counter()
+    shown = re.search(r"Track (\d+) \((queue|picked)\)", page.inner_text("body")).group(1)
+    return 1e3 * (t_drawn - t0), 1e3 * (t_text - t0), shown
 
 
-_key_to_drawn.text_ms = []  # type: ignore[attr-defined]  # key -> the new track's id on the page
-
-
-def browser_latency(quick: bool = False, real: bool = False) -> dict:
-    """Key -> next track drawn in headless chromium on the demo scene or, with `real`, on the first
-    REAL_FRAMES frames of kitti_seq00 (see the module docstring)."""
+def _block(browser: Any, url: str, keys: int, first: int) -> tuple[list[float], list[float]]:
+    """One page on the viewer at `url`: a warm-up key, then `keys` keys (ms drawn, ms track id shown)."""
     import re
+
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    try:
+        page.goto(url)
+        page.wait_for_function("() => /Track \\d+ \\(queue\\)/.test(document.body.innerText)", timeout=60_000)
+        shown = re.search(r"Track (\d+) \(queue\)", page.inner_text("body")).group(1)
+        _, _, shown = _key_to_drawn(page, "s", shown)  # warm-up: first frames, colour tables
+        drawn, text = [], []
+        for i in range(keys):
+            ms, ms_text, shown = _key_to_drawn(page, BROWSER_KEYS[(first + i) % len(BROWSER_KEYS)], shown)
+            drawn.append(ms)
+            text.append(ms_text)
+        return drawn, text
+    finally:
+        page.close()
+
+
+def browser_latency(quick: bool = False, real: bool = False, variants: tuple[str, ...] = ("after",),
+                    blocks: int = 4) -> dict:
+    """Key -> next track drawn in headless chromium on the demo scene or, with `real`, on the first
+    REAL_FRAMES frames of kitti_seq00 (see the module docstring), for each viewer variant in
+    alternating blocks of keys."""
     import shutil
 
     chromium = "/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else shutil.which("chromium")
@@ -251,40 +297,55 @@ def browser_latency(quick: bool = False, real: bool = False) -> dict:
     if chromium is None:
         return {"skipped": "chromium or playwright is absent"}
     n = 20 if quick else 60
+    per_block = max(1, n // blocks)
+    times: dict[str, tuple[list[float], list[float]]] = {v: ([], []) for v in variants}
     with tempfile.TemporaryDirectory() as tmp:
         load_before = [round(v, 2) for v in os.getloadavg()]
-        procs, viewer_url, _token = _serve_demo(Path(tmp), real=real)
+        procs, urls, _token = _serve_demo(Path(tmp), real=real, variants=variants)
         try:
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=chromium, args=["--headless", "--no-sandbox", "--disable-gpu"])
-                page = browser.new_page(viewport={"width": 1400, "height": 900})
-                page.goto(viewer_url)
-                page.wait_for_function("() => /Track \\d+ \\(queue\\)/.test(document.body.innerText)", timeout=60_000)
-                shown = re.search(r"Track (\d+) \(queue\)", page.inner_text("body")).group(1)
-                ms, shown = _key_to_drawn(page, "s", shown)  # warm-up: first frames, colour tables
-                times = []
-                for i in range(n):
-                    ms, shown = _key_to_drawn(page, BROWSER_KEYS[i % len(BROWSER_KEYS)], shown)
-                    times.append(ms)
+                for b in range(blocks):
+                    for variant in variants if b % 2 == 0 else variants[::-1]:  # ABBA: neither always goes first
+                        drawn, text = _block(browser, urls[variant], per_block, first=b * per_block)
+                        times[variant][0].extend(drawn)
+                        times[variant][1].extend(text)
                 browser.close()
         finally:
             for proc in reversed(procs):
                 proc.terminate()
                 proc.wait(timeout=15)
-    p95 = _pct(times, 95)
-    text = _key_to_drawn.text_ms[1:]  # type: ignore[attr-defined]  # without the warm-up
-    return {"n": len(times), "p50_ms": _pct(times, 50), "p95_ms": p95, "max_ms": round(max(times), 1),
-            "key_to_track_id_shown": {"p50_ms": _pct(text, 50), "p95_ms": _pct(text, 95)},
-            "load_average_before": load_before, "load_average_after": [round(v, 2) for v in os.getloadavg()],
-            "scene": f"kitti_seq00 frames 0-{REAL_FRAMES - 1} (real pipeline)" if real
-            else f"demo: simulated campus, {DEMO_FRAMES} frames, seed 0", "webgl": "software (headless chromium)",
-            "target": {"value": p95, "target": TARGET_BROWSER_P95_MS, "met": p95 <= TARGET_BROWSER_P95_MS}}
+    out: dict[str, Any] = {
+        "scene": f"kitti_seq00 frames 0-{REAL_FRAMES - 1} (real pipeline)" if real
+        else f"demo: simulated campus, {DEMO_FRAMES} frames, seed 0", "webgl": "software (headless chromium)",
+        "load_average_before": load_before, "load_average_after": [round(v, 2) for v in os.getloadavg()]}
+    for variant, (drawn, text) in times.items():
+        out[variant] = {"viewer": VARIANTS[variant] or "as configured by default", "n": len(drawn),
+                        "p50_ms": _pct(drawn, 50), "p95_ms": _pct(drawn, 95), "max_ms": round(max(drawn), 1),
+                        "key_to_track_id_shown": {"p50_ms": _pct(text, 50), "p95_ms": _pct(text, 95)}}
+    p95 = out[variants[-1]]["p95_ms"]
+    out["target"] = {"value": p95, "target": TARGET_BROWSER_P95_MS, "met": p95 <= TARGET_BROWSER_P95_MS}
+    return out
+
+
+def compare_browser(quick: bool = False) -> dict:
+    """Both variants on the demo scene and on real frames; the real/demo ratio of p95 per variant."""
+    scenes = {"demo": browser_latency(quick, real=False, variants=tuple(VARIANTS)),
+              "real": browser_latency(quick, real=True, variants=tuple(VARIANTS))}
+    if any("skipped" in r for r in scenes.values()):
+        return scenes
+    scenes["real_over_demo_p95"] = {v: round(scenes["real"][v]["p95_ms"] / scenes["demo"][v]["p95_ms"], 2)
+                                    for v in VARIANTS}
+    return scenes
 
 
 if __name__ == "__main__":
     import json
 
-    if "--browser" in sys.argv:
-        print(json.dumps(browser_latency(quick="--quick" in sys.argv, real="--real" in sys.argv), indent=2))
+    if "--serve-viewer" in sys.argv:
+        i = sys.argv.index("--serve-viewer")
+        _serve_viewer(sys.argv[i + 1], sys.argv[i + 2], int(sys.argv[i + 3]), sys.argv[i + 4])
+    elif "--browser" in sys.argv:
+        print(json.dumps(compare_browser(quick="--quick" in sys.argv), indent=2))
     else:
         print(json.dumps(run(Path("bench/results"), quick="--quick" in sys.argv), indent=2))

@@ -1,5 +1,5 @@
 """The readable-geometry parts of the viewer: the cut preview counts what a cut takes, far or
-sparse tracks open aggregated, the background cloud's level of detail, the key help from the one
+sparse tracks open aggregated, the key help from the one
 action table."""
 
 from __future__ import annotations
@@ -8,7 +8,6 @@ import numpy as np
 
 from annotator_ui.actions import ACTIONS, key_help
 from annotator_ui.cut_preview import gizmo_scale, inside_box
-from annotator_ui.scene_view import lod
 from annotator_ui.track_views_panel import FAR_M, SPARSE_POINTS, hard_to_read
 from tests.annotator_ui.test_viewer_repair import _open_multi_frame, tab, viewer  # noqa: F401 - fixtures
 
@@ -32,12 +31,6 @@ def test_readable_far_or_sparse_tracks_open_aggregated():
     assert hard_to_read({"segments": [{**seg, "n_points": SPARSE_POINTS - 1}], "mean_range": 5.0})
     assert hard_to_read({"segments": [{**seg, "n_points": 5000}], "mean_range": FAR_M + 1})
     assert not hard_to_read({"segments": [{**seg, "n_points": 5000}], "mean_range": 10.0})
-
-
-def test_readable_lod_thins_evenly_and_keeps_small_frames_whole():
-    assert lod(1000, 2000).tolist() == list(range(1000))
-    keep = lod(124_000, 65_536)
-    assert len(keep) == 65_536 and keep[0] == 0 and keep[-1] == 123_999 and np.all(np.diff(keep) > 0)
 
 
 def test_readable_key_help_lists_every_key_of_the_table():
