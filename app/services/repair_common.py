@@ -172,8 +172,9 @@ def restore_links(session: Session, track_ids: list[int], rows: list[dict[str, A
 
 
 def restat(session: Session, track: Track, ranges_from_segments: bool) -> None:
-    """Length (frames), samples and range in the kept range, points overall, from the segment rows;
-    with `ranges_from_segments` the frame range and kept range become the segments' own."""
+    """Length (frames), samples, points and range in the kept range, from the segment rows, as a
+    truncation counts them (the operator's point count is the kept frames'); with
+    `ranges_from_segments` the frame range and kept range become the segments' own."""
     if ranges_from_segments:
         lo, hi = session.execute(
             select(func.min(Segment.frame_index), func.max(Segment.frame_index)).where(Segment.track_id == track.id)
@@ -186,7 +187,7 @@ def restat(session: Session, track: Track, ranges_from_segments: bool) -> None:
         .where(*kept)
     ).one()
     track.length, track.n_samples, track.mean_range = int(length), int(n_samples), float(mean_range or 0.0)
-    track.n_points = int(session.scalar(select(func.coalesce(func.sum(Segment.n_points), 0)).where(Segment.track_id == track.id)))
+    track.n_points = int(session.scalar(select(func.coalesce(func.sum(Segment.n_points), 0)).where(*kept)))
     track.priority = crud.queue_priority(track.n_points, track.predicted_confidence)
 
 

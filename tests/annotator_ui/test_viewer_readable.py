@@ -71,3 +71,28 @@ def test_readable_route_map_marks_the_route_and_the_track():
     rows, _ = np.nonzero(np.all(img == TRACK, axis=2))
     rows_route, _ = np.nonzero(np.all(img == ROUTE, axis=2))
     assert rows.mean() < rows_route.mean()  # the track lies north of the route (y up)
+
+
+
+def test_readable_cut_preview_of_a_truncated_track_counts_what_the_cut_takes(tab, live_api):  # noqa: F811
+    """The preview counts the shown frame's points, and the service's count of the kept frames
+    falls by exactly that many; frames truncated away stay out of it."""
+    _open_multi_frame(tab)
+    tid = tab.session.track_id
+    lo, _hi = tab.session.frame_range()
+    tab.session.set_frame(lo + 1)
+    tab.run_action("truncate_before")
+    tab.open_track(tid)
+    pts = tab.track_points()
+    tab.repair.gui_show_box.value = True
+    tab.repair._toggle_gizmo()
+    a, b = pts.min(0), pts.max(0)
+    tab.repair.gui_size.value = (float(b[0] - a[0]), float(b[1] - a[1]) + 0.2, float(b[2] - a[2]) + 0.2)
+    tab.repair.gui_centre.value = (float(a[0]), float(a[1] + b[1]) / 2, float(a[2] + b[2]) / 2)
+    tab.repair._typed_centre()
+    n = tab.repair.preview()
+    before = live_api.track(tid)["n_points"]
+    tab.repair.cut("box", this_frame_only=True)
+    assert 0 < n < len(pts) and live_api.track(tid)["n_points"] == before - n
+    tab.run_action("undo")  # the cut
+    tab.run_action("undo")  # the truncation: the shared service's track as it was
