@@ -11,6 +11,7 @@ from app.crud import audits
 from app.schemas import ProgressStats
 from app.services import exports
 from app.services.point_labels import ExportOptions, point_label_plan
+from pipeline.label_sets import preset
 from pipeline.propagation import Rules
 
 router = APIRouter(prefix="/exports", tags=["exports"])
@@ -84,14 +85,15 @@ def export_semantickitti(
     """Per-frame SemanticKITTI `.label` files as a streamed tar, a class for every point that any
     source reaches: its track's reviewed or bulk-accepted class, else the nearest decided point
     within `radius` (in the world frame, this or nearby frames), else its track's predicted class
-    or its frame's nearest labelled point (within `far_radius`); instance = track key (chunked with `chunk_map.json`
-    past 65,535). `include_ground` writes the ground class on the remaining ground points;
-    `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts the points per
-    source and class, with confidences, and the points left without a class; `with_sources` adds
-    each point's source (`sources/<frame>.source`, uint8 per row: its index in `summary.sources`)."""
+    or its frame's nearest labelled point (within `far_radius`); instance = track key (chunked
+    with `chunk_map.json` past 65,535). `include_ground` writes the ground class on the remaining
+    ground points; `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts
+    the points per source and class, with confidences, and the points left without a class;
+    `with_sources` adds each point's source (`sources/<frame>.source`, uint8 per row: its index in
+    `summary.sources`)."""
     seq = crud.get_sequence(session, sequence_id)
-    options = ExportOptions(include_ground, reviewed_only, Rules(radius=radius, ground_radius=ground_radius,
-                                                                       far_radius=far_radius))
+    rules = Rules(radius=radius, ground_radius=ground_radius, far_radius=far_radius)
+    options = ExportOptions(include_ground, reviewed_only, rules)
     plan = point_label_plan(session, seq, options)
     session.close()
     return StreamingResponse(
@@ -105,8 +107,6 @@ def export_semantickitti(
 def export_stats(_user: CurrentUser, session: SessionDep, sequence_id: SeqQuery = None) -> ProgressStats:
     """Progress: tracks by status and reviewed, samples labelled per class, constraint counts, and
     the audits' agreement per operator and per class; for one sequence, its label set and classes."""
-    from pipeline.label_sets import preset
-
     label_set = crud.sequence_label_set(session, sequence_id)
     classes = [] if label_set is None else list(preset(label_set).sample_class_names)
     return ProgressStats(**crud.progress_stats(session, sequence_id), label_set=label_set, classes=classes,
