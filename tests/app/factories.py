@@ -106,3 +106,18 @@ def simulated_campus(tmp_path_factory: Any, frames: int, seed: int) -> Path:
     out = tmp_path_factory.mktemp("sim") / "campus"
     simulate_sequence(out, frames=frames, seed=seed)
     return out
+
+
+def ingest_through_api(client: Any, factory: Factory, settings: Settings, db: Database,
+                       path: Path) -> tuple[dict[str, Any], dict[str, Any], Caller]:
+    """Register `path` (under a second data root) as an admin and run its ingest job with the real
+    pipeline: (the registered sequence, the finished ingest job, the admin)."""
+    settings.data_roots.append(path.parent)
+    admin = factory.user("admin")
+    r = client.post("/api/v1/datasets", json={"path": str(path)}, headers=admin.headers)
+    assert r.status_code == 201, r.text
+    seq = r.json()["sequences"][0]
+    assert Worker(settings, db=db).run_once()
+    job = client.get(f"/api/v1/jobs/{seq['ingest_job_id']}", headers=admin.headers).json()
+    assert job["status"] == "succeeded", job["error"]
+    return seq, job, admin

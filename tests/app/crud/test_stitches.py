@@ -7,8 +7,7 @@ import json
 
 import pytest
 
-from app.worker import Worker
-from tests.app.factories import simulated_campus
+from tests.app.factories import ingest_through_api, simulated_campus
 
 
 @pytest.fixture(scope="module")
@@ -17,14 +16,7 @@ def simulated(tmp_path_factory):
 
 
 def _ingest(client, factory, settings, db, simulated):
-    settings.data_roots.append(simulated.parent)
-    admin = factory.user("admin")
-    r = client.post("/api/v1/datasets", json={"path": str(simulated)}, headers=admin.headers)
-    assert r.status_code == 201, r.text
-    seq = r.json()["sequences"][0]
-    assert Worker(settings, db=db).run_once()
-    job = client.get(f"/api/v1/jobs/{seq['ingest_job_id']}", headers=admin.headers).json()
-    assert job["status"] == "succeeded", job["error"]
+    seq, job, _admin = ingest_through_api(client, factory, settings, db, simulated)
     return seq["id"], job["result"], factory.user("operator")
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from app.worker import Worker
-from tests.app.factories import simulated_campus
+from tests.app.factories import ingest_through_api, simulated_campus
 
 
 @pytest.fixture(scope="module")
@@ -17,14 +17,7 @@ def simulated(tmp_path_factory):
 
 
 def test_ingest_pipeline_simulated_sequence_end_to_end(client, factory, settings, db, simulated):
-    settings.data_roots.append(simulated.parent)  # the simulated scene lies under a second data root
-    admin = factory.user("admin")
-    r = client.post("/api/v1/datasets", json={"path": str(simulated)}, headers=admin.headers)
-    assert r.status_code == 201, r.text
-    seq = r.json()["sequences"][0]
-    assert Worker(settings, db=db).run_once()
-    job = client.get(f"/api/v1/jobs/{seq['ingest_job_id']}", headers=admin.headers).json()
-    assert job["status"] == "succeeded", job["error"]
+    seq, job, admin = ingest_through_api(client, factory, settings, db, simulated)
     assert job["result"]["frames"] == 4 and job["result"]["tracks"] > 0 and job["result"]["constraints"] > 0
 
     seq_pub = client.get(f"/api/v1/sequences/{seq['id']}", headers=admin.headers).json()

@@ -8,8 +8,7 @@ import pytest
 from sqlalchemy import select
 
 from app.models import Frame, Segment, Sequence, Track
-from app.worker import Worker
-from tests.app.factories import simulated_campus
+from tests.app.factories import ingest_through_api, simulated_campus
 
 
 @pytest.fixture(scope="module")
@@ -18,12 +17,7 @@ def simulated(tmp_path_factory):
 
 
 def _ingest(client, factory, settings, db, simulated):
-    settings.data_roots.append(simulated.parent)
-    admin = factory.user("admin")
-    r = client.post("/api/v1/datasets", json={"path": str(simulated)}, headers=admin.headers)
-    assert r.status_code == 201, r.text
-    assert Worker(settings, db=db).run_once()
-    return r.json()["sequences"][0]["id"]
+    return ingest_through_api(client, factory, settings, db, simulated)[0]["id"]
 
 
 def test_repair_pipeline_resample_reproduces_ingest_samples(client, factory, settings, db, simulated):
