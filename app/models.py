@@ -476,3 +476,20 @@ class BulkAction(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     undone_at: Mapped[datetime | None] = mapped_column(DateTime)
     undone_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+
+
+class GroundRegion(Base):
+    """A polygon an operator drew on the top view of a sequence (world x, y) and a class of its
+    label set: the ground points of every frame inside it take that class in the exports
+    (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
+    one is its undo. Migration 0013."""
+
+    __tablename__ = "ground_regions"
+    __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
+    class_name: Mapped[str] = mapped_column(String(32))
+    polygon: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y], ...] world metres, not closed
+    created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+    created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)

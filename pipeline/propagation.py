@@ -5,26 +5,31 @@ A point's class comes, in this order, from
 
 1. its track's decision (`reviewed`, or `bulk` for a bulk-accepted prediction) in the track's
    kept frames;
-2. the nearest point so decided within `radius` in the world frame, in this frame or a nearby one
+2. an operator's ground region, for a ground point (the ground estimate's, or a point of a track
+   that is no object) inside the region's polygon on the top view, in any frame (`region`);
+3. the nearest point so decided within `radius` in the world frame, in this frame or a nearby one
    (`propagated`): points of segments too small to be samples, points the range image did not
    give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
    ground estimate took reaches only `ground_radius`, so a road beside a reviewed wall stays road;
-3. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
+4. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
    far within `far_radius` (`ground_radius` for a point the ground estimate took; `predicted`, or
    `propagated` when that point's class was decided);
-4. the ground class, for ground points, when asked for (`ground`).
+5. the ground class, for ground points, when asked for (`ground`).
 
 A point none of these reaches keeps no class (`none`), and is counted. Distances are metres.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.regions import points_in_polygon
+
 NONE = 255  # class index of a point without a class
-SOURCES: tuple[str, ...] = ("none", "reviewed", "bulk", "propagated", "predicted", "ground")
+SOURCES: tuple[str, ...] = ("none", "reviewed", "bulk", "propagated", "predicted", "ground", "region")
 SOURCE = {name: i for i, name in enumerate(SOURCES)}
 DECIDED = (SOURCE["reviewed"], SOURCE["bulk"])
 
@@ -46,6 +51,25 @@ class Rules:
     ground_radius: float = 0.2
     far_radius: float = 10.0
     voxel: float = 0.05
+
+
+@dataclass(frozen=True)
+class GroundRegion:
+    """A polygon an operator drew on the top view (world x, y; (K, 2), K >= 3) and its class: the
+    ground points inside it take the class in every frame. A later region is drawn over an
+    earlier one where they overlap."""
+
+    polygon: np.ndarray
+    class_: int
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """(N,) bool of (N, 2) world points; the bounding box first, so a frame far from the
+        polygon costs one comparison per point."""
+        lo, hi = self.polygon.min(0), self.polygon.max(0)
+        near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
+        out = np.zeros(len(xy), bool)
+        out[near] = points_in_polygon(xy[near], self.polygon)
+        return out
 
 
 @dataclass(frozen=True)
@@ -147,6 +171,20 @@ def decided_labels(track: np.ndarray, decided: TrackClasses) -> PointLabels:
     return out
 
 
+def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion]) -> None:
+    """Step 2: the ground points that no decided track holds take the class of the last region
+    around them."""
+    free = np.asarray(ground, bool) & ~out.labelled
+    if not regions or not free.any():
+        return
+    idx = np.flatnonzero(free)
+    xy = world[idx, :2]
+    for r in regions:
+        mask = np.zeros(len(free), bool)
+        mask[idx[r.contains(xy)]] = True
+        out.set(mask, r.class_, SOURCE["region"], 1.0)
+
+
 def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestLabel, radius: float,
           source: np.ndarray | int | None = None) -> None:
     """Give the points of `want` the label of their nearest point in `near` within `radius`;
@@ -163,17 +201,19 @@ def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestL
 
 def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, decided: TrackClasses,
                   predicted: TrackClasses, field: NearestLabel | None, rules: Rules,
-                  ground_class: int | None) -> PointLabels:
+                  ground_class: int | None, regions: Sequence[GroundRegion] = ()) -> PointLabels:
     """Every point's class, source and confidence in one frame (module docstring).
 
     track: (N,) int64 track id per point (0 = none); ground: (N,) bool the ground estimate;
     world: (N, 3) float64 world coordinates; decided / predicted: the frame's track classes;
     field: decided points of this and nearby frames (None = no world search); ground_class: the
-    class written on ground points no other step reached (None = leave them without one).
+    class written on ground points no other step reached (None = leave them without one);
+    regions: the operators' ground regions, oldest first.
     """
     track = np.asarray(track, np.int64)
     ground = np.asarray(ground, bool)
     out = decided_labels(track, decided)
+    region_labels(out, ground, world, regions)
     if field is not None:
         _take(out, ~out.labelled & ~ground, world, field, rules.radius, SOURCE["propagated"])
         _take(out, ~out.labelled & ground, world, field, rules.ground_radius, SOURCE["propagated"])
@@ -181,7 +221,9 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
     hit &= ~out.labelled
     out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
     if (~out.labelled).any() and out.labelled.any():
-        near = NearestLabel(*thin(world, out, rules.voxel))
+        # regions speak for ground only: a wall beside a lawn is not lawn
+        spread = np.where(out.source == SOURCE["region"], NONE, out.class_).astype(np.uint8)
+        near = NearestLabel(*thin(world, PointLabels(spread, out.source, out.confidence), rules.voxel))
         rest = ~out.labelled
         _take(out, rest & ~ground, world, near, max(rules.radius, rules.far_radius))
         _take(out, rest & ground, world, near, rules.ground_radius)

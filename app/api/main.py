@@ -21,6 +21,7 @@ from app.api.routes import (
     datasets,
     exports,
     frames,
+    ground_regions,
     health,
     jobs,
     models,
@@ -80,7 +81,7 @@ def declare_errors(router: APIRouter) -> None:
 
 api_router = APIRouter(dependencies=[Depends(strict_query)])
 for module in (health, users, datasets, assignments, frames, tracks, repair, review, bulk, exports, jobs, models, anchors,
-               stitches, audits, changes):
+               stitches, audits, changes, ground_regions):
     declare_errors(module.router)  # before including: an included router's routes are not listed
     retry.install(module.router)  # a route that loses a race to another writer runs again
     api_router.include_router(module.router)

@@ -31,6 +31,7 @@ from app.crud.datasets import (
     sequence_paths,
     sequence_stats,
 )
+from app.crud.ground_regions import create_region, delete_region, list_regions
 from app.crud.jobs import cancel_job, create_job, get_job, job_runs, list_jobs, queued_count
 from app.crud.model_versions import newest_model_path
 from app.crud.review import (
@@ -69,6 +70,9 @@ from app.crud.users import (
 )
 
 __all__ = [
+    "create_region",
+    "delete_region",
+    "list_regions",
     "get_user",
     "list_users",
     "dataset_sequences",

@@ -45,6 +45,8 @@ from app.schemas.decisions import (
     AuditPublic,
     AuditSample,
     AuditStatus,
+    GroundRegionCreate,
+    GroundRegionPublic,
     StitchDecision,
     StitchList,
     StitchPublic,
@@ -105,6 +107,8 @@ from app.schemas.users import (
 )
 
 __all__ = [
+    "GroundRegionCreate",
+    "GroundRegionPublic",
     "AcceptAction",
     "ActionBase",
     "AgreementRow",

@@ -1,4 +1,4 @@
-"""Anchors, stitches and audits: the proposals and checks an operator decides."""
+"""Anchors, stitches, audits and ground regions: the proposals, checks and regions an operator decides."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from app.schemas.base import (
     _Public,
     _Request,
 )
+from app.schemas.tracks import Finite as WorldCoordinate
 
 # ----------------------------------------------------------------------------- anchors (issue 7)
 AnchorStatus = Literal["proposed", "confirmed", "rejected"]
@@ -142,3 +143,24 @@ class AuditPublic(_Public):
     answer_label: str | None = Field(description="The auditor's class (the operator's when agreed).")
     decided_at: UtcDateTime | None
     source: LabelSource | None = Field(default=None, description="The label's source when sampled.")
+
+
+# ----------------------------------------------------------------------------- ground regions
+class GroundRegionCreate(_Request):
+    """A polygon on the top view (world x, y in metres, 3 to 1000 vertices, not closed) and the
+    class of the sequence's label set its ground points take."""
+
+    class_name: str = Field(min_length=1, max_length=32)
+    polygon: list[tuple[WorldCoordinate, WorldCoordinate]] = Field(min_length=3, max_length=1000)
+
+
+class GroundRegionPublic(_Public):
+    """A stored ground region: the ground points inside its polygon take `class_name` in every
+    frame of the sequence's exports; the newest region wins where regions overlap."""
+
+    id: int
+    sequence_id: int
+    class_name: str
+    polygon: list[tuple[float, float]]
+    created_by_id: int | None
+    created_at: UtcDateTime

@@ -16,18 +16,21 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.artifacts import ArtifactStore
+from app.crud.ground_regions import list_regions
 from app.models import Frame, Sequence, Track
 from pipeline.assist import NO_OBJECT
 from pipeline.classes import GROUND, POINT_CLASSES
-from pipeline.label_sets import DEFAULT_LABEL_SET
+from pipeline.label_sets import DEFAULT_LABEL_SET, preset
 from pipeline.propagation import (
     SOURCE,
     SOURCES,
+    GroundRegion,
     NearestLabel,
     PointLabels,
     Rules,
     TrackClasses,
     decided_labels,
+    region_labels,
     resolve_frame,
     thin,
     to_world,
@@ -72,6 +75,7 @@ class PointLabelPlan:
     options: ExportOptions
     no_object: list[TrackRow] = field(default_factory=list)  # discarded, or predicted to be no object
     label_set: str = DEFAULT_LABEL_SET  # the sequence's: the SemanticKITTI ids its classes are written as
+    regions: tuple[GroundRegion, ...] = ()  # the operators' ground regions, oldest first
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
@@ -105,7 +109,15 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, sequence.label_set)
+    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, sequence.label_set,
+                          ground_regions(session, sequence))
+
+
+def ground_regions(session: Session, sequence: Sequence) -> tuple[GroundRegion, ...]:
+    """The sequence's ground regions as the propagation reads them (class indices of its label set)."""
+    label_set = preset(sequence.label_set)
+    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name))
+                 for r in list_regions(session, sequence.id))
 
 
 def _in_frame(rows: list[TrackRow], index: int) -> TrackClasses:
@@ -166,11 +178,12 @@ def iter_frame_labels(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterato
         ground = np.asarray(a["ground"], bool) | _in_frame(plan.no_object, index).lookup(track)[0]
         if opts.reviewed_only:
             labels = decided_labels(track, decided)
+            region_labels(labels, ground, to_world(a["points"], pose), plan.regions)
             if ground_class is not None:
                 labels.set(~labels.labelled & ground, ground_class, SOURCE["ground"], 1.0)
         else:
             labels = resolve_frame(track, ground, to_world(a["points"], pose), decided, predicted,
-                                   clouds.field(pos), opts.rules, ground_class)
+                                   clouds.field(pos), opts.rules, ground_class, plan.regions)
         own = decided.lookup(track)[0] | (predicted.lookup(track)[0] & (labels.source == SOURCE["predicted"]))
         yield FrameLabels(index, name, labels, a.get("input_rows"), track, own, ground)
 

@@ -99,3 +99,26 @@ def test_propagation_ground_point_takes_a_nearby_prediction_within_the_ground_ra
     out = resolve_frame(track, ground, world, TrackClasses.of([]), predicted, None, Rules(), GROUND_CLASS)
     assert out.class_.tolist() == [BUSH, BUSH, GROUND_CLASS]
     assert out.source[1] == SOURCE["predicted"]
+
+
+def test_ground_region_labels_the_ground_points_inside_it_and_nothing_else():
+    from pipeline.propagation import GroundRegion
+
+    track, ground, world, decided, predicted = _frame()
+    field = _field(world, track, decided)
+    # a square around x = 0.5..1.6 holds ground points 7 and 8, car points 0 and 1 and loose point 4
+    square = np.array([[0.5, -1.0], [1.6, -1.0], [1.6, 1.0], [0.5, 1.0]])
+    sidewalk, terrain = 8, 9
+    out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
+                        (GroundRegion(square, sidewalk),))
+    assert out.class_[[7, 8]].tolist() == [sidewalk, sidewalk]
+    assert (out.source[[7, 8]] == SOURCE["region"]).all() and (out.confidence[[7, 8]] == 1.0).all()
+    plain = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS)
+    keep = ~ground
+    assert np.array_equal(out.class_[keep], plain.class_[keep]) and np.array_equal(out.source[keep], plain.source[keep])
+    # a later region wins where it overlaps an earlier one; a region elsewhere changes nothing
+    strip = np.array([[1.3, -1.0], [2.0, -1.0], [2.0, 1.0], [1.3, 1.0]])
+    far = np.array([[50.0, 50.0], [51.0, 50.0], [51.0, 51.0]])
+    out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
+                        (GroundRegion(square, sidewalk), GroundRegion(strip, terrain), GroundRegion(far, CAR)))
+    assert out.class_[[7, 8]].tolist() == [sidewalk, terrain]

@@ -1,0 +1,57 @@
+"""Ground regions: polygons an operator draws on a sequence's top view, each with a class of the
+sequence's label set. The exports give the ground points inside them that class in every frame
+(`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it."""
+
+from __future__ import annotations
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.core.errors import Invalid, NotFound
+from app.crud.datasets import get_sequence
+from app.crud.users import AuthUser
+from app.models import GroundRegion
+from pipeline.label_sets import preset
+
+
+def _check_class(label_set: str, class_name: str) -> None:
+    names = preset(label_set).point_class_names
+    if class_name not in names:
+        raise Invalid(f"class_name: {class_name!r} is not a class of label set {label_set!r}; valid: {', '.join(names)}")
+
+
+def create_region(session: Session, sequence_id: int, user: AuthUser, class_name: str,
+                  polygon: list[tuple[float, float]]) -> GroundRegion:
+    """Store a region (NotFound for an unknown sequence, Invalid for a class outside its label
+    set or a polygon without area). Commits."""
+    seq = get_sequence(session, sequence_id)
+    _check_class(seq.label_set, class_name)
+    if _area(polygon) <= 1e-6:
+        raise Invalid("polygon: its vertices enclose no area")
+    row = GroundRegion(sequence_id=sequence_id, class_name=class_name, polygon=[[float(x), float(y)] for x, y in polygon],
+                       created_by_id=user.id)
+    session.add(row)
+    session.commit()
+    return row
+
+
+def _area(polygon: list[tuple[float, float]]) -> float:
+    """Absolute shoelace area (m²)."""
+    xs, ys = [p[0] for p in polygon], [p[1] for p in polygon]
+    return abs(sum(xs[i] * ys[i - 1] - xs[i - 1] * ys[i] for i in range(len(xs)))) / 2.0
+
+
+def list_regions(session: Session, sequence_id: int) -> list[GroundRegion]:
+    """A sequence's regions, oldest first (the order they are drawn in)."""
+    return list(session.scalars(select(GroundRegion).where(GroundRegion.sequence_id == sequence_id)
+                                .order_by(GroundRegion.id)).all())
+
+
+def delete_region(session: Session, region_id: int) -> GroundRegion:
+    """Remove a region (NotFound when there is none); returns it as it was. Commits."""
+    row = session.get(GroundRegion, region_id)
+    if row is None:
+        raise NotFound(f"ground region {region_id} not found")
+    session.delete(row)
+    session.commit()
+    return row

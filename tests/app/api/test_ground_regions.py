@@ -1,0 +1,63 @@
+"""Ground regions (the top view's lasso): stored per sequence, checked against its label set, and
+applied by the export to the ground points inside them in every frame; deleting one undoes it."""
+
+from __future__ import annotations
+
+import io
+import tarfile
+
+import numpy as np
+
+from pipeline.classes import SEMANTICKITTI_WRITE_ID
+
+EVERYWHERE = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
+
+
+def _labels(client, caller, seq):
+    r = client.get(f"/api/v1/exports/semantickitti/{seq}", params={"include_ground": True}, headers=caller.headers)
+    assert r.status_code == 200, r.text
+    tar = tarfile.open(fileobj=io.BytesIO(r.content))
+    return [np.frombuffer(tar.extractfile(n).read(), np.uint32) & 0xFFFF
+            for n in sorted(tar.getnames()) if n.endswith(".label")]
+
+
+def _region(client, caller, seq, class_name, polygon, status=200):
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", json={"class_name": class_name, "polygon": polygon},
+                    headers=caller.headers)
+    assert r.status_code == status, r.text
+    return r.json()
+
+
+def test_ground_region_relabels_the_ground_of_every_frame_until_deleted(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    before = _labels(client, op, seq)
+    ground_id = SEMANTICKITTI_WRITE_ID["ground"]
+    is_ground = [f == ground_id for f in before]
+    assert all(g.sum() >= 30 for g in is_ground)
+    region = _region(client, op, seq, "bush", EVERYWHERE)
+    assert region["class_name"] == "bush" and region["sequence_id"] == seq and len(region["polygon"]) == 4
+    after = _labels(client, op, seq)
+    for b, a, g in zip(before, after, is_ground, strict=True):
+        assert set(a[g].tolist()) == {SEMANTICKITTI_WRITE_ID["bush"]}
+        assert np.array_equal(a[~g], b[~g])  # points that are not ground keep their labels
+    # a newer region is drawn over the older one; the list is oldest first
+    newer = _region(client, op, seq, "building", EVERYWHERE)
+    listed = client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json()
+    assert [r["id"] for r in listed] == [region["id"], newer["id"]]
+    assert all(set(a[g].tolist()) == {SEMANTICKITTI_WRITE_ID["building"]} for a, g in zip(_labels(client, op, seq), is_ground, strict=True))
+    for r in (newer, region):
+        assert client.delete(f"/api/v1/ground-regions/{r['id']}", headers=op.headers).status_code == 200
+    assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
+    assert client.delete(f"/api/v1/ground-regions/{region['id']}", headers=op.headers).status_code == 404
+
+
+def test_ground_region_refuses_a_class_outside_the_label_set_and_a_flat_polygon(client, factory):
+    seq = factory.ingested_sequence(n_frames=1, n_objects=1)
+    op = factory.user()
+    assert "sidewalk" in _region(client, op, seq, "sidewalk", EVERYWHERE, 422)["detail"][0]["msg"]
+    assert "area" in _region(client, op, seq, "car", [[0, 0], [1, 1], [2, 2]], 422)["detail"][0]["msg"]
+    _region(client, op, seq, "car", [[0, 0], [1, 0]], 422)  # fewer than three vertices
+    _region(client, op, seq, "car", [[0, 0], [1, 0], [1, "nan"]], 422)
+    _region(client, op, 9999, "car", EVERYWHERE, 404)
+    assert client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json() == []
