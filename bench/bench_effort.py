@@ -35,9 +35,9 @@ from bench.effort.score import bulk_error, prediction_calibration, score_export
 from bench.effort.service import Api, LocalService
 from bench.effort.truth import SequenceTruth, TruthStore
 from bench.real_data import REAL
+from pipeline.label_sets import DEFAULT_LABEL_SET, preset, preset_names
 from pipeline.propagation import Rules
 
-LABEL_SETS = ("paper",)  # the label sets the service knows (pipeline/classes.py)
 CLIPS = {"kitti_seq00": (0, 9), "kitti_seq01": None, "kitti_seq02": None}
 RADII = (0.3, 0.5, 1.0)  # the final state is also exported with these (radius, ground radius, far radius)
 GROUND_RADII = (0.1, 0.2, 0.3)
@@ -75,14 +75,15 @@ class Run:
         self.client = httpx.Client(base_url=svc_url, timeout=600)
         self.admin, op, reviewer = (Api(self.client, tokens[k]) for k in ("admin", "operator", "reviewer"))
         t0 = time.monotonic()
-        self.sequence_id = self.admin.register(seq_path)
+        self.sequence_id = self.admin.register(seq_path, truth.label_set.name)
         self.admin.wait_ready(self.sequence_id)
         self.ingest_s = time.monotonic() - t0
         self.admin.wait_jobs_idle("assist")
         self.truth = truth
         frames = op.frames(self.sequence_id)
         store = TruthStore(dict(truth.all))
-        self.operator = Operator(op, reviewer, self.admin, self.sequence_id, frames, store, policy)
+        rows = {name: ft.input_rows for name, ft in truth.labelled.items()}
+        self.operator = Operator(op, reviewer, self.admin, self.sequence_id, frames, store, policy, truth.label_set, rows)
         self.curve: list[dict[str, Any]] = []
 
     def checkpoint(self) -> dict[str, Any]:
@@ -100,11 +101,14 @@ class Run:
         self.checkpoint()
         marks.pop(0)
         op, pol = self.operator, self.operator.policy
+        ground_done = False
         while op.counts.actions < budget and marks:
             if not op.review_next():
                 break
             if op.counts.reviews % pol.bulk_every == 0:
                 op.bulk_round()
+            if not ground_done and op.counts.reviews % pol.ground_every == 0:
+                ground_done = not op.ground_pass()
             if op.counts.actions >= marks[0]:
                 point = self.checkpoint()
                 print(f"  {point['actions']:4d} actions: non-ground right {point['non_ground_right']:.3f}, "
@@ -182,7 +186,8 @@ def plot(results: dict[str, dict[str, Any]], path: Path) -> None:
 
 
 def run_sequence(seq: Path, out: Path, budget: int, frames: tuple[int, int] | None = None,
-                 policy: Policy | None = None, assist_every: int | None = None, keep: Path | None = None) -> dict[str, Any]:
+                 policy: Policy | None = None, assist_every: int | None = None, keep: Path | None = None,
+                 label_set: str = DEFAULT_LABEL_SET) -> dict[str, Any]:
     """The benchmark on one sequence (module docstring); writes OUT/curve.json, effort.png, export/.
     keep: the service's folder (database, artifacts, the clip's links) is made there and kept, so
     that `tracklabel serve` and the annotator can show what the operator did; else a temporary one."""
@@ -192,7 +197,7 @@ def run_sequence(seq: Path, out: Path, budget: int, frames: tuple[int, int] | No
         keep.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="tl_effort_") if keep is None else nullcontext(str(keep.resolve())) as tmp:
         clip = make_clip(seq, *frames, Path(tmp) / "clip" / seq.name) if frames else seq.resolve()
-        truth = SequenceTruth(clip)
+        truth = SequenceTruth(clip, preset(label_set))
         env = {"TRACKLABEL_WORKER_POLL_SECONDS": str(WORKER_POLL_S)}
         if assist_every is not None:
             env["TRACKLABEL_ASSIST_EVERY"] = str(assist_every)
@@ -200,7 +205,7 @@ def run_sequence(seq: Path, out: Path, budget: int, frames: tuple[int, int] | No
             tokens = {role: svc.user(role, role) for role in ("admin", "operator", "reviewer")}
             run = Run(svc.url, tokens, clip, truth, policy or Policy())
             run.work(budget)
-            result = {"sequence": str(seq), "frames": list(frames) if frames else None, "label_set": "paper",
+            result = {"sequence": str(seq), "frames": list(frames) if frames else None, "label_set": label_set,
                       "assist_every": assist_every,
                       **run.finish(out), "seconds": round(time.monotonic() - t0, 1)}
     (out / "curve.json").write_text(json.dumps(result, indent=1))
@@ -244,15 +249,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--actions", type=int, default=2000, help="the action budget (the run also ends with the queue)")
     ap.add_argument("--frames", type=_frames, default=None, help="A-B: only frames A..B of the sequence")
-    ap.add_argument("--label-set", default="paper", help="the label set (only paper until label sets are data)")
+    ap.add_argument("--label-set", default=DEFAULT_LABEL_SET, help="the label set (a preset) to register and score in")
     ap.add_argument("--queue", choices=("priority", "size"), default="priority", help="the review queue's order")
     ap.add_argument("--keep", type=Path, default=None,
                     help="a folder to make the service in and keep (default: a temporary one)")
     ap.add_argument("--assist-every", type=int, default=None,
                     help="the service's assist_every (reviews between retrains; default: the service's own)")
     args = ap.parse_args(argv)
-    if args.label_set not in LABEL_SETS:
-        print(f"--label-set: unknown label set {args.label_set!r}; known: {', '.join(LABEL_SETS)}", file=sys.stderr)
+    if args.label_set not in preset_names():
+        print(f"--label-set: unknown label set {args.label_set!r}; known: {', '.join(preset_names())}", file=sys.stderr)
         return 2
     if not (args.seq / "labels").is_dir():
         print(f"{args.seq}: no labels/ folder to score against", file=sys.stderr)
@@ -261,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"--keep: {args.keep} is not empty", file=sys.stderr)
         return 2
     res = run_sequence(args.seq, args.out, args.actions, args.frames, Policy(queue=args.queue), args.assist_every,
-                       args.keep)
+                       args.keep, args.label_set)
     last = res["curve"][-1]
     print(f"{last['actions']} actions: non-ground right {last['non_ground_right']}, ground right {last['ground_right']}")
     return 0

@@ -29,7 +29,8 @@ import numpy as np
 
 from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
-from pipeline.classes import GROUND, SAMPLE_CLASSES, UNLABELLED
+from pipeline.classes import UNLABELLED
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
 
 # the service's worker polls every WORKER_POLL_S (bench_effort sets it); the operator waits this
 # long without a model run in sight before it takes the next track
@@ -48,6 +49,9 @@ class Policy:
     audit_per_bulk: int = 5
     wait_for_model: bool = True
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
+    ground_every: int = 5  # reviews between two looks at the ground layer
+    ground_per_frame: float = 1.0  # lassos at most, per frame of the sequence
+    ground_min_gain: int = 500  # points a lasso must put right (net) to be drawn
 
 
 @dataclass
@@ -58,6 +62,7 @@ class Counts:
     reviews: int = 0
     splits: int = 0
     discards: int = 0
+    regions: int = 0
     bulk_accepts: int = 0
     bulk_tracks: int = 0
     bulk_undos: int = 0
@@ -85,6 +90,8 @@ class Operator:
     frames: list[FrameInfo]
     store: TruthStore
     policy: Policy = field(default_factory=Policy)
+    label_set: LabelSet = field(default_factory=lambda: preset(DEFAULT_LABEL_SET))
+    input_rows: dict[str, np.ndarray | None] = field(default_factory=dict)  # per frame: the scan rows that are points
     counts: Counts = field(default_factory=Counts)
     _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
 
@@ -126,13 +133,18 @@ class Operator:
             self._payloads.clear()  # the split rewrote its frames
         return out
 
+    def _is_object(self, cls: int | None) -> bool:
+        """Whether `cls` is one of the label set's sample classes (not ground, not unlabelled)."""
+        return cls is not None and cls < len(self.label_set.sample_classes)
+
     def _decide(self, track: dict[str, Any], cls: int) -> None:
         """Label the track with `cls`, or discard it when `cls` is no object class."""
-        if cls in (GROUND, UNLABELLED):
+        if not self._is_object(cls):
             self._edit(f"/tracks/{track['id']}/discard", {"version": track["version"]})
             self.counts.discards += 1
         else:
-            self._edit(f"/tracks/{track['id']}/label", {"version": track["version"], "label": SAMPLE_CLASSES[cls]})
+            self._edit(f"/tracks/{track['id']}/label",
+                       {"version": track["version"], "label": self.label_set.point_class_names[cls]})
 
     def review_next(self) -> bool:
         """Review the track the queue offers; False when the queue is empty."""
@@ -148,7 +160,7 @@ class Operator:
         if not labelled.any():
             self._decide(track, UNLABELLED)
         else:
-            counts = np.bincount(classes[labelled], minlength=GROUND + 1)
+            counts = np.bincount(classes[labelled], minlength=len(self.label_set.point_classes))
             major = int(counts.argmax())
             box = None if counts[major] >= self.policy.pure * labelled.sum() else self._split_box(classes, world, major)
             if box is None:
@@ -162,7 +174,7 @@ class Operator:
         """(centre, size, class) of the world box that moves the most points of the largest
         other class to their own track, when the move is worth a split."""
         labelled = classes != UNLABELLED
-        counts = np.bincount(classes[labelled], minlength=GROUND + 1)
+        counts = np.bincount(classes[labelled], minlength=len(self.label_set.point_classes))
         counts[major] = 0
         other = int(counts.argmax())
         mine = world[classes == other]
@@ -187,13 +199,58 @@ class Operator:
         self._decide(res["new_track"], other)
         self._decide(res["track"], major)
 
+    # ------------------------------------------------------------------ the ground layer
+    def ground_layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Show every frame's ground layer (points the export labels as ground or by a region):
+        their world x, y, true class and current class."""
+        from bench.effort.score import exported_classes
+
+        export = self.op.export(self.sequence_id, include_ground=True)
+        layer_sources = [i for i, s in enumerate(export.summary.get("sources", [])) if s in ("ground", "region")]
+        self.store.forget()
+        xy, true, current = [], [], []
+        for f in self.frames:
+            if f.name not in export.labels or f.name not in self.input_rows:
+                continue
+            rows = self.input_rows[f.name]
+            src, words = export.sources[f.name], export.labels[f.name]
+            if rows is not None:
+                src, words = src[rows], words[rows]
+            idx = np.flatnonzero(np.isin(src, layer_sources))
+            self.store.show(f.name, idx)
+            p = self._payload(f)["points"][idx].astype(np.float64)
+            T = f.T_world_lidar
+            xy.append((p @ T[:3, :3].T + T[:3, 3])[:, :2])
+            true.append(self.store.read(f.name, idx))
+            current.append(exported_classes(words[idx], self.label_set))
+        if not xy:
+            return np.zeros((0, 2)), np.zeros(0, np.uint8), np.zeros(0, np.uint8)
+        return np.concatenate(xy), np.concatenate(true), np.concatenate(current)
+
+    def ground_pass(self) -> bool:
+        """Draw the lasso that puts the most ground-layer points right (one action); False when
+        none is worth `ground_min_gain` points or the ground budget is spent."""
+        from bench.effort.ground import plan
+
+        if self.counts.regions >= self.policy.ground_per_frame * len(self.frames):
+            return False
+        lasso = plan(*self.ground_layer(), len(self.label_set.point_classes))
+        self.store.forget()
+        if lasso is None or lasso.gain < self.policy.ground_min_gain:
+            return False
+        self._edit(f"/sequences/{self.sequence_id}/ground-regions",
+                   {"class_name": self.label_set.point_class_names[lasso.class_],
+                    "polygon": [[float(x), float(y)] for x, y in lasso.polygon]})
+        self.counts.regions += 1
+        return True
+
     # ------------------------------------------------------------------ bulk and audit
     def bulk_round(self) -> None:
         """Accept, class by class, the predictions the preview vouches for; audit each bulk."""
         pol = self.policy
         if pol.wait_for_model:
             self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
-        for name in SAMPLE_CLASSES:
+        for name in self.label_set.sample_class_names:
             p = self.op.get(f"/sequences/{self.sequence_id}/bulk-accept/preview",
                             params={"class_name": name, "min_confidence": pol.bulk_confidence})
             precision = p["held_out_precision"]
@@ -219,13 +276,14 @@ class Operator:
             classes, _ = self.look(self.show(track))
             known = classes[classes != UNLABELLED]
             major = int(np.bincount(known).argmax()) if len(known) else None
-            if major is None or (major != GROUND and SAMPLE_CLASSES[major] == a["label"]):
+            names = self.label_set.point_class_names
+            if major is None or (self._is_object(major) and names[major] == a["label"]):
                 self.reviewer.post(f"/audits/{a['id']}/agree")
-            elif major == GROUND:
+            elif not self._is_object(major):
                 self.reviewer.post(f"/audits/{a['id']}/discard")
                 self.counts.audit_corrections += 1
             else:
-                self.reviewer.post(f"/audits/{a['id']}/correct", {"label": SAMPLE_CLASSES[major]})
+                self.reviewer.post(f"/audits/{a['id']}/correct", {"label": names[major]})
                 self.counts.audit_corrections += 1
             self.counts.audits += 1
         return self.counts.audit_corrections - before

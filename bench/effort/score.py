@@ -9,27 +9,36 @@ import numpy as np
 
 from bench.effort.service import Api, Export, FrameInfo
 from bench.effort.truth import SequenceTruth
-from pipeline.classes import GROUND, POINT_CLASSES, UNLABELLED, to_ours
+from pipeline.classes import UNLABELLED
+from pipeline.label_sets import LabelSet
 
 
-def exported_classes(words: np.ndarray) -> np.ndarray:
+def exported_classes(words: np.ndarray, label_set: LabelSet) -> np.ndarray:
     """(N,) uint8 label-set classes of exported SemanticKITTI words (UNLABELLED for 0)."""
-    return to_ours(np.asarray(words, np.uint32) & 0xFFFF)
+    return label_set.to_index_table()[np.asarray(words, np.uint32) & 0xFFFF]
+
+
+def is_ground(classes: np.ndarray, label_set: LabelSet) -> np.ndarray:
+    """(N,) bool: classes that are one of the set's ground classes (they come after its sample classes)."""
+    return (classes >= len(label_set.sample_classes)) & (classes != UNLABELLED)
 
 
 def score_export(export: Export, truth: SequenceTruth) -> dict[str, Any]:
     """Over the frames that have labels (every input row: NaN, inf and no-return rows included)."""
+    ls = truth.label_set
+    names = ls.point_class_names
     n = {k: 0 for k in ("ng", "ng_right", "ng_none", "g", "g_right", "g_none")}
-    per_class = np.zeros((len(POINT_CLASSES), 2), np.int64)  # (points, right) per true class
+    per_class = np.zeros((len(names), 2), np.int64)  # (points, right) per true class
     sources = export.summary.get("sources", [])
     per_source = np.zeros((max(len(sources), 1), 2), np.int64)  # non-ground points (taken, right) per source
     for name, ft in truth.labelled.items():
         if name not in export.labels:
             raise ValueError(f"the export has no labels for frame {name}")
-        t, e = ft.per_input_row(), exported_classes(export.labels[name])
+        t, e = ft.per_input_row(), exported_classes(export.labels[name], ls)
         if len(e) != len(t):
             raise ValueError(f"frame {name}: {len(e)} exported labels for {len(t)} points")
-        ng, g = (t != GROUND) & (t != UNLABELLED), t == GROUND
+        g = is_ground(t, ls)
+        ng = ~g & (t != UNLABELLED)
         n["ng"] += int(ng.sum())
         n["ng_right"] += int((ng & (e == t)).sum())
         n["ng_none"] += int((ng & (e == UNLABELLED)).sum())
@@ -51,7 +60,7 @@ def score_export(export: Export, truth: SequenceTruth) -> dict[str, Any]:
         "non_ground_right": share("ng_right", "ng"), "non_ground_unlabelled": share("ng_none", "ng"),
         "ground_right": share("g_right", "g"), "ground_unlabelled": share("g_none", "g"),
         "non_ground_points": n["ng"], "ground_points": n["g"],
-        "recall_per_class": {POINT_CLASSES[c]: round(r / p, 4) for c, (p, r) in enumerate(per_class) if p},
+        "recall_per_class": {names[c]: round(r / p, 4) for c, (p, r) in enumerate(per_class) if p},
         "non_ground_by_source": {sources[i]: {"share": round(int(a) / n["ng"], 4), "right": round(int(r) / int(a), 4)}
                                  for i, (a, r) in enumerate(per_source) if a and i < len(sources)},
     }
@@ -82,6 +91,7 @@ def prediction_calibration(admin: Api, sequence_id: int, frames: list[FrameInfo]
     """How often the pending tracks' predicted classes are their true majority class, per
     confidence bin: tracks, right tracks, points, points of right tracks."""
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
+    names = truth.label_set.point_class_names
     rows = np.zeros((len(CONFIDENCE_EDGES) - 1, 4), np.int64)
     wrong: dict[str, int] = {}  # "predicted->true" points of wrong predictions at confidence >= 0.9
     for t in _all_tracks(admin, sequence_id, "pending"):
@@ -90,11 +100,12 @@ def prediction_calibration(admin: Api, sequence_id: int, frames: list[FrameInfo]
         if conf is None or cls is None or not len(c) or conf < CONFIDENCE_EDGES[0]:
             continue
         b = int(np.searchsorted(CONFIDENCE_EDGES, conf, side="right")) - 1
-        right = cls in POINT_CLASSES and int(np.bincount(c).argmax()) == POINT_CLASSES.index(cls)
-        right = right or (cls == "no_object" and int(np.bincount(c).argmax()) == GROUND)
+        major = int(np.bincount(c).argmax())
+        right = cls in names and major == names.index(cls)
+        right = right or (cls == "no_object" and bool(is_ground(np.array([major]), truth.label_set)[0]))
         rows[b] += (1, int(right), len(c), len(c) * int(right))
         if not right and conf >= 0.9:
-            key = f"{cls}->{POINT_CLASSES[int(np.bincount(c).argmax())]}"
+            key = f"{cls}->{names[major]}"
             wrong[key] = wrong.get(key, 0) + len(c)
     bins = {f"{lo:g}-{hi:g}": {"tracks": int(r[0]), "right": int(r[1]), "points": int(r[2]), "points_right": int(r[3])}
             for lo, hi, r in zip(CONFIDENCE_EDGES[:-1], CONFIDENCE_EDGES[1:], rows, strict=True)}
@@ -108,14 +119,16 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
     points whose class differs from the track's."""
     tracks = [t for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"]
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
+    names, ls = truth.label_set.point_class_names, truth.label_set
     wrong_tracks = wrong_track_points = points = disagree = labelled = ground_tracks = 0
     by_size: dict[str, list[int]] = {"<100": [0, 0], "100-1000": [0, 0], ">1000": [0, 0]}  # (tracks, wrong)
     for t in tracks:
-        cls = POINT_CLASSES.index(t["label"])
+        cls = names.index(t["label"])
         c = _track_truth(t, frames, payloads, truth)
-        major = int(np.bincount(c).argmax()) if len(c) else GROUND
+        major = int(np.bincount(c).argmax()) if len(c) else None
+        ground = major is None or bool(is_ground(np.array([major]), ls)[0])
         wrong_tracks += major != cls
-        ground_tracks += major == GROUND
+        ground_tracks += ground
         size = "<100" if t["n_points"] < 100 else "100-1000" if t["n_points"] <= 1000 else ">1000"
         by_size[size][0] += 1
         by_size[size][1] += int(major != cls)

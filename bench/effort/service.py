@@ -22,6 +22,8 @@ from typing import Any
 import httpx
 import numpy as np
 
+from pipeline.label_sets import DEFAULT_LABEL_SET
+
 CLI = [sys.executable, "-c", "from app.cli import main; main()"]
 
 
@@ -114,8 +116,8 @@ class Api:
         r = self._call("POST", path, ok=ok, json=body, **kw)
         return r.json() if r.content else None
 
-    def register(self, path: Path) -> int:
-        ds = self.post("/datasets", {"path": str(path)}, ok=(201,))
+    def register(self, path: Path, label_set: str = DEFAULT_LABEL_SET) -> int:
+        ds = self.post("/datasets", {"path": str(path), "label_set": label_set}, ok=(201,))
         return int(ds["sequences"][0]["id"])
 
     def wait_ready(self, sequence_id: int, timeout: float = 3600.0) -> dict[str, Any]:

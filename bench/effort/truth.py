@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.classes import UNLABELLED, to_ours
+from pipeline.classes import UNLABELLED
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
 
 
 @dataclass(frozen=True)
@@ -36,13 +37,15 @@ class FrameTruth:
 
 
 class SequenceTruth:
-    """The truth of a KITTI-layout folder with `labels/` (paper label set): `labelled` holds the
-    frames with a labels file, `all` every frame's classes per stored point (UNLABELLED for frames
-    without labels)."""
+    """The truth of a KITTI-layout folder with `labels/` in a label set's classes: `labelled` holds
+    the frames with a labels file, `all` every frame's classes per stored point (UNLABELLED for
+    frames without labels)."""
 
-    def __init__(self, seq: Path) -> None:
+    def __init__(self, seq: Path, label_set: LabelSet | None = None) -> None:
         from pipeline.io.registry import open_reader
 
+        self.label_set = label_set or preset(DEFAULT_LABEL_SET)
+        table = self.label_set.to_index_table()
         source = open_reader(seq)
         self.labelled: dict[str, FrameTruth] = {}
         self.all: dict[str, np.ndarray] = {}
@@ -56,7 +59,7 @@ class SequenceTruth:
             if len(raw) != scan.n_input:
                 raise ValueError(f"{labels_file}: {len(raw)} labels for {scan.n_input} points")
             rows = scan.input_rows
-            ft = FrameTruth(to_ours(raw if rows is None else raw[rows]), rows, labels_file)
+            ft = FrameTruth(table[(raw if rows is None else raw[rows]) & 0xFFFF], rows, labels_file)
             self.labelled[name], self.all[name] = ft, ft.classes
 
 
