@@ -482,7 +482,8 @@ class GroundRegion(Base):
     """A polygon an operator drew on the top view of a sequence (world x, y) and a class of its
     label set: the ground points of every frame inside it take that class in the exports
     (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
-    one is its undo. Migration 0013."""
+    one is its undo: the row stays with `deleted_at` set, so that the operations a sequence took
+    can be counted (`crud.operation_count`). Migration 0013."""
 
     __tablename__ = "ground_regions"
     __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)
@@ -493,3 +494,5 @@ class GroundRegion(Base):
     polygon: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y], ...] world metres, not closed
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
+    deleted_at: Mapped[datetime | None] = mapped_column(DateTime)
+    deleted_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))

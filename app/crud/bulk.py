@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from app.core.errors import Conflict, Invalid, NotFound
 from app.crud.datasets import require_ready
+from app.crud.ground_regions import region_operations
 from app.crud.review import REVIEW_FIELDS, refresh_labels, review_state, stored_state
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, BulkAction, Job, Track, utcnow
@@ -174,7 +175,8 @@ def operation_count(session: Session, sequence_id: int) -> int:
     """Label-changing operations on a sequence's tracks, one per request: each review, repair and
     undo event counts once, except the second event of a merge (or of its undo), which records
     the same request on the other track, and the per-track events of a bulk accept or bulk undo,
-    which count once through their `BulkAction` row (twice once undone)."""
+    which count once through their `BulkAction` row (twice once undone); and each ground region
+    drawn or deleted."""
     in_seq = select(Track.id).where(Track.sequence_id == sequence_id)
     compound = ("merge", "undo", "bulk_accept")
     simple = session.scalar(select(func.count()).select_from(AnnotationEvent).where(
@@ -191,4 +193,4 @@ def operation_count(session: Session, sequence_id: int) -> int:
     bulks = session.execute(
         select(func.count(), func.count(BulkAction.undone_at)).where(BulkAction.sequence_id == sequence_id)
     ).one()
-    return int(simple) + count + int(bulks[0]) + int(bulks[1])
+    return int(simple) + count + int(bulks[0]) + int(bulks[1]) + region_operations(session, sequence_id)

@@ -1,16 +1,17 @@
 """Ground regions: polygons an operator draws on a sequence's top view, each with a class of the
 sequence's label set. The exports give the ground points inside them that class in every frame
-(`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it."""
+(`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it
+(the row stays, marked deleted, for the count of operations)."""
 
 from __future__ import annotations
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Invalid, NotFound
 from app.crud.datasets import get_sequence
 from app.crud.users import AuthUser
-from app.models import GroundRegion
+from app.models import GroundRegion, utcnow
 from pipeline.label_sets import preset
 
 
@@ -43,15 +44,23 @@ def _area(polygon: list[tuple[float, float]]) -> float:
 
 def list_regions(session: Session, sequence_id: int) -> list[GroundRegion]:
     """A sequence's regions, oldest first (the order they are drawn in)."""
-    return list(session.scalars(select(GroundRegion).where(GroundRegion.sequence_id == sequence_id)
+    return list(session.scalars(select(GroundRegion).where(GroundRegion.sequence_id == sequence_id,
+                                                           GroundRegion.deleted_at.is_(None))
                                 .order_by(GroundRegion.id)).all())
 
 
-def delete_region(session: Session, region_id: int) -> GroundRegion:
-    """Remove a region (NotFound when there is none); returns it as it was. Commits."""
+def delete_region(session: Session, region_id: int, user: AuthUser) -> GroundRegion:
+    """Undo a region (NotFound when there is none, or it was deleted already). Commits."""
     row = session.get(GroundRegion, region_id)
-    if row is None:
+    if row is None or row.deleted_at is not None:
         raise NotFound(f"ground region {region_id} not found")
-    session.delete(row)
+    row.deleted_at, row.deleted_by_id = utcnow(), user.id
     session.commit()
     return row
+
+
+def region_operations(session: Session, sequence_id: int) -> int:
+    """Label-changing requests on a sequence's ground regions: each drawn, each deleted."""
+    drawn, deleted = session.execute(select(func.count(), func.count(GroundRegion.deleted_at))
+                                     .where(GroundRegion.sequence_id == sequence_id)).one()
+    return int(drawn) + int(deleted)

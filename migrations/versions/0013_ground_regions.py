@@ -26,7 +26,10 @@ def upgrade() -> None:
     sa.Column('polygon', sa.JSON(), nullable=False),
     sa.Column('created_by_id', sa.Integer(), nullable=True),
     sa.Column('created_at', sa.DateTime(), nullable=False),
+    sa.Column('deleted_at', sa.DateTime(), nullable=True),
+    sa.Column('deleted_by_id', sa.Integer(), nullable=True),
     sa.ForeignKeyConstraint(['created_by_id'], ['users.id'], name=op.f('fk_ground_regions_created_by_id_users'), ondelete='SET NULL'),
+    sa.ForeignKeyConstraint(['deleted_by_id'], ['users.id'], name=op.f('fk_ground_regions_deleted_by_id_users'), ondelete='SET NULL'),
     sa.ForeignKeyConstraint(['sequence_id'], ['sequences.id'], name=op.f('fk_ground_regions_sequence_id_sequences'), ondelete='CASCADE'),
     sa.PrimaryKeyConstraint('id', name=op.f('pk_ground_regions'))
     )

@@ -29,6 +29,6 @@ def create_ground_region(sequence_id: IdPath, body: GroundRegionCreate, user: Cu
 
 
 @router.delete("/ground-regions/{region_id}")
-def delete_ground_region(region_id: IdPath, _user: CurrentUser, session: WriteSessionDep) -> GroundRegionPublic:
+def delete_ground_region(region_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> GroundRegionPublic:
     """Undo a ground region: its points go back to what the other sources give them."""
-    return GroundRegionPublic.model_validate(crud.delete_region(session, region_id))
+    return GroundRegionPublic.model_validate(crud.delete_region(session, region_id, user))

@@ -50,6 +50,10 @@ def test_ground_region_relabels_the_ground_of_every_frame_until_deleted(client, 
         assert client.delete(f"/api/v1/ground-regions/{r['id']}", headers=op.headers).status_code == 200
     assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
     assert client.delete(f"/api/v1/ground-regions/{region['id']}", headers=op.headers).status_code == 404
+    assert client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json() == []
+    # two drawn and two undone: four label-changing operations
+    stats = client.get("/api/v1/exports/stats", params={"sequence_id": seq}, headers=op.headers).json()
+    assert stats["operations"] == 4
 
 
 def test_ground_region_refuses_a_class_outside_the_label_set_and_a_flat_polygon(client, factory):
