@@ -68,6 +68,25 @@ def label_sets_in_use(session: Session) -> list[LabelSet]:
     return list(seen.values())
 
 
+def common_label_set(session: Session, sequence_ids: list[int], field: str = "sequence_ids") -> LabelSet:
+    """The one label set of `sequence_ids` (a model is trained on one set's classes); Invalid
+    naming `field` when they have several. Unknown ids are skipped (their callers check them);
+    with none known, the default set."""
+    sets: dict[int, LabelSet] = {}
+    for sid in sequence_ids:
+        label_set = sequence_label_set(session, sid)
+        if label_set is not None:
+            sets[sid] = label_set
+    first = next(iter(sets.values()), None)
+    if first is None:
+        return preset(DEFAULT_LABEL_SET)
+    for sid, label_set in sets.items():
+        if not label_set.same_classes(first) or label_set.name != first.name:
+            raise Invalid(f"{field}: sequence {sid} has label set {label_set.name!r}, sequence "
+                          f"{next(iter(sets))} {first.name!r}: a model is trained on the classes of one label set")
+    return first
+
+
 def check_class(field: str, name: str | None, label_set: LabelSet) -> str:
     """`name` when it is one of the set's sample classes (those a track can take); Invalid (422)
     naming `field`, the set and its classes otherwise."""
