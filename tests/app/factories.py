@@ -108,13 +108,14 @@ def simulated_campus(tmp_path_factory: Any, frames: int, seed: int) -> Path:
     return out
 
 
-def ingest_through_api(client: Any, factory: Factory, settings: Settings, db: Database,
-                       path: Path) -> tuple[dict[str, Any], dict[str, Any], Caller]:
-    """Register `path` (under a second data root) as an admin and run its ingest job with the real
-    pipeline: (the registered sequence, the finished ingest job, the admin)."""
+def ingest_through_api(client: Any, factory: Factory, settings: Settings, db: Database, path: Path,
+                       label_set: str | dict[str, Any] = "paper") -> tuple[dict[str, Any], dict[str, Any], Caller]:
+    """Register `path` (under a second data root) with `label_set` (a preset's name or a label set
+    as data) as an admin and run its ingest job with the real pipeline: (the registered sequence,
+    the finished ingest job, the admin)."""
     settings.data_roots.append(path.parent)
     admin = factory.user("admin")
-    r = client.post("/api/v1/datasets", json={"path": str(path)}, headers=admin.headers)
+    r = client.post("/api/v1/datasets", json={"path": str(path), "label_set": label_set}, headers=admin.headers)
     assert r.status_code == 201, r.text
     seq = r.json()["sequences"][0]
     assert Worker(settings, db=db).run_once()
