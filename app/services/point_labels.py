@@ -76,14 +76,7 @@ class PointLabelPlan:
 
     @property
     def ground_class(self) -> int | None:
-        return ground_class_index(self.label_set)
-
-
-def ground_class_index(label_set: LabelSet) -> int | None:
-    """The class index ground points take: the set's first ground class (a set with several labels
-    ground as its first until ground is labelled by region); None when it has none."""
-    ground = label_set.ground_classes
-    return None if not ground else label_set.index(ground[0].name)
+        return self.label_set.ground_index
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
@@ -101,7 +94,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         .order_by(Frame.index)).all()]
     label_set = crud.label_set_of(sequence)
     index = {name: i for i, name in enumerate(label_set.point_class_names)}
-    ground = ground_class_index(label_set)
+    ground = label_set.ground_index
     rows = session.execute(
         select(Track.id, Track.key, Track.status, Track.label, Track.label_source, Track.predicted_class,
                Track.predicted_confidence, Track.keep_start, Track.keep_end)
