@@ -44,8 +44,12 @@ class ProposeAnchorsParams(JsonModel):
 
 
 def prepare_propose(s: Any, params: ProposeAnchorsParams) -> None:
-    ready_sequence(s, params.sequence_id)
-    choose_model(s, params.model_id)
+    from app.crud.label_sets import label_set_of
+    from app.services.label_sets import require_model_label_set
+
+    seq = ready_sequence(s, params.sequence_id)
+    chosen = choose_model(s, params.model_id)
+    require_model_label_set(chosen.name, chosen.path, label_set_of(seq))
 
 
 def _excluded(rows: list[Any], answered: list[Any], track_level: bool) -> np.ndarray:
