@@ -467,10 +467,8 @@ def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None
 
     annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
     typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
-    from pipeline.classes import NUM_SAMPLE_CLASSES
-
-    typer.echo(f"keys: A accept, D discard, 1-{NUM_SAMPLE_CLASSES} class, [ ] truncate, Z undo; "
-               "Ctrl-C stops (the data folder keeps all)")
+    typer.echo("keys: A accept, D discard, a class's key (beside its button: the sequence's label set), "
+               "[ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
     pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(settings.data_dir),
                                "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in settings.data_roots)})
     pool.start()
