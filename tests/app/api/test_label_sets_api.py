@@ -113,3 +113,15 @@ def test_label_sets_api_migration_makes_existing_sequences_paper(tmp_path):
     with engine.connect() as conn:
         assert conn.execute(text("SELECT label_set FROM sequences")).scalar_one() == "paper"
     engine.dispose()
+
+
+def test_label_sets_api_track_filters_take_the_classes_of_the_registered_sets(client, factory, settings):
+    r, admin = _register(client, factory, settings, label_set=_campus())
+    assert r.status_code == 201, r.text
+    sid = r.json()["sequences"][0]["id"]
+    for params in ({"label": "walker"}, {"predicted_class": "cart", "sequence_id": sid}):
+        got = client.get("/api/v1/tracks", params=params, headers=admin.headers)
+        assert got.status_code == 200 and got.json()["total"] == 0, got.text
+    bad = client.get("/api/v1/tracks", params={"label": "car", "sequence_id": sid}, headers=admin.headers)
+    assert bad.status_code == 422 and "label: unknown class 'car'; valid: cart, walker" in bad.text
+    assert client.get("/api/v1/anchors", params={"proposed_class": "dragon"}, headers=admin.headers).status_code == 422
