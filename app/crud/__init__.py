@@ -39,7 +39,6 @@ from app.crud.label_sets import (
     label_sets_in_use,
     resolve_label_set,
     sequence_label_set,
-    track_label_set,
 )
 from app.crud.model_versions import newest_model_path
 from app.crud.review import (
@@ -115,7 +114,6 @@ __all__ = [
     "label_set_of",
     "label_sets_in_use",
     "resolve_label_set",
-    "track_label_set",
     "create_dataset",
     "sequence_stats",
     "check_ready",

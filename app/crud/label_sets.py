@@ -12,17 +12,12 @@ from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session
 
 from app.core.errors import Invalid
-from app.models import Sequence, Track
+from app.models import Sequence
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset, validate_label_set
 
 _SEQ = Sequence.__table__.c
 # built once: every review action reads it, and building a statement costs more than running it
 _SEQUENCE_LABEL_SET = select(_SEQ.label_set, _SEQ.label_set_definition).where(_SEQ.id == bindparam("sequence_id"))
-_TRACK_LABEL_SET = (
-    select(_SEQ.label_set, _SEQ.label_set_definition)
-    .join(Track.__table__, Track.__table__.c.sequence_id == _SEQ.id)
-    .where(Track.__table__.c.id == bindparam("track_id"))
-)
 
 
 def resolve_label_set(name: str, definition: dict[str, Any] | None) -> LabelSet:
@@ -48,12 +43,6 @@ def sequence_label_set(session: Session, sequence_id: int | None) -> LabelSet | 
     if sequence_id is None:
         return None
     row = session.connection().execute(_SEQUENCE_LABEL_SET, {"sequence_id": sequence_id}).first()
-    return None if row is None else resolve_label_set(row[0], row[1])
-
-
-def track_label_set(session: Session, track_id: int) -> LabelSet | None:
-    """The label set of a track's sequence; None for an unknown track."""
-    row = session.connection().execute(_TRACK_LABEL_SET, {"track_id": track_id}).first()
     return None if row is None else resolve_label_set(row[0], row[1])
 
 
