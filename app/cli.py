@@ -350,6 +350,8 @@ def label(
     viewer_port: ViewerPort = 8080,
     reingest: Annotated[bool, typer.Option(help="Process a sequence ingested before again (drops its reviews).")] = False,
     serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
+    label_set: Annotated[str | None, typer.Option(
+        help="Its classes: a preset (tracklabel labelset list) or a label set file; default paper.")] = None,
 ) -> None:
     """Label your own recording: register SEQ, ingest it (progress bar), serve the API and the
     annotator (signed in as the local admin), and print the address and tokens. Run it again to
@@ -363,7 +365,7 @@ def label(
         check_ports(host, {"--port": port, "--viewer-port": viewer_port})
     settings = label_settings(data_dir, seq, host=host, port=port)
     typer.echo(f"data: {settings.data_dir.resolve()} (database, artifacts, models)")
-    src = Source(seq, name=name, fmt=fmt, sensor=sensor, poses=poses, reingest=reingest)
+    src = Source(seq, name=name, fmt=fmt, sensor=sensor, poses=poses, reingest=reingest, label_set=label_set)
     ready = prepare(settings, src, log=typer.echo, progress=TqdmProgress())
     _print_tokens(host, port, ready.admin_token, ready.operator_token)
     if serve_api:
