@@ -41,6 +41,8 @@ def test_viewer_label_set_classes_follow_the_shown_tracks_sequence(tab, viewer, 
     wait_until(lambda: tab.review.table.name == "campus")
     assert tab.review.buttons["Class 1-3"].options == ("Q walker", "cart", "dog")
     assert not any(k.startswith("Class 5") for k in tab.review.buttons)
+    b = tab.review.buttons  # the new group sits where the old ones were: after Discard, before Truncate
+    assert b["Discard (D)"].order < b["Class 1-3"].order < b["Truncate"].order
     wait_until(lambda: _command(tab, "Class walker") is not None)
     assert _command(tab, "Class walker")["hotkey"] == "Q" and _command(tab, "Class cart")["hotkey"] is None
     assert "**Q** class" in tab.review.gui_keys.content and "1-7" not in tab.review.gui_keys.content
