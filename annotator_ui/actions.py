@@ -1,4 +1,5 @@
-"""Every key and review button of a tab, in one table: adding an action is one row here.
+"""Every key and review button of a tab, in one table: adding an action is one row here; the
+class rows come from the label set of the shown track's sequence (`actions_for(table)`).
 
 A row with `review` set is a review action on the shown track (`ClientTab.run_action`: the key is
 bound to the track that was on screen when it arrived); one with `call` is a view command (frame
@@ -12,13 +13,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from pipeline.classes import SAMPLE_CLASSES
+from annotator_ui.label_set import PAPER, ClassTable
 
 
 @dataclass(frozen=True)
 class Action:
     label: str  # the command palette's name
-    key: str  # viser hotkey
+    key: str | None  # viser hotkey (None: a button only)
     short: str  # the key help's words
     help: str  # the command palette's description
     review: str | None = None  # a ReviewSession method (accept, truncate_before, undo, skip, ...) or a service action
@@ -36,14 +37,13 @@ def _class_group(i: int, n: int) -> str:
     return f"Class {first + 1}-{min(first + 4, n)}"
 
 
-ACTIONS: tuple[Action, ...] = (
+BEFORE_CLASSES: tuple[Action, ...] = (
     Action("Accept track", "A", "accept", "accept the track as it is and load the next one", review="accept",
            button="Accept (A)", colour="green", icon="CHECK"),
     Action("Discard track", "D", "discard", "discard the track (a wrong association) and load the next one",
            review="discard", button="Discard (D)", colour="red", icon="TRASH"),
-    *(Action(f"Class {name}", str(i + 1), "class", f"label the track '{name}' (accepts it) and load the next one",
-             review="label", arg=name, button=f"{i + 1} {name}", group=_class_group(i, len(SAMPLE_CLASSES)))
-      for i, name in enumerate(SAMPLE_CLASSES)),
+)
+AFTER_CLASSES: tuple[Action, ...] = (
     Action("Truncate before frame", "[", "truncate before / after", "keep the current frame and the ones after it",
            review="truncate_before", button="[ before frame", group="Truncate"),
     Action("Truncate after frame", "]", "truncate before / after", "keep the current frame and the ones before it",
@@ -62,13 +62,37 @@ ACTIONS: tuple[Action, ...] = (
            call=lambda tab: tab.repair.cut_predicted()),
 )
 
+OWN_KEYS = frozenset(a.key for a in (*BEFORE_CLASSES, *AFTER_CLASSES) if a.key is not None)
+
+
+def class_actions(table: ClassTable) -> tuple[Action, ...]:
+    """One row per class of `table`: its hotkey (none when the tab's own actions use it) and its
+    button, '<key> <name>' (or the name alone), four to a group."""
+    rows = []
+    for i, name in enumerate(table.classes):
+        key = table.key(name, OWN_KEYS)
+        rows.append(Action(f"Class {name}", key, "class", f"label the track '{name}' (accepts it) and load the next one",
+                           review="label", arg=name, button=name if key is None else f"{key} {name}",
+                           group=_class_group(i, len(table.classes))))
+    return tuple(rows)
+
+
+def actions_for(table: ClassTable) -> tuple[Action, ...]:
+    """Every row of a tab that shows the classes of `table`, in table order."""
+    return (*BEFORE_CLASSES, *class_actions(table), *AFTER_CLASSES)
+
+
+ACTIONS: tuple[Action, ...] = actions_for(PAPER)  # before a tab knows its sequence: the default set's
+
 _KEY_NAMES = {"arrowleft": "←", "arrowright": "→"}
 
 
-def key_help() -> str:
+def key_help(actions: tuple[Action, ...] = ACTIONS) -> str:
     """'**A** accept · **D** discard · **1-7** class · ...': consecutive rows of one `short` share it."""
     runs: list[tuple[list[str], str]] = []
-    for a in ACTIONS:
+    for a in actions:
+        if a.key is None:
+            continue
         key = _KEY_NAMES.get(a.key, a.key)
         if runs and runs[-1][1] == a.short:
             runs[-1][0].append(key)
@@ -81,6 +105,6 @@ def key_help() -> str:
     return " · ".join(parts) + " · click a point: open its track"
 
 
-def review_action(label: str) -> Action:
+def review_action(label: str, actions: tuple[Action, ...] = ACTIONS) -> Action:
     """The review row of a button's text."""
-    return next(a for a in ACTIONS if a.button == label)
+    return next(a for a in actions if a.button == label)

@@ -16,7 +16,7 @@ from typing import Any
 import viser
 
 from annotator_ui.client import ApiClient, ApiError
-from pipeline.classes import SAMPLE_CLASSES
+from annotator_ui.label_set import PAPER, ClassTable
 
 
 def preview_text(p: dict[str, Any]) -> str:
@@ -37,7 +37,7 @@ class BulkPanel:
     def __init__(self, gui: viser.GuiApi, api: ApiClient, notify: Callable[[str, str, str], None],
                  sequence_id: Callable[[], int | None], open_track: Callable[[int], None]) -> None:
         self.api, self.notify, self.sequence_id, self.open_track = api, notify, sequence_id, open_track
-        self.gui_class = gui.add_dropdown("Predicted class", SAMPLE_CLASSES, initial_value="bush")
+        self.gui_class = gui.add_dropdown("Predicted class", PAPER.classes, initial_value=PAPER.classes[0])
         self.gui_confidence = gui.add_slider("Min confidence", min=0.5, max=1.0, step=0.01, initial_value=0.9)
         self.gui_preview = gui.add_button("Preview", icon=viser.Icon.EYE)
         self.gui_summary = gui.add_markdown("Preview to see what a bulk accept would label.")
@@ -98,6 +98,10 @@ class BulkPanel:
         self._stale()
         self.refresh()
         return bulk
+
+    def set_classes(self, table: ClassTable) -> None:
+        """Offer the classes of `table` (the shown sequence's label set)."""
+        table.set_dropdown(self.gui_class)
 
     def refresh(self) -> None:
         seq = self.sequence_id()

@@ -240,6 +240,10 @@ class ApiClient:
     def sequences(self) -> list[dict[str, Any]]:
         return self._json("GET", "/sequences")
 
+    def label_set(self, sequence_id: int) -> dict[str, Any]:
+        """LabelSetPublic: the sequence's classes (name, colour, key, ground, ...) in index order."""
+        return self._json("GET", f"/sequences/{sequence_id}/label-set")
+
     # ------------------------------------------------------------------ progress and jobs
     def stats(self, sequence_id: int | None = None) -> dict[str, Any]:
         """ProgressStats: tracks_by_status, tracks_reviewed, samples_labelled_per_class, ..."""

@@ -5,7 +5,7 @@ All functions are vectorised over the frame's points; colours are (N, 3) uint8 R
 Modes:
   - `track`:     one hue per track id (golden-ratio hues, stable across frames);
   - `class`:     the track's class label (accepted tracks), grey while unlabelled, dark red when
-                 discarded;
+                 discarded (class colours: the sequence's label set, `annotator_ui.label_set`);
   - `predicted`: the model's predicted class, blended towards grey as its confidence falls.
 Ground and points without a track are dark grey in every mode.
 """
@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pipeline.classes import CLASS_COLOURS, SAMPLE_CLASSES
+from annotator_ui.label_set import PAPER, ClassTable
 
 ColourMode = Literal["track", "class", "predicted"]
 COLOUR_MODES: tuple[ColourMode, ...] = ("track", "class", "predicted")
@@ -29,7 +29,6 @@ PENDING = np.array([175, 175, 175], np.uint8)
 DISCARDED = np.array([120, 40, 40], np.uint8)
 NO_PREDICTION = np.array([150, 150, 150], np.uint8)
 HIGHLIGHT_FADE = 0.5  # other points keep this much of their colour while a track is highlighted
-CLASS_RGB = {name: np.array(CLASS_COLOURS[name], np.uint8) for name in SAMPLE_CLASSES}
 
 
 def track_hues(track_ids: np.ndarray) -> np.ndarray:
@@ -47,24 +46,24 @@ def track_hues(track_ids: np.ndarray) -> np.ndarray:
     return (np.stack([r, g, b], axis=1) * 255.0 + 0.5).astype(np.uint8)
 
 
-def class_colour(track: Mapping[str, Any]) -> np.ndarray:
-    """Colour of a track (TrackPublic dict) in `class` mode."""
+def class_colour(track: Mapping[str, Any], table: ClassTable = PAPER) -> np.ndarray:
+    """Colour of a track (TrackPublic dict) in `class` mode, in the colours of `table`."""
     if track.get("status") == "discarded":
         return DISCARDED
     label = track.get("label")
-    if track.get("status") == "accepted" and label in CLASS_RGB:
-        return CLASS_RGB[label]
+    if track.get("status") == "accepted" and label in table.colours:
+        return table.colours[label]
     return PENDING
 
 
-def predicted_colour(track: Mapping[str, Any]) -> np.ndarray:
+def predicted_colour(track: Mapping[str, Any], table: ClassTable = PAPER) -> np.ndarray:
     """Colour of a track in `predicted` mode: class colour blended to grey by (1 - confidence)."""
     cls = track.get("predicted_class")
-    if cls not in CLASS_RGB:
+    if cls not in table.colours:
         return NO_PREDICTION
     conf = track.get("predicted_confidence")
     c = 1.0 if conf is None else float(np.clip(conf, 0.0, 1.0))
-    mixed = NO_PREDICTION.astype(np.float32) * (1.0 - c) + CLASS_RGB[cls].astype(np.float32) * c
+    mixed = NO_PREDICTION.astype(np.float32) * (1.0 - c) + table.colours[cls].astype(np.float32) * c
     return (mixed + 0.5).astype(np.uint8)
 
 
@@ -73,10 +72,12 @@ def point_colours(
     track: np.ndarray,
     mode: ColourMode,
     tracks: Mapping[int, Mapping[str, Any]] | None = None,
+    table: ClassTable = PAPER,
 ) -> np.ndarray:
     """(N,) segment, (N,) track ids -> (N, 3) uint8 colours in `mode`.
 
-    `tracks` maps track id -> TrackPublic dict (needed by `class` and `predicted`)."""
+    `tracks` maps track id -> TrackPublic dict (needed by `class` and `predicted`), whose classes
+    take the colours of `table`."""
     n = len(segment)
     assert track.shape == (n,), (track.shape, n)
     # one key per point (track id, 0 = segment without track, -1 = ground), colours per unique key,
@@ -95,7 +96,7 @@ def point_colours(
         default = PENDING if mode == "class" else NO_PREDICTION
         for k in np.flatnonzero(tracked).tolist():  # one entry per track of the frame, not per point
             t = tracks.get(int(uniq[k]))
-            lut[k] = default if t is None else fn(t)
+            lut[k] = default if t is None else fn(t, table)
     return lut[inverse.reshape(-1)]
 
 
@@ -107,9 +108,9 @@ def fade(colours: np.ndarray, keep: np.ndarray, factor: float = HIGHLIGHT_FADE) 
     return out
 
 
-def legend_entries(mode: ColourMode) -> list[tuple[str, tuple[int, int, int]]]:
-    """(label, RGB) rows of the legend of `mode`."""
-    classes = [(name, tuple(int(v) for v in CLASS_RGB[name])) for name in SAMPLE_CLASSES]
+def legend_entries(mode: ColourMode, table: ClassTable = PAPER) -> list[tuple[str, tuple[int, int, int]]]:
+    """(label, RGB) rows of the legend of `mode` (class rows: those of `table`)."""
+    classes = [(name, tuple(int(v) for v in table.colours[name])) for name in table.classes]
     common = [("ground", tuple(int(v) for v in GROUND)), ("no track", tuple(int(v) for v in UNTRACKED)),
               ("the reviewed track: outline (its points in height or intensity colours)", (255, 215, 0)),
               ("track path (kept / cut / this frame)", (255, 140, 0))]
@@ -121,10 +122,10 @@ def legend_entries(mode: ColourMode) -> list[tuple[str, tuple[int, int, int]]]:
     return [*classes, ("no prediction", tuple(int(v) for v in NO_PREDICTION)), *common]
 
 
-def legend_html(mode: ColourMode) -> str:
+def legend_html(mode: ColourMode, table: ClassTable = PAPER) -> str:
     """The legend of `mode` as small HTML (coloured squares and names)."""
     rows = []
-    for label, (r, g, b) in legend_entries(mode):
+    for label, (r, g, b) in legend_entries(mode, table):
         rows.append(
             f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;line-height:18px">'
             f'<span style="display:inline-block;width:12px;height:12px;border-radius:2px;'

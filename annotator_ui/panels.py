@@ -17,7 +17,7 @@ import viser
 import viser.uplot
 
 from annotator_ui.client import ApiClient, ApiError
-from pipeline.classes import CLASS_COLOURS, SAMPLE_CLASSES
+from annotator_ui.label_set import PAPER, ClassTable
 
 JOB_BUTTONS = {"train": "Start training", "predict": "Start prediction"}
 JOB_POLL_SECONDS = 1.0
@@ -31,6 +31,7 @@ class ProgressPanel:
     def __init__(self, gui: viser.GuiApi, api: ApiClient, sequence_id: Callable[[], int | None] = lambda: None) -> None:
         self.api = api
         self.sequence_id = sequence_id
+        self.table = PAPER  # the classes of the shown sequence's label set
         self.gui_points = gui.add_markdown("")
         self.gui_points_bar = gui.add_progress_bar(0.0, color="blue")
         self.gui_summary = gui.add_markdown("Loading progress ...")
@@ -58,6 +59,10 @@ class ProgressPanel:
         )
         self.gui_points_bar.value = 100.0 * share
 
+    def set_classes(self, table: ClassTable) -> None:
+        """Count the samples of the classes of `table` (at the next refresh)."""
+        self.table = table
+
     def refresh(self) -> dict[str, Any] | None:
         seq = self.sequence_id()
         self._refresh_points(seq)
@@ -80,9 +85,9 @@ class ProgressPanel:
         per = st.get("samples_labelled_per_class", {})
         top = max([1, *per.values()])
         rows = []
-        for name in SAMPLE_CLASSES:
+        for name in self.table.classes:
             n = int(per.get(name, 0))
-            r, g, b = CLASS_COLOURS[name]
+            r, g, b = (int(v) for v in self.table.colours[name])
             rows.append(
                 f'<div style="display:flex;align-items:center;gap:6px;font-size:12px;line-height:18px">'
                 f'<span style="width:64px">{name}</span>'
@@ -328,6 +333,11 @@ class AnchorsPanel(_RowsPanel):
     it, or opens its track in the 3D view. Without that API the panel says so and stays disabled."""
 
     NAMES = ("anchor proposals", "Refresh anchors", "Waiting proposals")
+    table: ClassTable = PAPER  # the classes of the shown sequence's label set (its rows' dropdowns)
+
+    def set_classes(self, table: ClassTable) -> None:
+        """Offer the classes of `table` in the rows drawn from now on."""
+        self.table = table
 
     def _add_buttons(self) -> None:
         self.gui_propose = self.gui.add_button("Propose anchors", icon=viser.Icon.ANCHOR, disabled=True)
@@ -395,8 +405,9 @@ class AnchorsPanel(_RowsPanel):
                 image = None
         handles.append(self.gui.add_image(image, label=title, format="png") if image is not None
                        else self.gui.add_markdown(title))
-        choice = self.gui.add_dropdown(f"Class #{item['id']}", SAMPLE_CLASSES,
-                                       initial_value=cls if cls in SAMPLE_CLASSES else "unknown")
+        classes = self.table.classes
+        other = self.table.fallback if self.table.fallback in classes else classes[0]
+        choice = self.gui.add_dropdown(f"Class #{item['id']}", classes, initial_value=cls if cls in classes else other)
         answer = self.gui.add_button_group(f"Anchor #{item['id']}", ("Confirm", "Reject", "Show track"))
         answer.on_click(lambda e, it=item, ch=choice: self._answer(it, e.target.value, ch.value))
         return [*handles, choice, answer]

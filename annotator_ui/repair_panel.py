@@ -19,7 +19,7 @@ import viser
 
 from annotator_ui.cut_preview import PREVIEW_COLOUR, gizmo_scale, inside_box, preview_text
 from annotator_ui.geometry import clip_from_scene, matrix_wxyz, rect_polygon_ndc
-from pipeline.classes import SAMPLE_CLASSES
+from annotator_ui.label_set import PAPER, ClassTable
 from pipeline.regions import quaternion_matrix
 
 SCOPES = ("All kept frames", "This frame")
@@ -62,13 +62,17 @@ class RepairPanel:
         self.gui_height = gui.add_number("Above ground (m)", 1.0, min=-2.0, max=50.0, step=0.1)
         self.gui_cut_height = gui.add_button("Split by height (H)", icon=viser.Icon.ARROWS_VERTICAL)
         self.gui_cut_height.on_click(lambda _: self.cut_height())
-        self.gui_predicted_class = gui.add_dropdown("Predicted as", SAMPLE_CLASSES, initial_value="person")
+        self.gui_predicted_class = gui.add_dropdown("Predicted as", PAPER.classes, initial_value=PAPER.classes[0])
         self.gui_cut_predicted = gui.add_button("Split off what the model calls it (P)", icon=viser.Icon.BRAIN)
         self.gui_cut_predicted.on_click(lambda _: self.cut_predicted())
         self.gui_screen_scope = gui.add_dropdown("Shift + drag on the canvas cuts", SCOPES, initial_value=SCOPES[0])
         gui.add_markdown("**Merge**: tick, then click a point of the other track (or use a stitch's *Merge*).")
         self.gui_merge_click = gui.add_checkbox("Click merges a track into this one", False)
         scene.on_rect_select(modifier="shift")(self._on_rect)
+
+    def set_classes(self, table: ClassTable) -> None:
+        """Offer the classes of `table` (the shown sequence's label set) to split by."""
+        table.set_dropdown(self.gui_predicted_class)
 
     # ------------------------------------------------------------------ gizmo
     def _toggle_gizmo(self) -> None:

@@ -9,12 +9,21 @@ from typing import Any
 
 import viser
 
-from annotator_ui.actions import ACTIONS, Action, key_help, review_action
+from annotator_ui.actions import (
+    ACTIONS,
+    AFTER_CLASSES,
+    BEFORE_CLASSES,
+    Action,
+    actions_for,
+    class_actions,
+    key_help,
+    review_action,
+)
 from annotator_ui.client import ApiClient, ApiError
 from annotator_ui.colours import COLOUR_MODES, legend_html
+from annotator_ui.label_set import PAPER, ClassTable
 from annotator_ui.samples import blank_image
 from annotator_ui.track_views_panel import TrackViewsPanel
-from pipeline.classes import SAMPLE_CLASSES
 
 
 def sequence_label(seq: dict[str, Any]) -> str:
@@ -32,29 +41,15 @@ class ReviewPanel:
         self.gui_route = gui.add_image(blank_image(), label="Route (grey) · seen from (orange) · track (white)", format="png")
         self.gui_predicted = gui.add_markdown("Model: no prediction for this track")
         self.buttons: dict[str, Any] = {}  # button text or group label -> handle
-        groups: dict[str, list[Action]] = {}
-        for a in ACTIONS:
-            if a.button is not None and a.group is not None:
-                groups.setdefault(a.group, []).append(a)
-        for a in ACTIONS:
-            if a.button is None:
-                continue
-            if a.group is None:
-                h = gui.add_button(a.button, color=a.colour, icon=getattr(viser.Icon, a.icon) if a.icon else None)  # type: ignore[arg-type]
-
-                async def clicked(_e: Any, a: Action = a) -> None:  # async: runs as the click arrives
-                    press(a)
-
-                h.on_click(clicked)
-                self.buttons[a.button] = h
-            elif a.group not in self.buttons:
-                g = gui.add_button_group(a.group, tuple(x.button for x in groups[a.group] if x.button))
-
-                async def grouped(e: Any) -> None:
-                    press(review_action(e.target.value))
-
-                g.on_click(grouped)
-                self.buttons[a.group] = g
+        self.gui = gui
+        self.press = press
+        self.actions: tuple[Action, ...] = ACTIONS
+        self.table = PAPER
+        self._add_buttons(BEFORE_CLASSES)
+        self._class_groups = self._add_buttons(class_actions(self.table))
+        after = self._add_buttons(AFTER_CLASSES)[0]
+        # class groups of another label set go between the two (GUI order is a float)
+        self._between = (self._class_groups[0].order - 0.5, after.order)
         self.gui_goto = gui.add_text("Open track #", initial_value="", hint="review a track by its id")
         self.gui_open = gui.add_button("Open track", icon=viser.Icon.SEARCH)
         self.gui_colour = gui.add_dropdown("Colour by", COLOUR_MODES, initial_value="track")
@@ -62,6 +57,54 @@ class ReviewPanel:
         self.gui_legend = gui.add_html(legend_html("track"))
         with gui.add_folder("Track views"):
             self.views = TrackViewsPanel(gui, redraw)
+
+    def _add_buttons(self, rows: tuple[Action, ...], order: Callable[[int], float] | None = None) -> list[Any]:
+        """A button per row, one button group per `group` (in row order; `order(j)`: the GUI order
+        of the j-th handle); returns the handles."""
+        groups: dict[str, list[Action]] = {}
+        for a in rows:
+            if a.button is not None and a.group is not None:
+                groups.setdefault(a.group, []).append(a)
+        added: list[Any] = []
+        for a in rows:
+            if a.button is None:
+                continue
+            if a.group is None:
+                h = self.gui.add_button(a.button, color=a.colour, icon=getattr(viser.Icon, a.icon) if a.icon else None)  # type: ignore[arg-type]
+
+                async def clicked(_e: Any, a: Action = a) -> None:  # async: runs as the click arrives
+                    self.press(a)
+
+                h.on_click(clicked)
+                self.buttons[a.button] = h
+                added.append(h)
+            elif a.group not in self.buttons:
+                kw = {} if order is None else {"order": order(len(added))}
+                g = self.gui.add_button_group(a.group, tuple(x.button for x in groups[a.group] if x.button), **kw)
+
+                async def grouped(e: Any) -> None:
+                    self.press(review_action(e.target.value, self.actions))
+
+                g.on_click(grouped)
+                self.buttons[a.group] = g
+                added.append(g)
+        return added
+
+    def show_classes(self, table: ClassTable) -> tuple[Action, ...]:
+        """Replace the class buttons and the key help with those of `table` (the label set of the
+        shown track's sequence); returns the tab's rows now."""
+        if table == self.table:
+            return self.actions
+        for g in self._class_groups:
+            self.buttons = {k: h for k, h in self.buttons.items() if h is not g}
+            g.remove()
+        rows = class_actions(table)
+        n_groups = len({a.group for a in rows})
+        lo, hi = self._between
+        self._class_groups = self._add_buttons(rows, lambda j: lo + (hi - lo) * (j + 1) / (n_groups + 1))
+        self.table, self.actions = table, actions_for(table)
+        self.gui_keys.content = key_help(self.actions)
+        return self.actions
 
     def set_sequences(self, seqs: list[dict[str, Any]], chosen: int | None) -> None:
         options = tuple(sequence_label(s) for s in seqs) or ("(no sequence)",)
@@ -93,12 +136,13 @@ def track_info(t: dict[str, Any], frame_index: int, from_queue: bool, sequence: 
     )
 
 
-def predicted_info(t: dict[str, Any]) -> str:
-    """The model's class and confidence, shown beside the class buttons."""
+def predicted_info(t: dict[str, Any], actions: tuple[Action, ...] = ACTIONS) -> str:
+    """The model's class and confidence, shown beside the class buttons, with the class's key
+    among the tab's `actions`."""
     if not t.get("predicted_class"):
         return "Model: no prediction for this track"
     conf = t.get("predicted_confidence")
-    key = SAMPLE_CLASSES.index(t["predicted_class"]) + 1 if t["predicted_class"] in SAMPLE_CLASSES else None
+    key = next((a.key for a in actions if a.review == "label" and a.arg == t["predicted_class"]), None)
     return (f"Model: **{t['predicted_class']}**" + (f" ({100 * conf:.0f} %)" if conf is not None else "")
             + (f" · key **{key}**" if key else ""))
 

@@ -43,6 +43,7 @@ from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M, CloudMemo, lod
 from annotator_ui.colours import ColourMode, fade, point_colours
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.geometry import polyline_segments, pose_matrix, world_to_lidar
+from annotator_ui.label_set import PAPER
 from annotator_ui.review import ReviewSession
 from annotator_ui.track_look import OUTLINE, aggregate, box_outline, track_colours
 from annotator_ui.track_views_panel import TrackViewsPanel, frame_cuts
@@ -76,6 +77,7 @@ class SceneView:
         self.budget, self.voxel_m, self.side_panels_delay_s = budget, voxel_m, side_panels_delay_s
         self.memo = CloudMemo()
         self.colour_mode: ColourMode = "track"
+        self.table = PAPER  # the classes (colours) of the shown track's sequence
         self.follow_camera = True
         self.lock = threading.Lock()
         self.generation = 0  # bumped per frame drawn (a late sample load checks it)
@@ -191,7 +193,7 @@ class SceneView:
     def _background(self, payload: FramePayload, mode: ColourMode,
                     info: dict[int, dict[str, Any]] | None) -> tuple[np.ndarray, np.ndarray]:
         keep = lod(payload.points, self.budget, self.voxel_m)
-        colours = point_colours(payload.segment[keep], payload.track[keep], mode, info)
+        colours = point_colours(payload.segment[keep], payload.track[keep], mode, info, self.table)
         return keep, fade(colours, np.zeros(len(keep), bool))
 
     def _draw_cloud(self, frame_id: int, payload: FramePayload, keep: np.ndarray, colours: np.ndarray) -> None:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import viser
 
-from annotator_ui.actions import ACTIONS, Action
+from annotator_ui.actions import AFTER_CLASSES, BEFORE_CLASSES, Action, class_actions
 from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import legend_html
@@ -39,7 +39,6 @@ from annotator_ui.route_map import route_image
 from annotator_ui.samples import blank_image, sample_image
 from annotator_ui.scene_view import SceneView, Shown
 from annotator_ui.track_views_panel import hard_to_read
-from pipeline.classes import SAMPLE_CLASSES
 
 if TYPE_CHECKING:
     from annotator_ui.viewer import AnnotatorViewer
@@ -64,13 +63,8 @@ class ClientTab:
         self._progress_timer: threading.Timer | None = None
         self._progress_lock = threading.Lock()
         self._build_gui()
-        for a in ACTIONS:
-            cmd = client.gui.add_command(a.label, description=a.help, hotkey=a.key)  # type: ignore[arg-type]
-
-            async def triggered(_e: Any, a: Action = a) -> None:  # async: runs as the key arrives
-                self.press(a)
-
-            cmd.on_trigger(triggered)
+        self._add_commands((*BEFORE_CLASSES, *AFTER_CLASSES))
+        self._class_commands = self._add_commands(class_actions(self.review.table))
         client.scene.on_click()(self._on_click)
         client.scene.add_frame("/sensor", axes_length=1.0, axes_radius=0.04)
 
@@ -113,6 +107,39 @@ class ClientTab:
                                           lambda: self.session.track_id,
                                           lambda tid: self.later(lambda: self.open_track(tid)),
                                           lambda a, b: self.later(lambda: self.merge_pair(a, b)))
+
+    def _add_commands(self, rows: tuple[Action, ...]) -> list[Any]:
+        """A command palette entry (with its hotkey) per row."""
+        commands = []
+        for a in rows:
+            cmd = self.client.gui.add_command(a.label, description=a.help, hotkey=a.key)  # type: ignore[arg-type]
+
+            async def triggered(_e: Any, a: Action = a) -> None:  # async: runs as the key arrives
+                self.press(a)
+
+            cmd.on_trigger(triggered)
+            commands.append(cmd)
+        return commands
+
+    def show_label_set(self, sequence_id: int) -> None:
+        """Show the classes of the sequence's label set: class buttons and keys, the colours, the
+        legend and the class dropdowns of the side panels (nothing changes for the same set)."""
+        try:
+            table = self.viewer.label_sets.of(self.api, sequence_id)
+        except ApiError as exc:
+            self.notify("Classes not read", f"the label set of sequence {sequence_id}: {exc.detail}", "yellow")
+            return
+        if table == self.review.table:
+            return
+        with self.client.atomic():
+            for cmd in self._class_commands:
+                cmd.remove()
+            self.review.show_classes(table)
+            self._class_commands = self._add_commands(class_actions(table))
+            self.scene.table = table
+            self.review.gui_legend.content = legend_html(self.scene.colour_mode, table)
+            for panel in (self.bulk, self.repair, self.anchors, self.progress):
+                panel.set_classes(table)
 
     # ------------------------------------------------------------------ what the tab shows
     def sequence_id(self) -> int | None:
@@ -225,7 +252,7 @@ class ClientTab:
                 return True
             before = self.session.track_id
             if action == "label":
-                assert arg in SAMPLE_CLASSES, arg
+                assert arg in self.review.table.classes, arg
                 self._guarded(lambda: self.session.label(arg), before, action)
             else:  # a session method (truncate, undo, skip, ...), else a service action that settles the track
                 run = getattr(self.session, action, None) or (lambda: self.session.finish(action))
@@ -417,7 +444,7 @@ class ClientTab:
 
     def _on_colour(self, event: viser.GuiEvent) -> None:
         self.scene.colour_mode = self.review.gui_colour.value  # type: ignore[assignment]
-        self.review.gui_legend.content = legend_html(self.scene.colour_mode)
+        self.review.gui_legend.content = legend_html(self.scene.colour_mode, self.review.table)
         if event.client is not None and self.session.track is not None:
             self.render_frame()
 
@@ -431,6 +458,7 @@ class ClientTab:
             self.scene.clear()
             self.review.gui_sample.image = blank_image()
             return
+        self.show_label_set(int(t["sequence_id"]))
         self.views.track_hard = hard_to_read(t)
         with self.client.atomic():
             self.playback.fit()
@@ -449,7 +477,7 @@ class ClientTab:
             name = sequence_label(seq) if seq else f"#{t['sequence_id']}"
             self.review.gui_track.content = track_info(t, fi, self.session.from_queue, name,
                                                        self.scene.drawn_points(int(t["id"])))
-            predicted = predicted_info(t)
+            predicted = predicted_info(t, self.review.actions)
             if self.review.gui_predicted.content != predicted:  # an unchanged text costs the browser nothing
                 self.review.gui_predicted.content = predicted
 

@@ -21,6 +21,7 @@ from annotator_ui.change_feed import ChangeFeed
 from annotator_ui.client import ApiClient, ApiError
 from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M
 from annotator_ui.frame_cache import FrameCache
+from annotator_ui.label_set import LabelSets
 from annotator_ui.review import QueueCoordinator
 from annotator_ui.scene_view import SIDE_PANELS_DELAY_S
 from annotator_ui.tab import ClientTab
@@ -51,6 +52,7 @@ class AnnotatorViewer:
     def __init__(self, config: ViewerConfig, verbose: bool = False) -> None:
         self.config = config
         self.cache = FrameCache(config.cache_mb * 2**20)
+        self.label_sets = LabelSets()  # each sequence's classes, read once
         self.coordinator = QueueCoordinator()
         self.tabs: dict[int, ClientTab] = {}
         self._tabs_lock = threading.Lock()

@@ -350,6 +350,8 @@ def label(
     viewer_port: ViewerPort = 8080,
     reingest: Annotated[bool, typer.Option(help="Process a sequence ingested before again (drops its reviews).")] = False,
     serve_api: Annotated[bool, typer.Option("--serve/--no-serve", help="Serve after preparing.")] = True,
+    label_set: Annotated[str | None, typer.Option(
+        help="Its classes: a preset (tracklabel labelset list) or a label set file; default paper.")] = None,
 ) -> None:
     """Label your own recording: register SEQ, ingest it (progress bar), serve the API and the
     annotator (signed in as the local admin), and print the address and tokens. Run it again to
@@ -363,7 +365,7 @@ def label(
         check_ports(host, {"--port": port, "--viewer-port": viewer_port})
     settings = label_settings(data_dir, seq, host=host, port=port)
     typer.echo(f"data: {settings.data_dir.resolve()} (database, artifacts, models)")
-    src = Source(seq, name=name, fmt=fmt, sensor=sensor, poses=poses, reingest=reingest)
+    src = Source(seq, name=name, fmt=fmt, sensor=sensor, poses=poses, reingest=reingest, label_set=label_set)
     ready = prepare(settings, src, log=typer.echo, progress=TqdmProgress())
     _print_tokens(host, port, ready.admin_token, ready.operator_token)
     if serve_api:
@@ -467,10 +469,8 @@ def _serve_here(settings, viewer_token: str, viewer_port: int, who: str) -> None
 
     annotator = _start_viewer(settings.host, settings.port, viewer_token, viewer_port)
     typer.echo(f"\nannotator:      {annotator.url}   <- open this in a browser, signed in as {who}")
-    from pipeline.classes import NUM_SAMPLE_CLASSES
-
-    typer.echo(f"keys: A accept, D discard, 1-{NUM_SAMPLE_CLASSES} class, [ ] truncate, Z undo; "
-               "Ctrl-C stops (the data folder keeps all)")
+    typer.echo("keys: A accept, D discard, a class's key (beside its button: the sequence's label set), "
+               "[ ] truncate, Z undo; Ctrl-C stops (the data folder keeps all)")
     pool = WorkerProcesses(1, {"TRACKLABEL_DATA_DIR": str(settings.data_dir),
                                "TRACKLABEL_DATA_ROOTS": os.pathsep.join(str(r) for r in settings.data_roots)})
     pool.start()

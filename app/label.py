@@ -20,6 +20,7 @@ from app.core.config import Settings
 from app.core.db import Database
 from app.core.migrate import upgrade
 from pipeline.errors import ConfigError
+from pipeline.label_sets import LabelSet
 from pipeline.progress import QUIET, Progress
 
 
@@ -42,6 +43,7 @@ class Source:
     sensor: str = "auto"
     poses: str = "file"
     reingest: bool = False  # process a ready sequence again (its reviews are dropped)
+    label_set: str | None = None  # a preset or label set file; None: paper, or what it was registered with
 
 
 def label_settings(data_dir: Path | None, seq: Path, **overrides: Any) -> Settings:
@@ -89,9 +91,15 @@ def _register(db: Database, src: Source, admin_id: int, log: Callable[[str], Non
     path = src.path.expanduser().resolve()
     if not path.exists():
         raise ConfigError(f"{src.path}: no such file or folder")
+    label_set, definition = _label_set(src.label_set)
     with db.read() as s:
         existing = crud.registered_sequence_id(s, path)
+        has = None if existing is None else crud.sequence_label_set(s, existing)
     if existing is not None:
+        if src.label_set is not None and has is not None and not (has.name == label_set.name
+                                                                   and has.same_classes(label_set)):
+            raise ConfigError(f"--label-set {src.label_set}: sequence {existing} was registered with label set "
+                              f"{has.name!r}; its labels speak those classes")
         log(f"sequence {existing}: {path} (registered before)")
         return existing
     if src.fmt != "auto" and src.fmt not in reader_names():
@@ -99,11 +107,26 @@ def _register(db: Database, src: Source, admin_id: int, log: Callable[[str], Non
     fmt = detect_format(path) if src.fmt == "auto" else src.fmt
     config = None if src.sensor == "auto" else {"sensor": {"name": src.sensor}}
     with db.write() as s:
-        _, seq = crud.create_dataset(s, path, src.name, fmt, config, admin_id)
+        _, seq = crud.create_dataset(s, path, src.name, fmt, config, admin_id, label_set.name, definition)
         s.commit()
         seq_id = int(seq.id)
-    log(f"sequence {seq_id}: {path} ({fmt}) registered")
+    log(f"sequence {seq_id}: {path} ({fmt}, label set {label_set.name}) registered")
     return seq_id
+
+
+def _label_set(name_or_path: str | None) -> tuple[LabelSet, dict[str, Any] | None]:
+    """The label set to register with and the definition to store (None for a preset, stored by
+    name); ConfigError naming the file and field of one that is not valid, or of a file that takes
+    a preset's name with other classes."""
+    from pipeline.label_sets import DEFAULT_LABEL_SET, load_label_set, preset, preset_names
+
+    label_set = load_label_set(name_or_path or DEFAULT_LABEL_SET)
+    if label_set.name not in preset_names():
+        return label_set, label_set.model_dump(mode="json")
+    if label_set.same_classes(preset(label_set.name)):
+        return label_set, None
+    raise ConfigError(f"{name_or_path}: field name: {label_set.name!r} is a preset's name; name your label set "
+                      "otherwise")
 
 
 def _ingest(settings: Settings, db: Database, seq_id: int, src: Source, log: Callable[[str], None],

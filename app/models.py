@@ -124,6 +124,9 @@ class Sequence(Base):
     last_track_key: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     # migration 0012: the label set its classes come from (a preset, pipeline/label_sets)
     label_set: Mapped[str] = mapped_column(String(64), default=DEFAULT_LABEL_SET, server_default=DEFAULT_LABEL_SET)
+    # migration 0013: a label set given as data at registration (its YAML fields); None: the
+    # preset named by `label_set`
+    label_set_definition: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     ingest_job_id: Mapped[int | None] = mapped_column(ForeignKey("jobs.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
 
@@ -483,7 +486,7 @@ class GroundRegion(Base):
     label set: the ground points of every frame inside it take that class in the exports
     (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
     one is its undo: the row stays with `deleted_at` set, so that the operations a sequence took
-    can be counted (`crud.operation_count`). Migration 0013."""
+    can be counted (`crud.operation_count`). Migration 0014."""
 
     __tablename__ = "ground_regions"
     __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.classes import SAMPLE_CLASSES
+from pipeline.classes import PAPER, SAMPLE_CLASSES
 
 STRATEGIES: tuple[str, ...] = ("confident", "entropy", "diverse", "track", "track_diverse")
 TRACK_STRATEGIES: frozenset[str] = frozenset({"track", "track_diverse"})
@@ -74,12 +74,14 @@ def class_counts(
     unknown: int | None = DEFAULT_UNKNOWN,
     classes: Sequence[str] = SAMPLE_CLASSES,
     overrides: Mapping[str, int] | None = None,
+    fallback: str | None = PAPER.fallback,
 ) -> np.ndarray:
-    """(K,) int64 proposals wanted per class: `per_class` each, `unknown` for "unknown" (None =
-    per_class), then `overrides` by class name."""
+    """(K,) int64 proposals wanted per class: `per_class` each, `unknown` for the label set's
+    `fallback` class, the class of what no other class fits (None = per_class; default: the
+    default set's, unknown), then `overrides` by class name."""
     counts = np.full(len(classes), per_class, np.int64)
-    if "unknown" in classes and unknown is not None:
-        counts[list(classes).index("unknown")] = unknown
+    if fallback in classes and unknown is not None:
+        counts[list(classes).index(fallback)] = unknown
     for name, n in (overrides or {}).items():
         if name not in classes:
             raise ValueError(f"unknown class {name!r}; valid: {', '.join(classes)}")
@@ -180,7 +182,8 @@ def propose(
 
     probs:    (M, K) class probabilities of the pretrained model.
     strategy: one of STRATEGIES.
-    counts:   (K,) proposals wanted per class; None = `class_counts()` (20, 100 for unknown).
+    counts:   (K,) proposals wanted per class (`class_counts` of the model's classes); None =
+              DEFAULT_PER_CLASS for each (the names of the classes are not known here).
               For track strategies a count is a number of tracks.
     features: (M, D) CNN features, needed by `diverse` and `track_diverse`.
     tracks:   (M,) int64 track id per sample (> 0), needed by track strategies; samples with
@@ -195,8 +198,6 @@ def propose(
     probs = np.asarray(probs, np.float64)
     m = len(probs)
     k_classes = probs.shape[1] if probs.ndim == 2 else 0
-    if counts is None:
-        counts = class_counts(classes=SAMPLE_CLASSES[:k_classes]) if k_classes <= len(SAMPLE_CLASSES) else None
     counts = np.full(k_classes, DEFAULT_PER_CLASS, np.int64) if counts is None else np.asarray(counts, np.int64)
     _check(probs, counts)
     excl = np.zeros(m, bool) if exclude is None else np.asarray(exclude, bool)

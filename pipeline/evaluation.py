@@ -27,9 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.classes import CLASS_INDEX, POINT_CLASSES, UNLABELLED, to_ours
+from pipeline.classes import CLASS_INDEX, GROUND, PAPER, POINT_CLASSES, UNLABELLED, to_ours
 
-THINGS = (CLASS_INDEX["person"], CLASS_INDEX["car"], CLASS_INDEX["cyclist"])
+# the truth is read in the default set's classes; its things (person, car, cyclist) have instances
+THING_NAMES = tuple(c.name for c in PAPER.point_classes if c.kind == "thing")
+THINGS = tuple(CLASS_INDEX[name] for name in THING_NAMES)
 RANGE_BINS = (0.0, 15.0, 30.0, 50.0, np.inf)
 RANGE_NAMES = ("0-15", "15-30", "30-50", "50+")
 MIN_PRESENCE_POINTS = 30
@@ -158,7 +160,7 @@ def evaluate_frames(frames: list[FrameTruth], links: list[tuple[int, int, int]])
         ka, ca = np.unique(fa.inst_key, return_counts=True)
         kb, cb = np.unique(fb.inst_key, return_counts=True)
         cls_a = ka >> 16
-        objs = ka[(ca >= MIN_PRESENCE_POINTS) & (cls_a != CLASS_INDEX["ground"]) & (cls_a != UNLABELLED)]
+        objs = ka[(ca >= MIN_PRESENCE_POINTS) & (cls_a != GROUND) & (cls_a != UNLABELLED)]
         objs = objs[(objs & 0xFFFF) > 0]
         objs = np.intersect1d(objs, kb[cb >= MIN_PRESENCE_POINTS])
         acc.rec_hit.append(np.isin(objs, _linked_objects(a, b, tids)))
@@ -191,11 +193,11 @@ def quality_summary(frames: list[FrameTruth], links: list[tuple[int, int]]) -> d
     objects = []
     for ft in frames:
         cls = ft.key >> 16
-        drop = (cls == CLASS_INDEX["ground"]) | (cls == UNLABELLED)
+        drop = (cls == GROUND) | (cls == UNLABELLED)
         objects.append(FrameTruth(np.where(drop, 0, ft.track).astype(ft.track.dtype), ft.key, ft.inst_key, ft.points))
     res = evaluate_frames(objects, links)
     cover, instances = thing_cover(frames)
-    hits = [res["per_class"][name] for name in ("person", "car", "cyclist") if name in res["per_class"]]
+    hits = [res["per_class"][name] for name in THING_NAMES if name in res["per_class"]]
     presences = sum(b["presences"] for b in hits)
     recalled = sum(b["presences"] * (b["association_recall"] or 0.0) for b in hits)
     return {

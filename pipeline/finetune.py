@@ -153,6 +153,8 @@ def finetune(
         # The paper's "unsupervised" attempt: constraints alone collapse onto one class.
         raise DataError(None, "fine-tuning needs at least one confirmed anchor (constraints alone collapse)")
     cfg = config or TrainingConfig().finetuning()
+    k = meta.model_config.num_classes
+    classes = tuple(meta.classes[:k]) if meta.classes else tuple(SAMPLE_CLASSES[:k])
     result = train(
         data,
         cfg,
@@ -164,9 +166,9 @@ def finetune(
         progress=progress,
         report=report,
         stop=stop,
+        classes=classes,
+        label_set=meta.label_set,
     )
-    k = meta.model_config.num_classes
-    classes = tuple(meta.classes[:k]) if meta.classes else tuple(SAMPLE_CLASSES[:k])
     _, first = np.unique(data.labelled, return_index=True)  # balancing repeats samples
     anchors_per_class = np.bincount(data.labels[first], minlength=k)
     metrics: dict[str, Any] = dict(result.metrics)
@@ -176,7 +178,7 @@ def finetune(
     metrics["pairs"] = int(len(data.pairs))
     metrics["pairs_weighted"] = bool(np.any(data.pair_weights != 1.0))
     if val is not None and len(val):
-        metrics["val"] = evaluate(result.model, val, cfg.eval_batch).to_dict()
+        metrics["val"] = evaluate(result.model, val, cfg.eval_batch, classes).to_dict()
     ckpt = None
     if checkpoint_dir is not None and result.selected_epoch >= 0:
         ckpt = save_checkpoint(

@@ -150,8 +150,9 @@ def point_iou(
 ) -> IoUReport:
     """IoU per point class of predicted frames against labelled frames.
 
-    Each frame is an (N_f,) array of our point class ids (0..7, 255 = unlabelled). Points whose
-    truth is 255 are ignored; a labelled point predicted 255 is a miss of its true class.
+    Each frame is an (N_f,) array of class indices of one label set (the default set's by default;
+    255 = unlabelled). Points whose truth is 255 are ignored; a labelled point predicted 255 is a
+    miss of its true class.
     IoU_k = TP / (TP + FP + FN).
     """
     if len(pred_frames) != len(truth_frames):

@@ -239,7 +239,8 @@ def run_predict(
     o = options
     # 1. the model, the config its samples need, the sequence and the output folder
     clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, o.device)
-    check_predict_label_set(clf.meta, load_label_set(o.label_set), clf.path)
+    label_set = load_label_set(o.label_set)
+    check_predict_label_set(clf.meta, label_set, clf.path)
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, o.size)
     out = Path(out)
     opened = open_sequence(seq, o.fmt, o.sensor if o.sensor != "auto" else config.sensor.name, o.poses, progress)
@@ -255,7 +256,7 @@ def run_predict(
         log(f"skipped frame {opened.source.frame_name(i)}: {err}")
 
     # 2. classify the frames' samples a few frames at a time and write their files
-    writer = PredictionWriter(clf, out, o.smooth_tracks, o.evaluate)
+    writer = PredictionWriter(clf, out, o.smooth_tracks, o.evaluate, label_set)
     check = InputCheck(clf, opened.sensor.intensity_quantiles, log)
     pending: list[FrameResult] = []
     t0 = time.perf_counter()

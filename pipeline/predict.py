@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.classes import GROUND, UNLABELLED
+from pipeline.classes import GROUND, NUM_SAMPLE_CLASSES, UNLABELLED
 from pipeline.config import PipelineConfig
-from pipeline.errors import ConfigError, DataError
+from pipeline.errors import DataError
 from pipeline.frames import FrameResult
 from pipeline.input_stats import input_warnings
-from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
+from pipeline.label_sets import LabelSet
 from pipeline.model import CheckpointMeta, check_label_set, load_checkpoint, predict
 
 __all__ = ["FramePrediction", "InputCheck", "SegmentClassifier", "TrackSmoother", "check_predict_label_set", "model_sample_config",
@@ -51,13 +51,9 @@ def model_sample_config(config: PipelineConfig, checkpoint_samples: Any, explici
 
 
 def check_predict_label_set(meta: CheckpointMeta, label_set: LabelSet, path: str | Path) -> None:
-    """LabelSetMismatch unless the model was trained on `label_set`; ConfigError for a label set
-    other than the default, whose ids the prediction files (`pipeline.prediction_files`) and the
-    single ground class of `predict_frame_classes` do not speak yet."""
+    """LabelSetMismatch unless the model was trained on `label_set` (its outputs are the set's
+    classes that are not ground)."""
     check_label_set(meta, label_set, path)
-    if not label_set.same_classes(preset(DEFAULT_LABEL_SET)):
-        raise ConfigError(f"predict writes the classes of label set {DEFAULT_LABEL_SET!r} only; "
-                          f"label set {label_set.name!r} is not supported by predict yet")
 
 
 class SegmentClassifier:
@@ -90,7 +86,8 @@ class SegmentClassifier:
 class FramePrediction:
     """Outputs of one frame.
 
-    point_class: (N,) uint8 our class per point (7 = ground, 255 = unlabelled);
+    point_class: (N,) uint8 class index per point in the label set (ground: its ground class,
+        255 = unlabelled);
     confidence: (N,) float32 probability of the point's class, 0 where no sample was classified;
     segment: (V,) int32 local ids of the classified segments; track: (V,) int64 their track ids;
     probs: (V, K) float32 their class probabilities.
@@ -103,8 +100,9 @@ class FramePrediction:
     probs: np.ndarray
 
 
-def predict_frame_classes(fr: FrameResult, probs: np.ndarray) -> FramePrediction:
-    """Spread the (V, K) probabilities of a frame's samples to its points (vectorised)."""
+def predict_frame_classes(fr: FrameResult, probs: np.ndarray, ground_class: int = GROUND) -> FramePrediction:
+    """Spread the (V, K) probabilities of a frame's samples to its points (vectorised); ground
+    points take `ground_class` (the label set's `ground_index`; the default set's ground)."""
     n_seg = len(fr.segments.n_points)
     seg_class = np.full(n_seg + 1, UNLABELLED, np.uint8)  # last slot: point without a segment
     seg_conf = np.zeros(n_seg + 1, np.float32)
@@ -117,7 +115,7 @@ def predict_frame_classes(fr: FrameResult, probs: np.ndarray) -> FramePrediction
     point_class = seg_class[idx]
     confidence = seg_conf[idx]
     ground = np.asarray(fr.ground, bool) & (seg < 0)
-    point_class[ground] = GROUND
+    point_class[ground] = ground_class
     track = np.asarray(fr.segments.track_id, np.int64)[sample_seg] if len(sample_seg) else np.zeros(0, np.int64)
     return FramePrediction(point_class, confidence, sample_seg.astype(np.int32), track, probs)
 
@@ -169,12 +167,14 @@ class TrackSmoother:
         return out
 
 
-def point_accuracy(preds: list[np.ndarray], truths: list[np.ndarray]) -> dict[str, float | None]:
+def point_accuracy(preds: list[np.ndarray], truths: list[np.ndarray],
+                   num_sample_classes: int = NUM_SAMPLE_CLASSES) -> dict[str, float | None]:
     """Share of the labelled points (truth not unlabelled) whose predicted class is their class,
-    and the same over the labelled points that are not ground (the classifier's share)."""
+    and the same over the labelled points that are not ground (the classifier's share): the
+    label set's first `num_sample_classes` classes (default: the default set's)."""
     pred, truth = np.concatenate(preds), np.concatenate(truths)
     labelled = truth != UNLABELLED
-    objects = labelled & (truth != GROUND)
+    objects = labelled & (truth < num_sample_classes)
 
     def share(m: np.ndarray) -> float | None:
         return round(float(np.mean(pred[m] == truth[m])), 4) if m.any() else None

@@ -2,9 +2,10 @@
 
     OUT/labels/NNNNNN.label     uint32 per input point (SemanticKITTI; 0 for rows that are no
                                 point, NaN or no return): low 16 bits the semantic id of
-                                the class (pipeline.classes.SEMANTICKITTI_WRITE_ID), high 16 bits 0.
+                                the class (the id the label set's class writes), high 16 bits 0.
                                 A valid segment's class goes to all its points, ground points get
-                                the ground class (40, road), every other point is unlabelled (0).
+                                the set's first ground class (the default set's: 40, road), every
+                                other point is unlabelled (0).
     OUT/confidence/NNNNNN.conf  float16 per input point: the softmax probability of the segment's class;
                                 0 for ground and unlabelled points (not decided by the classifier).
     OUT/segments/NNNNNN.npz     per classified segment: segment (V,) int32 local id, track (V,)
@@ -25,9 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.classes import UNLABELLED, to_ours, to_semantickitti
+from pipeline.classes import UNLABELLED
 from pipeline.config import PipelineConfig
 from pipeline.frames import FrameResult
+from pipeline.label_sets import LabelSet
 from pipeline.metrics import point_iou
 from pipeline.predict import (
     InputCheck,
@@ -48,8 +50,12 @@ class PredictionWriter:
     """Classifies a few frames' samples in one forward (faster than per frame), writes their
     outputs and keeps the counts and labelled frames for the summary."""
 
-    def __init__(self, clf: SegmentClassifier, out: Path, smooth_tracks: bool, evaluate: bool) -> None:
-        self.clf, self.out = clf, out
+    def __init__(self, clf: SegmentClassifier, out: Path, smooth_tracks: bool, evaluate: bool,
+                 label_set: LabelSet) -> None:
+        self.clf, self.out, self.label_set = clf, out, label_set  # the model's set (check_predict_label_set)
+        self.to_index, self.to_semantickitti = label_set.to_index_table(), label_set.to_semantickitti_table()
+        ground = label_set.ground_index
+        self.ground_class = UNLABELLED if ground is None else ground
         self.smoother = TrackSmoother() if smooth_tracks else None
         self.point_counts = np.zeros(256, np.int64)
         self.segment_counts = np.zeros(clf.model.config.num_classes, np.int64)
@@ -77,9 +83,9 @@ class PredictionWriter:
         batch.clear()
 
     def _write(self, fr: FrameResult, probs: np.ndarray) -> None:
-        pred = predict_frame_classes(fr, probs)
+        pred = predict_frame_classes(fr, probs, self.ground_class)
         out, name = self.out, fr.name
-        fr.scan.to_input(to_semantickitti(pred.point_class).astype(np.uint32)).tofile(out / "labels" / f"{name}.label")
+        fr.scan.to_input(self.to_semantickitti[pred.point_class].astype(np.uint32)).tofile(out / "labels" / f"{name}.label")
         fr.scan.to_input(pred.confidence.astype(np.float16)).tofile(out / "confidence" / f"{name}.conf")
         np.savez(out / "segments" / f"{name}.npz", segment=pred.segment, track=pred.track, probs=probs.astype(np.float16))
         self.point_counts += np.bincount(pred.point_class, minlength=256)
@@ -89,12 +95,12 @@ class PredictionWriter:
             self.unlabelled_frames += 1
         elif self.evaluate:
             self.preds.append(pred.point_class)
-            self.truths.append(to_ours(fr.scan.semantic))
+            self.truths.append(self.to_index[np.asarray(fr.scan.semantic).astype(np.int64) & 0xFFFF])
         self.frames += 1
 
     def counts(self) -> dict[str, Any]:
         names = self.clf.meta.classes
-        point_names = dict(enumerate((*names, "ground")))
+        point_names = dict(enumerate(self.label_set.point_class_names))
         return {
             "segments_classified": {names[i]: int(self.segment_counts[i]) for i in range(len(self.segment_counts))},
             "points": {point_names[i]: int(self.point_counts[i]) for i in point_names}
@@ -128,6 +134,7 @@ def prediction_summary(seq: str | Path, clf: SegmentClassifier, config: Pipeline
     if writer.evaluate:
         summary["frames_scored"] = len(writer.preds)  # the frames that carry labels
     if writer.evaluate and writer.preds:
-        summary["point_iou"] = point_iou(writer.preds, writer.truths).to_dict()
-        summary |= point_accuracy(writer.preds, writer.truths)
+        point_classes = writer.label_set.point_class_names
+        summary["point_iou"] = point_iou(writer.preds, writer.truths, len(point_classes), point_classes).to_dict()
+        summary |= point_accuracy(writer.preds, writer.truths, len(writer.label_set.sample_classes))
     return summary

@@ -27,12 +27,20 @@ from app.crud.datasets import (
     require_ready,
     resolve_registration_path,
     sequence_at_path,
-    sequence_label_set,
     sequence_paths,
     sequence_stats,
 )
 from app.crud.ground_regions import create_region, delete_region, list_regions
 from app.crud.jobs import cancel_job, create_job, get_job, job_runs, list_jobs, queued_count
+from app.crud.label_sets import (
+    check_class,
+    check_class_filter,
+    common_label_set,
+    label_set_of,
+    label_sets_in_use,
+    resolve_label_set,
+    sequence_label_set,
+)
 from app.crud.model_versions import newest_model_path
 from app.crud.review import (
     REVIEW_ACTIONS,
@@ -104,6 +112,12 @@ __all__ = [
     "check_sensor_file",
     "registered_sequence_id",
     "sequence_label_set",
+    "check_class",
+    "check_class_filter",
+    "common_label_set",
+    "label_set_of",
+    "label_sets_in_use",
+    "resolve_label_set",
     "create_dataset",
     "sequence_stats",
     "check_ready",

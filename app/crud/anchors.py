@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud import AuthUser
+from app.crud.label_sets import check_class, sequence_label_set
 from app.models import AnchorEvent, AnchorProposal, Frame, Segment, Track, User, utcnow
 
 ANSWERS = ("confirm", "correct", "reject")
@@ -143,12 +144,12 @@ def answer_anchor(
     anchor_id: int,
     user: AuthUser,
     answer: str,
-    sample_classes: tuple[str, ...],
     label: str | None = None,
 ) -> dict[str, Any]:
     """Confirm (the proposed class), correct (to `label`) or reject a proposal. Commits.
 
-    Unknown proposal -> NotFound; already answered -> Conflict; unknown class -> Invalid. A
+    Unknown proposal -> NotFound; already answered -> Conflict; a class not of the sequence's
+    label set -> Invalid. A
     track-level confirmation labels the track (Conflict when the track was discarded meanwhile
     or its sequence is not ready).
     """
@@ -160,14 +161,14 @@ def answer_anchor(
     if p.status != "proposed":
         who = session.scalar(select(User.name).where(User.id == p.decided_by_id)) if p.decided_by_id else None
         raise Conflict(f"anchor proposal {anchor_id} is already {p.status}" + (f" by {who}" if who else ""))
+    label_set = sequence_label_set(session, p.sequence_id)
+    assert label_set is not None, p.sequence_id  # a proposal cascades away with its sequence
     if answer == "confirm":
         cls = p.proposed_class
-        if cls not in sample_classes:
+        if cls not in label_set.sample_class_names:
             raise NotApplicable(f"proposal {anchor_id} has no valid proposed class ({cls!r}); correct it instead")
     elif answer == "correct":
-        if label not in sample_classes:
-            raise Invalid(f"unknown class {label!r}; valid: {', '.join(sample_classes)}")
-        cls = label
+        cls = check_class("label", label, label_set)
     else:
         cls = None
     track: Track | None = None
@@ -190,7 +191,7 @@ def answer_anchor(
     session.flush()
     if track is not None:
         # commits the proposal, its event and the track's label together
-        crud.apply_action(session, track.id, user, "label", track.version, label=cls, sample_classes=sample_classes)
+        crud.apply_action(session, track.id, user, "label", track.version, label=cls)
     else:
         session.commit()
     return get_anchor(session, anchor_id)

@@ -59,7 +59,6 @@ def decide_audit(
     audit_id: int,
     user: AuthUser,
     label: str | None,
-    sample_classes: tuple[str, ...],
     override_lease: bool = False,
     lease_seconds: float | None = None,
 ) -> Audit:
@@ -81,7 +80,7 @@ def decide_audit(
         return audit
     audit.status, audit.answer_label = "corrected", None if label == DISCARD else label
     action, kw = ("discard", {}) if label == DISCARD else ("label", {"label": label})
-    crud.apply_action(session, track.id, user, action, track.version, sample_classes=sample_classes,
+    crud.apply_action(session, track.id, user, action, track.version,
                       override_lease=override_lease, lease_seconds=lease_seconds, **kw)  # commits both
     return audit
 

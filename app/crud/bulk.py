@@ -15,12 +15,14 @@ from typing import Any
 from sqlalchemy import func, insert, or_, select
 from sqlalchemy.orm import Session
 
-from app.core.errors import Conflict, Invalid, NotFound
+from app.core.errors import Conflict, NotFound
 from app.crud.datasets import require_ready
 from app.crud.ground_regions import region_operations
+from app.crud.label_sets import check_class, sequence_label_set
 from app.crud.review import REVIEW_FIELDS, refresh_labels, review_state, stored_state
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, BulkAction, Job, Track, utcnow
+from pipeline.label_sets import LabelSet
 
 PREVIEW_TRACKS = 20  # the largest candidates a preview lists for the operator to look at
 
@@ -42,16 +44,20 @@ def _candidates(sequence_id: int, class_name: str, min_confidence: float, user: 
     )
 
 
-def _check_class(class_name: str, sample_classes: tuple[str, ...]) -> None:
-    if class_name not in sample_classes:
-        raise Invalid(f"unknown class {class_name!r}; valid: {', '.join(sample_classes)}")
+def _label_set(session: Session, sequence_id: int, class_name: str) -> LabelSet:
+    """The sequence's label set once `class_name` is one of its classes (Invalid otherwise)."""
+    label_set = sequence_label_set(session, sequence_id)
+    if label_set is None:
+        raise NotFound(f"sequence {sequence_id} not found")
+    check_class("class_name", class_name, label_set)
+    return label_set
 
 
-def bulk_preview(session: Session, sequence_id: int, class_name: str, min_confidence: float, user: AuthUser,
-                 sample_classes: tuple[str, ...]) -> dict[str, Any]:
+def bulk_preview(session: Session, sequence_id: int, class_name: str, min_confidence: float,
+                 user: AuthUser) -> dict[str, Any]:
     """What a bulk accept would label now: the number of tracks and points, their confidences
     (min, mean) and the largest tracks' ids, for the operator to look at before accepting."""
-    _check_class(class_name, sample_classes)
+    _label_set(session, sequence_id, class_name)
     require_ready(session, sequence_id, "its tracks can be accepted once it is ready")
     sub = _candidates(sequence_id, class_name, min_confidence, user).subquery()
     n, points, low, mean = session.execute(
@@ -87,11 +93,11 @@ def held_out_precision(session: Session, sequence_id: int, class_name: str, min_
 
 
 def bulk_accept(session: Session, sequence_id: int, user: AuthUser, class_name: str, min_confidence: float,
-                sample_classes: tuple[str, ...], expected_tracks: int | None = None) -> BulkAction:
+                expected_tracks: int | None = None) -> BulkAction:
     """Accept the candidates with `class_name` (see the module docstring). `expected_tracks`: the
     count the operator saw in the preview; a different count now (a retrain changed the
     predictions) is a Conflict and nothing changes. Commits."""
-    _check_class(class_name, sample_classes)
+    label_set = _label_set(session, sequence_id, class_name)
     require_ready(session, sequence_id, "its tracks can be accepted once it is ready")
     tracks = list(session.scalars(_candidates(sequence_id, class_name, min_confidence, user).with_for_update()).all())
     if expected_tracks is not None and expected_tracks != len(tracks):
@@ -117,7 +123,7 @@ def bulk_accept(session: Session, sequence_id: int, user: AuthUser, class_name: 
     session.flush()
     session.execute(insert(AnnotationEvent), events)
     for t in tracks:
-        refresh_labels(session, t, user.id, sample_classes)
+        refresh_labels(session, t, user.id, label_set)
     session.commit()
     return bulk
 
@@ -129,7 +135,7 @@ def _event_row(track: Track, user: AuthUser, action: str, before: dict[str, Any]
             "after": review_state(track), "detail": detail, "reverts_event_id": reverts}
 
 
-def undo_bulk(session: Session, bulk_id: int, user: AuthUser, sample_classes: tuple[str, ...]) -> BulkAction:
+def undo_bulk(session: Session, bulk_id: int, user: AuthUser) -> BulkAction:
     """Undo a whole bulk accept in one action: every track still as the bulk left it goes back
     to its state before (an `undo` event each, naming the bulk); tracks changed since (reviewed,
     undone one by one) keep their newer state. Conflict when already undone. Commits."""
@@ -159,8 +165,10 @@ def undo_bulk(session: Session, bulk_id: int, user: AuthUser, sample_classes: tu
     session.flush()
     if undo_rows:
         session.execute(insert(AnnotationEvent), undo_rows)
+    label_set = sequence_label_set(session, bulk.sequence_id)
+    assert label_set is not None, bulk.sequence_id  # the bulk cascades away with its sequence
     for _ev, track in rows:
-        refresh_labels(session, track, user.id, sample_classes)
+        refresh_labels(session, track, user.id, label_set)
     bulk.undone_at, bulk.undone_by_id = now, user.id
     session.commit()
     return bulk

@@ -85,13 +85,15 @@ def create_dataset(
     config: dict[str, Any] | None,
     user_id: int,
     label_set: str = DEFAULT_LABEL_SET,
+    label_set_definition: dict[str, Any] | None = None,
 ) -> tuple[Dataset, Sequence]:
-    """Register one sequence path (already resolved and checked). Flushes, does not commit."""
+    """Register one sequence path (already resolved and checked) with its label set: a preset's
+    name, or the name of the set `label_set_definition` gives as data. Flushes, does not commit."""
     ds = Dataset(name=name or path.name, path=str(path), created_by_id=user_id)
     session.add(ds)
     session.flush()
     seq = Sequence(dataset_id=ds.id, name=name or path.name, path=str(path), format=fmt, config=config,
-                   label_set=label_set)
+                   label_set=label_set, label_set_definition=label_set_definition)
     session.add(seq)
     session.flush()
     return ds, seq
@@ -174,10 +176,3 @@ def sequence_paths(session: Session) -> list[tuple[int, str]]:
 def ready_sequence_ids(session: Session) -> list[int]:
     """The ids of the ready sequences, in order."""
     return [int(i) for i in session.scalars(select(Sequence.id).where(Sequence.status == "ready").order_by(Sequence.id))]
-
-
-def sequence_label_set(session: Session, sequence_id: int | None) -> str | None:
-    """The label set of a sequence; None for no id or an unknown one."""
-    if sequence_id is None:
-        return None
-    return session.scalar(select(Sequence.label_set).where(Sequence.id == sequence_id))

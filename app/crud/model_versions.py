@@ -318,13 +318,12 @@ def load_training_set(
     Pairs of tracks labelled "unknown" are kept: they join views of one object like any other
     track's (the paper makes none; `tracklabel experiment paper` measured constraint100 better with
     them, its ablation constraint100_no_unknown).
-    classes: the model's class table (default pipeline.classes.SAMPLE_CLASSES); labels outside it
-      are an error.
+    classes: the model's class table (default: the sample classes of the sequences' one label set);
+      labels outside it are an error.
     """
-    from pipeline.classes import SAMPLE_CLASSES
     from pipeline.training import TrainingData
 
-    classes = classes or SAMPLE_CLASSES
+    classes = classes or crud.common_label_set(session, sequence_ids).sample_class_names
     seqs = _ready_sequences(session, sequence_ids)
     lab_seg: list[int] = []
     lab_cls: list[int] = []

@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound, check_version
 from app.crud import leases
 from app.crud.datasets import require_ready
+from app.crud.label_sets import check_class, sequence_label_set
 from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
 from app.crud.users import AuthUser
@@ -25,6 +26,7 @@ from app.schemas.tracks import (
     TruncateAction,
     UndoAction,
 )
+from pipeline.label_sets import LabelSet
 
 REVIEW_FIELDS = ("status", "label", "keep_start", "keep_end", "label_source")
 
@@ -73,7 +75,6 @@ def apply_action(
     action: str,
     version: int,
     *,
-    sample_classes: tuple[str, ...] = (),
     override_lease: bool = False,
     lease_seconds: float | None = None,
     **fields: Any,
@@ -81,13 +82,14 @@ def apply_action(
     """Apply one review action (`REVIEW_ACTIONS`; `fields`: its body's fields, e.g. `label`) if
     `version` is current; write its event; commit.
 
-    Stale version -> Conflict (nothing changes); unknown class or bad range -> Invalid; another
-    user's running lease -> LeaseHeld (409; see app.crud.leases). The caller's own lease is renewed by
-    `lease_seconds`.
+    Stale version -> Conflict (nothing changes); a class not of the sequence's label set or a
+    bad range -> Invalid; another user's running lease -> LeaseHeld (409; see app.crud.leases).
+    The caller's own lease is renewed by `lease_seconds`.
     """
     track = _track_for_review(session, track_id, user, action, version, override_lease, lease_seconds)
     before = review_state(track)
-    after, reverts = _review_after(session, track, user, action, before, fields, sample_classes)
+    label_set = _label_set(session, track)
+    after, reverts = _review_after(session, track, user, action, before, fields, label_set)
     if after["keep_start"] != before["keep_start"] or after["keep_end"] != before["keep_end"]:
         _recount_kept_range(session, track, after["keep_start"], after["keep_end"])
 
@@ -108,9 +110,15 @@ def apply_action(
             "reverts_event_id": None if reverts is None else reverts.id,
         },
     )
-    refresh_labels(session, track, user.id, sample_classes)
+    refresh_labels(session, track, user.id, label_set)
     session.commit()
     return track
+
+
+def _label_set(session: Session, track: Track) -> LabelSet:
+    label_set = sequence_label_set(session, track.sequence_id)
+    assert label_set is not None, track.sequence_id  # a track's sequence exists (foreign key)
+    return label_set
 
 
 def _track_for_review(
@@ -140,7 +148,7 @@ class ReviewStep:
     user: AuthUser
     after: dict[str, Any]
     fields: dict[str, Any]
-    sample_classes: tuple[str, ...]
+    label_set: LabelSet  # the track's sequence's
 
 
 def _accept(step: ReviewStep) -> None:
@@ -154,10 +162,7 @@ def _discard(step: ReviewStep) -> None:
 
 
 def _label(step: ReviewStep) -> None:
-    label = step.fields.get("label")
-    if label not in step.sample_classes:
-        raise Invalid(f"unknown class {label!r}; valid: {', '.join(step.sample_classes)}")
-    step.after["label"] = label
+    step.after["label"] = check_class("label", step.fields.get("label"), step.label_set)
     step.after["status"] = "accepted"  # labelling a track is accepting it with that class
     step.after["label_source"] = "review"
 
@@ -204,7 +209,8 @@ REVIEW_ACTIONS: dict[str, ReviewAction] = {a.name: a for a in (
                  "Discard the track (a wrong association; its constraints are dropped). Stale `version` -> 409.", _discard),
     ReviewAction("truncate", TruncateAction,
                  "Keep frames `start..end` (inclusive) of the track's full range; outside it -> 409.", _truncate),
-    ReviewAction("label", LabelAction, "Give the whole track one class (and accept it); an unknown class -> 422.",
+    ReviewAction("label", LabelAction, "Give the whole track one class of its sequence's label set (and accept "
+                 "it); another class -> 422 naming the valid ones.",
                  _label),
     ReviewAction("undo", UndoAction, None, _undo),
 )}
@@ -212,13 +218,13 @@ REVIEW_ACTIONS: dict[str, ReviewAction] = {a.name: a for a in (
 
 def _review_after(
     session: Session, track: Track, user: AuthUser, action: str, before: dict[str, Any], fields: dict[str, Any],
-    sample_classes: tuple[str, ...],
+    label_set: LabelSet,
 ) -> tuple[dict[str, Any], AnnotationEvent | None]:
     """The review state after `action`, and the event an undo reverts (None for other actions)."""
     declared = REVIEW_ACTIONS.get(action)
     if declared is None:
         raise Invalid(f"unknown action {action!r}")
-    step = ReviewStep(session, track, user, dict(before), fields, sample_classes)
+    step = ReviewStep(session, track, user, dict(before), fields, label_set)
     return step.after, declared.rule(step)
 
 
@@ -283,9 +289,9 @@ _INSERT_LABELS = insert(Label.__table__).from_select(
 )
 
 
-def refresh_labels(session: Session, track: Track, user_id: int, sample_classes: tuple[str, ...]) -> None:
+def refresh_labels(session: Session, track: Track, user_id: int, label_set: LabelSet) -> None:
     """Materialise the labelled samples of a track: its valid segments in the kept range when it is
-    accepted with a class; none otherwise. (Core statements on the session's connection: no
+    accepted with a class (indexed in `label_set`, its sequence's); none otherwise. (Core statements on the session's connection: no
     Label object is loaded in an action's session, so the ORM has nothing to synchronise.)"""
     conn = session.connection()
     conn.execute(_DELETE_LABELS, {"track_id": track.id})
@@ -294,7 +300,7 @@ def refresh_labels(session: Session, track: Track, user_id: int, sample_classes:
     conn.execute(
         _INSERT_LABELS,
         {
-            "track_id": track.id, "class_name": track.label, "class_index": sample_classes.index(track.label),
+            "track_id": track.id, "class_name": track.label, "class_index": label_set.sample_class_names.index(track.label),
             "source": track.label_source or "review",
             "user_id": user_id, "created_at": utcnow(), "keep_start": track.keep_start, "keep_end": track.keep_end,
         },

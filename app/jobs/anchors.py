@@ -18,6 +18,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import ConfigDict, Field
 
+from app import crud
 from app.core.errors import Invalid
 from app.crud.anchors import answered_proposals, proposal_candidates, store_proposals
 from app.crud.model_versions import choose_model, ready_sequence, score_stored_samples
@@ -37,15 +38,20 @@ class ProposeAnchorsParams(JsonModel):
                                  description="None = the newest model, or the shipped default model while none is registered.")
     strategy: Strategy = Field(default="track_diverse", description="See pipeline/anchors.py.")
     per_class: int = Field(default=20, ge=0, le=10_000, description="Proposals per class (tracks for track strategies).")
-    unknown: int = Field(default=100, ge=0, le=10_000, description="Proposals for the unknown class.")
+    unknown: int = Field(default=100, ge=0, le=10_000, description="Proposals for the label set's fallback class "
+                         "(unknown in the default set: what no other class fits).")
     min_track_samples: int = Field(default=3, ge=1, le=10_000, description="Track strategies prefer tracks this long.")
     replace: bool = Field(default=True, description="Delete the sequence's unanswered proposals first.")
     batch: int = Field(default=256, ge=1, le=65_536)
 
 
 def prepare_propose(s: Any, params: ProposeAnchorsParams) -> None:
-    ready_sequence(s, params.sequence_id)
-    choose_model(s, params.model_id)
+    from app.crud.label_sets import label_set_of
+    from app.services.label_sets import require_model_label_set
+
+    seq = ready_sequence(s, params.sequence_id)
+    chosen = choose_model(s, params.model_id)
+    require_model_label_set(chosen.name, chosen.path, label_set_of(seq))
 
 
 def _excluded(rows: list[Any], answered: list[Any], track_level: bool) -> np.ndarray:
@@ -94,6 +100,8 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
 
     with ctx.db.read() as s:
         prepare_propose(s, params)
+        label_set = crud.sequence_label_set(s, params.sequence_id)
+        assert label_set is not None, params.sequence_id  # prepare_propose checked it
         chosen = choose_model(s, params.model_id)
         mv_id, mv_path = chosen.id, chosen.path
         rows = proposal_candidates(s, params.sequence_id)
@@ -118,7 +126,7 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
     probs, feats = scores.probs, scores.features
 
     exclude = _excluded(rows, answered, params.strategy in TRACK_STRATEGIES)
-    counts = class_counts(params.per_class, params.unknown, classes)
+    counts = class_counts(params.per_class, params.unknown, classes, fallback=label_set.fallback)
     out = propose(probs, params.strategy, counts, features=feats, tracks=track_ids, exclude=exclude,
                   min_track_samples=params.min_track_samples)
     level = "track" if params.strategy in TRACK_STRATEGIES else "sample"

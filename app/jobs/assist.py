@@ -70,6 +70,30 @@ def base_model(session: Session, sequence_id: int, model_id: int | None) -> Chos
     return ChosenModel(None, str(default_model_path()))
 
 
+def _checked_base_model(session: Session, sequence_id: int, model_id: int | None) -> ChosenModel:
+    """`base_model`, once it is of the sequence's label set (Invalid naming both otherwise: the
+    head learns the reviews' classes on top of the CNN's)."""
+    from app.services.label_sets import require_model_label_set
+
+    chosen = base_model(session, sequence_id, model_id)
+    label_set = crud.sequence_label_set(session, sequence_id)
+    assert label_set is not None, sequence_id  # ready_sequence checked it
+    require_model_label_set(chosen.name, chosen.path, label_set)
+    return chosen
+
+
+def _has_base_model(session: Session, sequence_id: int) -> bool:
+    """Whether an assist run has a CNN of the sequence's label set without loading one: a model
+    trained on it, or the shipped default model's (trained on the default set)."""
+    from pipeline.label_sets import DEFAULT_LABEL_SET, preset
+
+    label_set = crud.sequence_label_set(session, sequence_id)
+    default = preset(DEFAULT_LABEL_SET)
+    if label_set is not None and label_set.name == default.name and label_set.same_classes(default):
+        return True
+    return newest_model_trained_on(session, sequence_id) is not None
+
+
 def _read(session: Session, sequence_id: int) -> dict[str, Any]:
     """The sequence's samples (frame order), tracks and reviewed labels."""
     seq = ready_sequence(session, sequence_id)
@@ -148,7 +172,7 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     t0 = time.perf_counter()
     with ctx.db.read() as s:
         data = _read(s, params.sequence_id)
-        chosen = base_model(s, params.sequence_id, params.model_id)
+        chosen = _checked_base_model(s, params.sequence_id, params.model_id)
     ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
     features, cnn_classes = _features(ctx, data, chosen, 512)
     classes = (*cnn_classes, NO_OBJECT)
@@ -199,7 +223,8 @@ def schedule(db: Database, settings: Settings) -> list[int]:
     with db.read() as s:
         runs = _runs(s)
         ready = crud.ready_sequence_ids(s)
-        due = {q: a for q in ready if (a := _due(s, q, runs.get(q), settings.assist_every)) is not None}
+        due = {q: a for q in ready
+               if (a := _due(s, q, runs.get(q), settings.assist_every)) is not None and _has_base_model(s, q)}
     if not due:
         return []
     with db.write() as s:
@@ -213,6 +238,7 @@ def schedule(db: Database, settings: Settings) -> list[int]:
 
 def prepare_assist(session: Session, params: AssistParams) -> None:
     ready_sequence(session, params.sequence_id)
+    _checked_base_model(session, params.sequence_id, params.model_id)
 
 
 register(

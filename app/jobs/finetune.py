@@ -50,11 +50,12 @@ def finetune_job_config(params: Any) -> TrainingConfig:
 
 
 def prepare_finetune(s: Any, params: Any) -> None:
+    from app.crud.label_sets import label_set_of
     from app.services.label_sets import require_model_label_set
 
     seq = model_versions.ready_sequence(s, params.sequence_id)
     mv = model_versions.get_model_version(s, params.model_id)
-    require_model_label_set(f"model {mv.id}", mv.path, seq.label_set)
+    require_model_label_set(f"model {mv.id}", mv.path, label_set_of(seq))
 
 
 def _training_data(ctx: JobContext, params: Any, classes: tuple[str, ...]) -> Any:

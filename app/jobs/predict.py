@@ -141,11 +141,12 @@ def run_predict_job(ctx: JobContext, params: PredictParams) -> dict[str, Any]:
 
 
 def prepare_predict(s: Session, params: PredictParams) -> None:
+    from app.crud.label_sets import label_set_of
     from app.services.label_sets import require_model_label_set
 
     chosen = choose_model(s, params.model_id)
     seq = ready_sequence(s, params.sequence_id)
-    require_model_label_set(chosen.name, chosen.path, seq.label_set)
+    require_model_label_set(chosen.name, chosen.path, label_set_of(seq))
 
 
 register(

@@ -29,6 +29,7 @@ from sqlalchemy.orm import Session
 from app.core.errors import Conflict, Invalid
 from app.crud.datasets import get_sequence
 from app.crud.jobs import job_owner, update_running_job
+from app.crud.label_sets import common_label_set
 from app.crud.model_versions import (
     TrainingSet,
     load_training_set,
@@ -43,6 +44,7 @@ from app.jobs.registry import JobType, register
 from app.jobs.training_params import job_training_config, with_training_fields
 from app.schemas import JsonModel
 from pipeline.config import SampleConfig, TrainingConfig
+from pipeline.label_sets import LabelSet
 
 MODEL_SIZES: dict[str, dict[str, int]] = {
     "tiny": {"width": 8, "max_width": 16, "depth": 2},
@@ -89,6 +91,7 @@ class _JobData:
     the optional validation sequences' set and the user who queued the job."""
 
     ts: TrainingSet
+    label_set: LabelSet  # the sequences' one set: the model's outputs are its sample classes
     samples_cfg: SampleConfig
     val_set: TrainingSet | None
     user_id: int | None
@@ -105,6 +108,7 @@ def _read(ctx: JobContext, params: Any) -> _JobData:
         ts = load_training_set(
             s, ctx.artifacts, params.sequence_ids, params.constraints, params.min_score, progress=reading
         )
+        label_set = common_label_set(s, [*params.sequence_ids, *params.val_sequence_ids])
         seq = get_sequence(s, params.sequence_ids[0])  # load_training_set checked it
         samples_cfg = sample_config_for(ctx.settings, seq)
         val_set = load_training_set(s, ctx.artifacts, params.val_sequence_ids, "none") if params.val_sequence_ids else None
@@ -117,7 +121,7 @@ def _read(ctx: JobContext, params: Any) -> _JobData:
         samples_cfg = samples_cfg.model_copy(update={"size": int(shape[1]), "foreground_channel": shape[0] == 4})
     if len(ts.data.labelled) == 0:
         raise Invalid(f"sequences {params.sequence_ids} hold no verified labels: review some tracks first")
-    return _JobData(ts, samples_cfg, val_set, user_id)
+    return _JobData(ts, label_set, samples_cfg, val_set, user_id)
 
 
 def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray, np.ndarray]:
@@ -149,17 +153,16 @@ def _split(job: _JobData, params: Any) -> tuple[Any, Any, np.ndarray, np.ndarray
     return train_data, val, train_sel, pair_sel
 
 
-def _counts(job: _JobData, train_sel: np.ndarray, pair_sel: np.ndarray, val: Any, num_classes: int) -> dict[str, Any]:
-    from pipeline.classes import SAMPLE_CLASSES
-
+def _counts(job: _JobData, train_sel: np.ndarray, pair_sel: np.ndarray, val: Any) -> dict[str, Any]:
+    classes = job.label_set.sample_class_names
     data = job.ts.data
-    binc = np.bincount(data.labels[train_sel], minlength=num_classes)
+    binc = np.bincount(data.labels[train_sel], minlength=len(classes))
     return {
         "labelled_train": int(len(train_sel)),
         "labelled_val": 0 if val is None else len(val),
         "pairs": int(pair_sel.sum()),
         "pairs_verified": int(job.ts.pair_verified[pair_sel].sum()),
-        "labels_per_class": {SAMPLE_CLASSES[i]: int(binc[i]) for i in range(num_classes)},
+        "labels_per_class": {name: int(binc[i]) for i, name in enumerate(classes)},
     }
 
 
@@ -194,14 +197,15 @@ def run_train(ctx: JobContext, params: Any) -> dict[str, Any]:
             return {"model_id": done.id, "path": done.path, "metrics": _summary(done.metrics or {})}
     job = _read(ctx, params)
     train_data, val, train_sel, pair_sel = _split(job, params)
-    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size])
+    classes = job.label_set.sample_class_names
+    model_cfg = ModelConfig(**MODEL_SIZES[params.model_size], num_classes=len(classes))
     cfg = train_config(params)
-    counts = _counts(job, train_sel, pair_sel, val, model_cfg.num_classes)
+    counts = _counts(job, train_sel, pair_sel, val)
     out = model_dir(ctx.settings, "train", ctx.job_id)
     ctx.progress(0.05, f"training on {counts['labelled_train']} labels and {counts['pairs']} pairs")
     result = train(
         train_data, cfg, model_cfg, job.samples_cfg, val=val, checkpoint_dir=out, report=_reporter(ctx, counts),
-        stop=lambda: ctx.cancelled.is_set() or ctx.lease_lost.is_set(),
+        stop=lambda: ctx.cancelled.is_set() or ctx.lease_lost.is_set(), classes=classes, label_set=job.label_set.name,
     )
     if result.cancelled:
         shutil.rmtree(out, ignore_errors=True)
@@ -240,6 +244,7 @@ def _summary(metrics: dict[str, Any]) -> dict[str, Any]:
 def prepare_train(s: Session, params: Any) -> None:
     for sid in (*params.sequence_ids, *params.val_sequence_ids):
         ready_sequence(s, sid)
+    common_label_set(s, [*params.sequence_ids, *params.val_sequence_ids])
 
 
 register(

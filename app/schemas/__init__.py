@@ -29,6 +29,8 @@ from app.schemas.datasets import (
     FramePublic,
     IngestPoses,
     IngestRequest,
+    LabelClassPublic,
+    LabelSetPublic,
     SequencePublic,
     SequenceStats,
 )
@@ -168,6 +170,8 @@ __all__ = [
     "RevokeResult",
     "Role",
     "SegmentPublic",
+    "LabelClassPublic",
+    "LabelSetPublic",
     "SequencePublic",
     "SequenceStats",
     "SequenceStatus",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -13,9 +13,10 @@ from app.schemas.base import (
     _Public,
     _Request,
 )
-from pipeline.label_sets import DEFAULT_LABEL_SET
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet
 
 # ----------------------------------------------------------------------------- datasets
+LabelSetName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$")]
 IngestPoses = Literal["file", "icp"]
 POSES_HELP = "Poses for ingest: file (the sequence's own; none links no tracks) or icp (estimated by KISS-ICP)."
 
@@ -35,9 +36,10 @@ class DatasetCreate(DatasetBase):
     reregister: bool = Field(
         default=False, description="Register the folder again although a sequence of it exists (else 409)."
     )
-    label_set: str = Field(
-        default=DEFAULT_LABEL_SET, min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$",
-        description="The preset label set of its classes (`tracklabel labelset list`); unknown: 422.",
+    label_set: LabelSetName | dict[str, Any] = Field(
+        default=DEFAULT_LABEL_SET,
+        description="Its classes: a preset's name (`tracklabel labelset list`; unknown: 422), or a label set "
+                    "as data, the fields of a label set file (docs/label_sets.md; not valid: 422 naming the field).",
     )
 
 
@@ -63,9 +65,43 @@ class SequencePublic(_Public):
     sensor: dict[str, Any] | None
     status: SequenceStatus
     n_frames: int
-    label_set: str = Field(description="The label set its classes come from (a preset).")
+    label_set: str = Field(description="The name of the label set its classes come from (a preset, or the set "
+                                       "given at registration): GET /sequences/{id}/label-set gives its classes.")
     ingest_job_id: int | None
     created_at: UtcDateTime
+
+
+class LabelClassPublic(BaseModel):
+    index: int = Field(description="The class index: the model's output index for a class that is not ground.")
+    name: str
+    colour: tuple[int, int, int] = Field(description="RGB, 0-255 each.")
+    key: str | None = Field(description="Its hotkey in the annotator (None: none).")
+    reads: list[int] = Field(description="The SemanticKITTI ids read as this class.")
+    writes: int = Field(description="The SemanticKITTI id written for it.")
+    moving: int | None = Field(description="The SemanticKITTI id written for its moving variant.")
+    kind: Literal["thing", "stuff"]
+    ground: bool
+
+
+class LabelSetPublic(BaseModel):
+    """A sequence's label set (pipeline/label_sets): its classes in index order, those that are not
+    ground (a track's classes, the model's outputs) first."""
+
+    name: str
+    description: str
+    classes: list[LabelClassPublic]
+    sample_classes: list[str] = Field(description="The classes a track can take (not ground), in index order.")
+    ground_classes: list[str]
+    unlabelled_ids: list[int]
+    fallback: str | None
+
+    @classmethod
+    def of(cls, label_set: LabelSet) -> LabelSetPublic:
+        classes = [LabelClassPublic(index=i, **c.model_dump()) for i, c in enumerate(label_set.point_classes)]
+        return cls(name=label_set.name, description=label_set.description, classes=classes,
+                   sample_classes=list(label_set.sample_class_names),
+                   ground_classes=[c.name for c in label_set.ground_classes],
+                   unlabelled_ids=list(label_set.unlabelled_ids), fallback=label_set.fallback)
 
 
 class DatasetPublic(_Public):

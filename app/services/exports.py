@@ -240,9 +240,7 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sourc
     then `summary.json`: the points per label source and class, confidence histograms, and why
     points stayed unlabelled (app/services/point_labels.py). `with_sources` adds
     `sources/<frame>.source`: one uint8 per row, the index of its source in `summary.sources`."""
-    from pipeline.label_sets import preset
-
-    to_semantickitti = preset(plan.label_set).to_semantickitti_table()
+    to_semantickitti = plan.label_set.to_semantickitti_table()
     instances, chunk_map = _instances(plan)
     summary = LabelSummary()
     sink = _Sink()
@@ -260,6 +258,6 @@ def semantickitti_tar(plan: PointLabelPlan, artifacts: ArtifactStore, with_sourc
         yield sink.drain()
     if chunk_map is not None:
         _add(tar, f"{prefix}/chunk_map.json", json.dumps({"chunks": chunk_map}, indent=1).encode())
-    _add(tar, f"{prefix}/summary.json", json.dumps(summary.to_dict(plan.options), indent=1).encode())
+    _add(tar, f"{prefix}/summary.json", json.dumps(summary.to_dict(plan.options, plan.label_set), indent=1).encode())
     tar.close()
     yield sink.drain()

@@ -15,12 +15,12 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from app import crud
 from app.artifacts import ArtifactStore
 from app.crud.ground_regions import list_regions
 from app.models import Frame, Sequence, Track
 from pipeline.assist import NO_OBJECT
-from pipeline.classes import GROUND, POINT_CLASSES
-from pipeline.label_sets import DEFAULT_LABEL_SET, preset
+from pipeline.label_sets import DEFAULT_LABEL_SET, UNLABELLED, LabelSet, preset
 from pipeline.propagation import (
     SOURCE,
     SOURCES,
@@ -74,8 +74,13 @@ class PointLabelPlan:
     predicted: list[TrackRow]
     options: ExportOptions
     no_object: list[TrackRow] = field(default_factory=list)  # discarded, or predicted to be no object
-    label_set: str = DEFAULT_LABEL_SET  # the sequence's: the SemanticKITTI ids its classes are written as
+    # the sequence's: its class indices, and the SemanticKITTI ids they are written as
+    label_set: LabelSet = field(default_factory=lambda: preset(DEFAULT_LABEL_SET))
     regions: tuple[GroundRegion, ...] = ()  # the operators' ground regions, oldest first
+
+    @property
+    def ground_class(self) -> int | None:
+        return self.label_set.ground_index
 
 
 def _pose(pose: list[float] | None) -> np.ndarray | None:
@@ -91,7 +96,9 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
     frames = [(int(i), str(n), str(a), _pose(p)) for i, n, a, p in session.execute(
         select(Frame.index, Frame.name, Frame.artifact, Frame.pose).where(Frame.sequence_id == sequence.id)
         .order_by(Frame.index)).all()]
-    index = {name: i for i, name in enumerate(POINT_CLASSES)}
+    label_set = crud.label_set_of(sequence)
+    index = {name: i for i, name in enumerate(label_set.point_class_names)}
+    ground = label_set.ground_index
     rows = session.execute(
         select(Track.id, Track.key, Track.status, Track.label, Track.label_source, Track.predicted_class,
                Track.predicted_confidence, Track.keep_start, Track.keep_end)
@@ -105,19 +112,14 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
             conf = float(r.predicted_confidence or 1.0) if source == SOURCE["bulk"] else 1.0
             decided.append(TrackRow(int(r.id), int(r.key), index[r.label], source, conf, int(r.keep_start), int(r.keep_end)))
         elif r.status == "discarded" or r.predicted_class == NO_OBJECT:
-            no_object.append(TrackRow(int(r.id), int(r.key), GROUND, SOURCE["ground"], 1.0, int(r.keep_start), int(r.keep_end)))
+            no_object.append(TrackRow(int(r.id), int(r.key), UNLABELLED if ground is None else ground, SOURCE["ground"],
+                                      1.0, int(r.keep_start), int(r.keep_end)))
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, sequence.label_set,
-                          ground_regions(session, sequence))
-
-
-def ground_regions(session: Session, sequence: Sequence) -> tuple[GroundRegion, ...]:
-    """The sequence's ground regions as the propagation reads them (class indices of its label set)."""
-    label_set = preset(sequence.label_set)
-    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name))
-                 for r in list_regions(session, sequence.id))
+    regions = tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name))
+                    for r in list_regions(session, sequence.id))
+    return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, label_set, regions)
 
 
 def _in_frame(rows: list[TrackRow], index: int) -> TrackClasses:
@@ -170,7 +172,7 @@ def iter_frame_labels(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterato
     """Each frame's labels in frame order (`pipeline.propagation.resolve_frame`)."""
     opts = plan.options
     clouds = _DecidedClouds(plan, artifacts)
-    ground_class = GROUND if opts.include_ground else None
+    ground_class = plan.ground_class if opts.include_ground else None
     for pos, (index, name, art, pose) in enumerate(plan.frames):
         a = artifacts.read_arrays(art, ("points", "track", "ground", "input_rows"))
         track = np.asarray(a["track"], np.int64)
@@ -209,8 +211,8 @@ class LabelSummary:
             self.no_point += int(len(fl.input_rows) - len(lab.class_))
         self.frames += 1
 
-    def to_dict(self, options: ExportOptions) -> dict[str, Any]:
-        names = dict(enumerate(POINT_CLASSES))
+    def to_dict(self, options: ExportOptions, label_set: LabelSet) -> dict[str, Any]:
+        names = dict(enumerate(label_set.point_class_names))
         by_source = {s: int(self.by_source_class[i].sum()) for i, s in enumerate(SOURCES) if s != "none"}
         per_class = {s: {names[c]: int(n) for c, n in enumerate(self.by_source_class[i]) if n and c in names}
                      for i, s in enumerate(SOURCES) if s != "none"}

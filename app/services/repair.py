@@ -100,13 +100,11 @@ def undo(session: Session, track_id: int, guard: Guard, version: int, override_l
     """Revert the caller's last not-yet-undone action on the track: a split or merge here, any
     other action through `crud.apply_action`. Nothing to undo -> Conflict. Commits. (No file is
     written: undo points the frames back at the files they had.)"""
-    from pipeline.classes import SAMPLE_CLASSES
-
     if session.get(Track, track_id) is None:
         raise NotFound(f"track {track_id} not found")
     ev = crud.last_undoable_event(session, track_id, guard.user.id)
     if ev is None or ev.action not in GEOMETRY_ACTIONS:
-        return crud.apply_action(session, track_id, guard.user, "undo", version, sample_classes=SAMPLE_CLASSES,
+        return crud.apply_action(session, track_id, guard.user, "undo", version,
                                  override_lease=override_lease, lease_seconds=getattr(guard, "lease_seconds", None))
     if ev.action == "split":
         return _undo_split(session, track_id, ev, guard, version)

@@ -215,11 +215,11 @@ def restore_frames(session: Session, frames: list[dict[str, Any]]) -> None:
 
 
 def refresh_labels(session: Session, user: AuthUser, *tracks: Track) -> None:
-    from pipeline.classes import SAMPLE_CLASSES
-
     session.flush()
     for t in tracks:
-        crud.refresh_labels(session, t, user.id, SAMPLE_CLASSES)
+        label_set = crud.sequence_label_set(session, t.sequence_id)
+        assert label_set is not None, t.sequence_id  # a track's sequence exists (foreign key)
+        crud.refresh_labels(session, t, user.id, label_set)
 
 
 def update_by_id(session: Session, table: Any, rows: list[dict[str, Any]]) -> None:

@@ -113,6 +113,13 @@ class LabelSet(BaseModel):
     def sample_class_names(self) -> tuple[str, ...]:
         return tuple(c.name for c in self.sample_classes)
 
+    @property
+    def ground_index(self) -> int | None:
+        """The class index of ground points, until ground is labelled by region: the set's first
+        ground class (a set with several labels all ground as it); None when it has none."""
+        ground = self.ground_classes
+        return None if not ground else len(self.sample_classes)
+
     def index(self, name: str) -> int:
         """Index of a class by name; KeyError naming the valid classes."""
         names = self.point_class_names

@@ -18,6 +18,7 @@ from pipeline.classes import SAMPLE_CLASSES
 from pipeline.config import ModelConfig, SampleConfig, TrainingConfig
 from pipeline.errors import ConfigError, DataError
 from pipeline.input_stats import canvas_stats
+from pipeline.label_sets import DEFAULT_LABEL_SET
 from pipeline.metrics import ClassificationReport, classification_report
 from pipeline.model import (
     NetConfig,
@@ -91,11 +92,23 @@ class TrainResult:
         return np.array([r.val_f for r in self.history])
 
 
-def evaluate(model: SampleCNN, data: LabelledSamples, batch: int = 256) -> ClassificationReport:
-    """Per-class precision/recall/F of the model's arg-max on labelled samples."""
+def evaluate(model: SampleCNN, data: LabelledSamples, batch: int = 256,
+             classes: tuple[str, ...] | None = None) -> ClassificationReport:
+    """Per-class precision/recall/F of the model's arg-max on labelled samples; `classes`: the names
+    of its outputs (None: the default label set's)."""
     pred = predict(model, data.samples, batch).argmax(axis=1)
     k = model.config.num_classes
-    return classification_report(data.labels, pred, k, tuple(SAMPLE_CLASSES[:k]))
+    return classification_report(data.labels, pred, k, _class_names(classes, k))
+
+
+def _class_names(classes: tuple[str, ...] | None, k: int) -> tuple[str, ...]:
+    """The names of a model's `k` outputs: `classes` (ConfigError unless there are `k`), or the
+    default label set's (pipeline.classes) when None."""
+    if classes is None:
+        return tuple(SAMPLE_CLASSES[:k])
+    if len(classes) != k:
+        raise ConfigError(f"model.num_classes is {k} but the label set has {len(classes)} classes ({', '.join(classes)})")
+    return tuple(classes)
 
 
 def learning_rate(config: TrainingConfig, step: int, total_steps: int) -> float:
@@ -130,6 +143,8 @@ def train(
     progress: Progress = QUIET,
     report: Callable[[TrainProgress], None] | None = None,
     stop: Callable[[], bool] | None = None,
+    classes: tuple[str, ...] | None = None,
+    label_set: str = DEFAULT_LABEL_SET,
 ) -> TrainResult:
     """Train the CNN on labels + constraints; return the model chosen by the paper's rule.
 
@@ -140,8 +155,11 @@ def train(
         every few steps and after each epoch (the jobs write it into their row).
     stop: polled every step; returning True ends training early (`cancelled=True`), keeping the
         best epoch so far.
+    classes, label_set: the names of the model's outputs and the label set they come from, written
+        into the checkpoints (None: the default set's); as many as `model_config.num_classes`.
     config.threads > 0 sets torch's CPU threads for the run (restored afterwards).
     """
+    names = _class_names(classes, model_config.num_classes)
     num_l, num_p = len(data.labelled), len(data.pairs)
     if num_l == 0 and num_p == 0:
         raise DataError(None, "training data holds neither labels nor pairs")
@@ -167,7 +185,7 @@ def train(
         torch.set_num_threads(config.threads)
     try:
         return _train(data, config, model_config, sample_config, val, checkpoint_dir, init_model, progress, report, stop,
-                      annotations)
+                      annotations, (names, label_set))
     finally:
         torch.set_num_threads(threads_before)
 
@@ -266,8 +284,10 @@ def _train(
     progress: Progress,
     report: Callable[[TrainProgress], None] | None,
     stop: Callable[[], bool] | None,
-    annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    annotations: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    outputs: tuple[tuple[str, ...], str],  # (class names, label set name)
 ) -> TrainResult:
+    classes, label_set = outputs
     seed_everything(config.seed)
     device = resolve_device(config.device)
     rng = np.random.default_rng(config.seed)
@@ -288,7 +308,7 @@ def _train(
             cancelled = run.cancelled
             if run.done == 0:
                 break
-            val_report = evaluate(model, val, config.eval_batch) if val is not None and len(val) else None
+            val_report = evaluate(model, val, config.eval_batch, classes) if val is not None and len(val) else None
             val_f = val_report.mean_f if val_report is not None else float("nan")
             seconds = time.perf_counter() - t0
             rec = EpochRecord(epoch, *map(float, run.sums / run.done), val_f, seconds, run.seen / max(seconds, 1e-9))
@@ -300,13 +320,17 @@ def _train(
                 break
     metrics = {"num_labelled": len(data.labelled), "num_pairs": len(data.pairs), "device": str(device)}
     stats = canvas_stats(data.samples, config.seed)
-    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir, stats)
+    return _finish(model, net, chosen, cancelled, metrics, config, model_config, sample_config, checkpoint_dir, stats,
+                   outputs)
 
 
 def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: bool, metrics: dict[str, Any],
             config: TrainingConfig, model_config: ModelConfig, sample_config: SampleConfig,
-            checkpoint_dir: str | Path | None, stats: dict[str, Any]) -> TrainResult:
-    """Load the selected epoch's weights, gather the metrics, write best.pt / last.pt and plots."""
+            checkpoint_dir: str | Path | None, stats: dict[str, Any],
+            outputs: tuple[tuple[str, ...], str]) -> TrainResult:
+    """Load the selected epoch's weights, gather the metrics, write best.pt / last.pt (naming the
+    outputs' classes and label set) and plots."""
+    classes, label_set = outputs
     history = chosen.history
     selected, how = _select(history, config.loss_threshold)
     last_state = None
@@ -330,12 +354,13 @@ def _finish(model: SampleCNN, net: NetConfig, chosen: _Selection, cancelled: boo
     ckpt = None
     if checkpoint_dir is not None and selected >= 0:
         out = Path(checkpoint_dir)
-        ckpt = save_checkpoint(out / "best.pt", model, model_config, sample_config, metrics, config, input_stats=stats)
+        ckpt = save_checkpoint(out / "best.pt", model, model_config, sample_config, metrics, config, classes,
+                               input_stats=stats, label_set=label_set)
         last = model
         if last_state is not None:
             last = build_model(net)
             last.load_state_dict(last_state)
         save_checkpoint(out / "last.pt", last, model_config, sample_config, {"epoch": len(history) - 1}, config,
-                        input_stats=stats)
+                        classes, input_stats=stats, label_set=label_set)
         write_training_plots(out, history, selected, chosen.report, config.loss_threshold)
     return TrainResult(model, history, selected, how, chosen.report, ckpt, cancelled, metrics, stats)

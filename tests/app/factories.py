@@ -59,11 +59,11 @@ class Factory:
         (folder / "velodyne" / "000000.bin").write_bytes(b"\0" * 16)
         return folder
 
-    def registered_sequence(self, name: str = "seq", admin: Caller | None = None) -> int:
+    def registered_sequence(self, name: str = "seq", admin: Caller | None = None, label_set: str = "paper") -> int:
         folder = self.sequence_folder(name)
         admin = admin or self.user("admin")
         with self.db.write() as s:
-            _, seq = crud.create_dataset(s, folder, name, "kitti", None, admin.id)
+            _, seq = crud.create_dataset(s, folder, name, "kitti", None, admin.id, label_set)
             s.commit()
             return seq.id
 
@@ -73,9 +73,11 @@ class Factory:
             s.commit()
             return job.id
 
-    def ingested_sequence(self, n_frames: int = 6, n_objects: int = 4, name: str = "seq") -> int:
-        """A sequence ingested by the real ingest job over the fake pipeline; returns its id."""
-        seq_id = self.registered_sequence(name)
+    def ingested_sequence(self, n_frames: int = 6, n_objects: int = 4, name: str = "seq",
+                          label_set: str = "paper") -> int:
+        """A sequence (of the preset `label_set`) ingested by the real ingest job over the fake
+        pipeline; returns its id."""
+        seq_id = self.registered_sequence(name, label_set=label_set)
         self.queue_ingest(seq_id)
         with fake_pipeline(n_frames=n_frames, n_objects=n_objects):
             assert Worker(self.settings, db=self.db).run_once()
@@ -108,13 +110,14 @@ def simulated_campus(tmp_path_factory: Any, frames: int, seed: int) -> Path:
     return out
 
 
-def ingest_through_api(client: Any, factory: Factory, settings: Settings, db: Database,
-                       path: Path) -> tuple[dict[str, Any], dict[str, Any], Caller]:
-    """Register `path` (under a second data root) as an admin and run its ingest job with the real
-    pipeline: (the registered sequence, the finished ingest job, the admin)."""
+def ingest_through_api(client: Any, factory: Factory, settings: Settings, db: Database, path: Path,
+                       label_set: str | dict[str, Any] = "paper") -> tuple[dict[str, Any], dict[str, Any], Caller]:
+    """Register `path` (under a second data root) with `label_set` (a preset's name or a label set
+    as data) as an admin and run its ingest job with the real pipeline: (the registered sequence,
+    the finished ingest job, the admin)."""
     settings.data_roots.append(path.parent)
     admin = factory.user("admin")
-    r = client.post("/api/v1/datasets", json={"path": str(path)}, headers=admin.headers)
+    r = client.post("/api/v1/datasets", json={"path": str(path), "label_set": label_set}, headers=admin.headers)
     assert r.status_code == 201, r.text
     seq = r.json()["sequences"][0]
     assert Worker(settings, db=db).run_once()

@@ -84,6 +84,22 @@ def test_default_data_folder_is_per_user_not_per_working_folder(monkeypatch, tmp
     assert default_data_dir() == Path.home() / ".local" / "share" / "tracklabel"
 
 
+def test_label_registers_the_recording_with_its_label_set(recording, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: campus\nclasses:\n  - {name: walker, colour: [1, 2, 300], writes: 30, reads: [30], kind: thing}\n")
+    r = runner.invoke(app, ["label", str(recording), "--data-dir", str(tmp_path / "d"), "--no-serve", "--label-set", str(bad)])
+    assert r.exit_code == 2 and "bad.yaml: field classes.0 (walker).colour.2" in r.output, r.output
+    data = tmp_path / "d2"
+    r = runner.invoke(app, ["label", str(recording), "--data-dir", str(data), "--no-serve", "--label-set", "nuscenes"])
+    assert r.exit_code == 0 and "label set nuscenes" in r.output, r.output
+    token = runner.invoke(app, ["user", "token", "admin"], env={"TRACKLABEL_DATA_DIR": str(data)}).output.strip()
+    with TestClient(create_app(Settings(data_dir=data, embedded_worker=False))) as c:
+        seqs = c.get("/api/v1/sequences", headers={"Authorization": f"Bearer {token}"}).json()
+    assert [s["label_set"] for s in seqs] == ["nuscenes"]
+    again = runner.invoke(app, ["label", str(recording), "--data-dir", str(data), "--no-serve", "--label-set", "paper"])
+    assert again.exit_code == 2 and "was registered with label set 'nuscenes'" in again.output, again.output
+
+
 def test_label_unknown_path_exits_2(tmp_path):
     r = runner.invoke(app, ["label", str(tmp_path / "nope"), "--data-dir", str(tmp_path / "d"), "--no-serve"])
     assert r.exit_code == 2 and "nope" in r.output

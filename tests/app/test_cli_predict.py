@@ -194,6 +194,23 @@ def test_cli_predict_model_of_another_label_set_exits_2(sim, semantickitti_ckpt,
     assert not (tmp_path / "p").exists()
 
 
+def test_cli_predict_writes_the_ids_of_the_models_label_set(sim, semantickitti_ckpt, tmp_path):
+    from pipeline.label_sets import preset
+
+    sk = preset("semantickitti")
+    out = tmp_path / "p"
+    r = runner.invoke(app, ["predict", str(sim), "--model", str(semantickitti_ckpt), "--out", str(out),
+                            "--label-set", "semantickitti", "--device", "cpu"])
+    assert r.exit_code == 0, r.output
+    ids = np.concatenate([np.fromfile(f, np.uint32) & 0xFFFF for f in sorted((out / "labels").glob("*.label"))])
+    assert set(np.unique(ids).tolist()) <= {c.writes for c in sk.classes} | {0}
+    assert sk.ground_classes[0].writes in ids  # ground: the set's first ground class (road)
+    assert not {c.writes for c in sk.ground_classes[1:]} & set(ids.tolist())
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["points"]) == {*sk.point_class_names, "unlabelled"}
+    assert summary["point_iou"]["classes"] == list(sk.point_class_names)
+
+
 def test_cli_predict_label_set_the_model_lacks_exits_2(sim, ckpt, tmp_path):
     r = runner.invoke(app, ["predict", str(sim), "--model", str(ckpt), "--out", str(tmp_path / "p"),
                             "--label-set", "nuscenes"])

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from pipeline.config import ModelConfig, SampleConfig
-from pipeline.errors import ConfigError, LabelSetMismatch
+from pipeline.errors import LabelSetMismatch
 from pipeline.label_sets import preset
 from pipeline.model import check_label_set, get_model, load_checkpoint, save_checkpoint
 from pipeline.predict import check_predict_label_set
@@ -52,9 +52,9 @@ def test_model_label_set_same_name_other_classes_raises(tmp_path):
         check_label_set(meta, renamed, path)
 
 
-def test_model_label_set_predict_refuses_a_set_it_cannot_write_yet(tmp_path):
+def test_model_label_set_predict_takes_a_model_of_any_set_with_that_set(tmp_path):
     path = _checkpoint(tmp_path / "sk.pt", "semantickitti")
     _, meta = load_checkpoint(path)
-    with pytest.raises(ConfigError, match="not supported by predict yet") as exc:
-        check_predict_label_set(meta, preset("semantickitti"), path)
-    assert not isinstance(exc.value, LabelSetMismatch)
+    check_predict_label_set(meta, preset("semantickitti"), path)
+    with pytest.raises(LabelSetMismatch):
+        check_predict_label_set(meta, preset("nuscenes"), path)

@@ -12,6 +12,7 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query
 
+from app import crud
 from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
 from app.crud import anchors
 from app.schemas import (
@@ -24,7 +25,6 @@ from app.schemas import (
     AnchorSummary,
     ClassName,
 )
-from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["anchors"])
 
@@ -52,6 +52,7 @@ def list_anchors(
 ) -> AnchorList:
     """Anchor proposals, class by class and best first within a class, filtered by sequence,
     status (`proposed` = waiting for an answer), level, strategy, proposed class or track."""
+    crud.check_class_filter(session, "proposed_class", proposed_class, sequence_id)
     flt = anchors.AnchorFilter(sequence_id, status, level, strategy, proposed_class, track_id)
     items, total = anchors.list_anchors(session, flt, limit, offset)
     return AnchorList(items=[AnchorPublic(**i) for i in items], total=total, limit=limit, offset=offset)
@@ -83,19 +84,19 @@ def anchor_events(anchor_id: IdPath, _user: CurrentUser, session: SessionDep) ->
 def confirm_anchor(anchor_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Confirm the proposed class. A track-level proposal labels its whole track (as the track
     `label` action does). Already answered -> 409; gone -> 404."""
-    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "confirm", SAMPLE_CLASSES))
+    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "confirm"))
 
 
 @router.post("/anchors/{anchor_id}/correct", responses=ANSWER_RESPONSES)
 def correct_anchor(anchor_id: IdPath, body: AnchorCorrect, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Answer with another class (`label`); unknown class -> 422. A track-level proposal labels its
     whole track with it. Already answered -> 409; gone -> 404."""
-    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "correct", SAMPLE_CLASSES, body.label))
+    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "correct", body.label))
 
 
 @router.post("/anchors/{anchor_id}/reject", responses=ANSWER_RESPONSES)
 def reject_anchor(anchor_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> AnchorPublic:
     """Reject the proposal (not a usable anchor: a wrong segment or association). Already
     answered -> 409; gone -> 404."""
-    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "reject", SAMPLE_CLASSES))
+    return AnchorPublic(**anchors.answer_anchor(session, anchor_id, user, "reject"))
 

@@ -11,7 +11,6 @@ from app.api.deps import AuditorUser, IdPath, LeaseGuardDep, SessionDep, WriteSe
 from app.core.errors import Forbidden
 from app.crud import audits
 from app.schemas import AuditCorrect, AuditPublic, AuditSample, AuditStatus
-from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["audits"])
 
@@ -41,7 +40,7 @@ def list_audits(
 def _decide(audit_id: int, guard: LeaseGuardDep, session: WriteSessionDep, label: str | None) -> AuditPublic:
     if guard.user.role not in ("admin", "reviewer"):
         raise Forbidden("admin or reviewer role required")
-    audit = audits.decide_audit(session, audit_id, guard.user, label, SAMPLE_CLASSES, guard.override, guard.lease_seconds)
+    audit = audits.decide_audit(session, audit_id, guard.user, label, guard.override, guard.lease_seconds)
     return AuditPublic.model_validate(audit)
 
 

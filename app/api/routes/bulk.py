@@ -11,7 +11,6 @@ from fastapi import APIRouter, Query
 from app import crud
 from app.api.deps import CurrentUser, IdPath, SessionDep, WriteSessionDep
 from app.schemas import BulkAcceptAction, BulkActionPublic, BulkPreview, ClassName
-from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["review"])
 
@@ -31,7 +30,7 @@ def preview(
     """What a bulk accept of `class_name` at `min_confidence` would label now: tracks, points,
     confidences and the largest tracks (to look at before accepting)."""
     _sequence(session, sequence_id)
-    return BulkPreview(**crud.bulk_preview(session, sequence_id, class_name, min_confidence, user, SAMPLE_CLASSES))
+    return BulkPreview(**crud.bulk_preview(session, sequence_id, class_name, min_confidence, user))
 
 
 @router.post("/sequences/{sequence_id}/bulk-accept")
@@ -40,7 +39,7 @@ def accept(sequence_id: IdPath, body: BulkAcceptAction, user: CurrentUser, sessi
     (tracks another operator has leased are left out). 409 when none matches, or when
     `expected_tracks` differs from the count now."""
     _sequence(session, sequence_id)
-    bulk = crud.bulk_accept(session, sequence_id, user, body.class_name, body.min_confidence, SAMPLE_CLASSES,
+    bulk = crud.bulk_accept(session, sequence_id, user, body.class_name, body.min_confidence,
                             body.expected_tracks)
     return BulkActionPublic.model_validate(bulk)
 
@@ -56,4 +55,4 @@ def list_bulk(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) -> l
 def undo(bulk_id: IdPath, user: CurrentUser, session: WriteSessionDep) -> BulkActionPublic:
     """Undo a bulk accept: its tracks that nobody changed since go back to pending. 409 when it
     was undone already."""
-    return BulkActionPublic.model_validate(crud.undo_bulk(session, bulk_id, user, SAMPLE_CLASSES))
+    return BulkActionPublic.model_validate(crud.undo_bulk(session, bulk_id, user))

@@ -16,11 +16,12 @@ from app.schemas import (
     DatasetPublic,
     IngestRequest,
     JobPublic,
+    LabelSetPublic,
     SequencePublic,
     SequenceStats,
     SequenceStatus,
 )
-from app.services.label_sets import check_service_label_set
+from app.services.label_sets import registration_label_set
 
 router = APIRouter(tags=["datasets"])
 
@@ -83,8 +84,8 @@ def register_dataset(
         fmt = detect_format(path) if body.format == "auto" else body.format
     except TracklabelError as exc:
         raise Invalid(str(exc)) from exc
-    check_service_label_set(body.label_set)
-    ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id, body.label_set)
+    label_set, definition = registration_label_set(body.label_set)
+    ds, seq = crud.create_dataset(session, path, body.name, fmt, body.config, admin.id, label_set.name, definition)
     if body.ingest:
         _queue_ingest(session, seq.id, False, admin.id, body.poses)
     session.commit()
@@ -125,6 +126,13 @@ def _sequence_public(seq: Sequence, user: AuthUser) -> SequencePublic:
 def read_sequence(sequence_id: IdPath, user: CurrentUser, session: SessionDep) -> SequencePublic:
     """One sequence: format, sensor, ingest status (and its path, for admins)."""
     return _sequence_public(crud.get_sequence(session, sequence_id), user)
+
+
+@router.get("/sequences/{sequence_id}/label-set")
+def read_sequence_label_set(sequence_id: IdPath, _user: CurrentUser, session: SessionDep) -> LabelSetPublic:
+    """The sequence's label set: its classes with their colours, hotkeys and SemanticKITTI ids (what
+    the annotator's class buttons show, and the classes its tracks can take)."""
+    return LabelSetPublic.of(crud.label_set_of(crud.get_sequence(session, sequence_id)))
 
 
 @router.post("/sequences/{sequence_id}/ingest", status_code=status.HTTP_202_ACCEPTED)

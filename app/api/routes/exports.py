@@ -11,7 +11,6 @@ from app.crud import audits
 from app.schemas import ProgressStats
 from app.services import exports
 from app.services.point_labels import ExportOptions, point_label_plan
-from pipeline.label_sets import preset
 from pipeline.propagation import Rules
 
 router = APIRouter(prefix="/exports", tags=["exports"])
@@ -108,6 +107,7 @@ def export_stats(_user: CurrentUser, session: SessionDep, sequence_id: SeqQuery 
     """Progress: tracks by status and reviewed, samples labelled per class, constraint counts, and
     the audits' agreement per operator and per class; for one sequence, its label set and classes."""
     label_set = crud.sequence_label_set(session, sequence_id)
-    classes = [] if label_set is None else list(preset(label_set).sample_class_names)
-    return ProgressStats(**crud.progress_stats(session, sequence_id), label_set=label_set, classes=classes,
+    classes = [] if label_set is None else list(label_set.sample_class_names)
+    return ProgressStats(**crud.progress_stats(session, sequence_id), label_set=None if label_set is None else label_set.name,
+                         classes=classes,
                          audit=audits.audit_stats(session, sequence_id))

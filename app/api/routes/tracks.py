@@ -28,7 +28,6 @@ from app.schemas import (
     TrackPublic,
     TrackStatus,
 )
-from pipeline.classes import SAMPLE_CLASSES
 
 router = APIRouter(tags=["tracks"])
 
@@ -59,6 +58,8 @@ def list_tracks(
 ) -> TrackList:
     """Tracks filtered by id, status, class, length (frames), predicted class and confidence; sorted
     by `sort` (`-` = descending) and paginated."""
+    crud.check_class_filter(session, "label", label, sequence_id)
+    crud.check_class_filter(session, "predicted_class", predicted_class, sequence_id)
     flt = crud.TrackFilter(
         sequence_id, status, label, unlabelled, min_length, max_length, predicted_class, min_confidence, max_confidence,
         ids=None if ids is None else tuple(sorted(set(ids))),
@@ -100,7 +101,7 @@ def track_events(track_id: BigIdPath, _user: CurrentUser, session: SessionDep) -
 
 def _act(session: WriteSessionDep, track_id: int, guard: LeaseGuardDep, action: str, version: int, **kw: object) -> TrackPublic:
     track = crud.apply_action(
-        session, track_id, guard.user, action, version, sample_classes=SAMPLE_CLASSES,
+        session, track_id, guard.user, action, version,
         override_lease=guard.override, lease_seconds=guard.lease_seconds, **kw,  # type: ignore[arg-type]
     )
     return TrackPublic.model_validate(track)

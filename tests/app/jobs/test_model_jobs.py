@@ -179,13 +179,15 @@ def test_train_job_split_by_track_leaves_validation_tracks_pairs_out():
     from app.crud.model_versions import TrainingSet
     from app.jobs.train import TrainParams, _JobData, _split
     from pipeline.config import SampleConfig
+    from pipeline.label_sets import preset
     from pipeline.training import TrainingData
 
     # 8 tracks of 3 samples, each track's samples paired, two classes
     track = np.repeat(np.arange(1, 9), 3)
     pairs = np.array([[3 * t + a, 3 * t + b] for t in range(8) for a, b in ((0, 1), (1, 2))])
     data = TrainingData.build(np.zeros((24, 4, 8, 8), np.uint8), np.arange(24), np.repeat(np.arange(8) % 2, 3), pairs)
-    job = _JobData(TrainingSet(data, np.arange(24), track, np.ones(len(pairs), bool)), SampleConfig(), None, None)
+    job = _JobData(TrainingSet(data, np.arange(24), track, np.ones(len(pairs), bool)), preset("paper"), SampleConfig(),
+                   None, None)
     train_data, val, train_sel, pair_sel = _split(job, TrainParams(sequence_ids=[1], val_fraction=0.5))
     val_tracks = np.setdiff1d(track, track[train_sel])
     assert len(val) == 3 * len(val_tracks) > 0
