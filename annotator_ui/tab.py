@@ -23,6 +23,7 @@ from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
+from annotator_ui.ground_panel import GroundPanel
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
 from annotator_ui.prefetch import prefetch_next
@@ -98,6 +99,10 @@ class ClientTab:
         with tabs.add_tab("Repair", viser.Icon.CUT):
             self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
                                       self.newest_model, self.notify, self.track_points)
+        with tabs.add_tab("Ground", viser.Icon.LASSO_POLYGON):
+            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.scene.ground_view,
+                                      lambda seq: self.sequences.get(seq, {}).get("label_set"), self._recolour)
+        self.scene.paint_ground = self.ground.paint
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api, self.sequence_id)
         with tabs.add_tab("Model", viser.Icon.SPARKLES):
@@ -153,7 +158,8 @@ class ClientTab:
         self.session.sequence_id = int(ready[0]["id"]) if ready else None
         self.review.set_sequences(ready, self.session.sequence_id)
         self._load(lambda: self.session.next())
-        for fn in (self.progress.refresh, self.jobs.refresh_types, self.anchors.refresh, self.bulk.refresh):
+        for fn in (self.progress.refresh, self.jobs.refresh_types, self.anchors.refresh, self.bulk.refresh,
+                   self.ground.refresh):
             self.later(fn)
 
     def later(self, fn: Any) -> None:
@@ -188,6 +194,7 @@ class ClientTab:
             self._load(lambda: self.session.next())
         self.later(self.progress.refresh)
         self.later(self.bulk.refresh)
+        self.later(self.ground.refresh)
 
     # ------------------------------------------------------------------ actions
     def press(self, action: Action) -> None:
@@ -296,6 +303,19 @@ class ClientTab:
         if not self._closed.is_set():
             self._keys.submit(self._follow_service, tracks, frames)
 
+    def regions_changed(self) -> None:
+        """The change feed: the ground regions of the watched sequence changed (any tab, any operator)."""
+        self.later(self.ground.refresh)
+
+    def _recolour(self) -> None:
+        """Redraw the frame shown in key order (the ground regions changed its colours)."""
+        if not self._closed.is_set():
+            self._keys.submit(self._redraw_frame)
+
+    def _redraw_frame(self) -> None:
+        with self._busy:
+            self.render_frame()
+
     def _follow_service(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None:
         with self._busy:
             t, shown = self.session.track, self.scene.sent
@@ -401,6 +421,9 @@ class ClientTab:
 
     # ------------------------------------------------------------------ picking and colours
     def _on_click(self, event: viser.SceneClickEvent) -> None:
+        if self.ground.drawing:  # the lasso takes the clicks while it draws
+            self.ground.clicked(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
+            return
         pts, tracks = self.frame_points, self.frame_tracks
         if pts is None or tracks is None:
             return
@@ -452,9 +475,12 @@ class ClientTab:
             predicted = predicted_info(t)
             if self.review.gui_predicted.content != predicted:  # an unchanged text costs the browser nothing
                 self.review.gui_predicted.content = predicted
+            self.ground.draw()  # the lasso's outlines follow the frame, in the same update
 
         if not self.scene.render(texts, reset_camera=reset_camera):
             return False
+        if self.ground.sequence_id != self.scene.frame_sequence:  # a track of another sequence
+            self.later(self.ground.refresh)
         gen, seg = self.scene.generation, self.session.segment_at(fi)
         self.scene.after_shown(lambda: self.later(lambda: self._load_sample(gen, seg)))
         if reset_camera:
