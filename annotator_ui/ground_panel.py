@@ -58,8 +58,8 @@ class GroundPanel:
                  label_set_of: Callable[[int], str | None], recolour: Callable[[], None]) -> None:
         self.scene, self.api, self.notify, self.view, self.label_set_of, self.recolour = (
             scene, api, notify, view, label_set_of, recolour)
-        gui.add_markdown("Tick **Draw**, click the ground around an area (a lawn, a sidewalk), then "
-                         "**Close & label**: its ground points take the class in every frame.")
+        gui.add_markdown("Tick the Draw box, click the ground around an area (a lawn, a sidewalk), then "
+                         "close and label it: its ground points take the class in every frame.")
         self.gui_class = gui.add_dropdown("Region class", ("ground",), initial_value="ground")
         self.gui_draw = gui.add_checkbox("Draw", initial_value=False, hint="While ticked, a click adds a vertex.")
         self.gui_status = gui.add_markdown("")
