@@ -73,6 +73,8 @@ class GroundPanel:
         self.draft: list[np.ndarray] = []  # (3,) world vertices: they stay put while the frame changes
         self._lock = threading.RLock()
         self._refreshing = threading.Lock()
+        self._drawing = threading.Lock()
+        self._on_canvas: set[str] = set()  # scene nodes this panel drew (a frame step removes only those)
         self.gui_close.on_click(lambda _: self.close_and_label())
         self.gui_clear.on_click(lambda _: self.clear())
         self.gui_undo.on_click(lambda _: self.undo())
@@ -206,7 +208,13 @@ class GroundPanel:
         return paint_regions(colours, to_world_xy(points, view.T_world_lidar), eligible, regions, classes, shade)
 
     def draw(self) -> None:
-        """The draft polygon and the stored outlines, in the frame shown (call after a frame change)."""
+        """The draft polygon and the stored outlines, in the frame shown (call after a frame change,
+        outside the client's atomic updates: draws from the GUI, the feed and the keys take turns,
+        since viser cannot replace one scene node from two threads at once)."""
+        with self._drawing:
+            self._draw()
+
+    def _draw(self) -> None:
         v = self.view()
         with self._lock:
             draft = np.array(self.draft, np.float64).reshape(-1, 3)
@@ -215,10 +223,11 @@ class GroundPanel:
         self._show_status()
         if v is None or not mine:
             for name in ("/ground/draft", "/ground/nodes", "/ground/regions"):
-                self.scene.remove_by_name(name)
+                self._remove(name)
             return
         if len(draft):
             pts = world_to_lidar(draft, v.T_world_lidar)
+            self._on_canvas.update(("/ground/nodes", "/ground/draft"))
             self.scene.add_point_cloud("/ground/nodes", pts, DRAFT, point_size=0.25, point_shape="circle",
                                        point_shading="flat", precision="float32")
             edges = _segments(pts, closed=len(pts) >= 3)
@@ -227,16 +236,21 @@ class GroundPanel:
             if len(edges):
                 self.scene.add_line_segments("/ground/draft", edges, colours, thickness=3.0, thickness_units="screen")
             else:
-                self.scene.remove_by_name("/ground/draft")
+                self._remove("/ground/draft")
         else:
-            self.scene.remove_by_name("/ground/draft")
-            self.scene.remove_by_name("/ground/nodes")
+            self._remove("/ground/draft")
+            self._remove("/ground/nodes")
         self._draw_regions(v, regions, classes)
 
+    def _remove(self, name: str) -> None:
+        if name in self._on_canvas:
+            self._on_canvas.discard(name)
+            self.scene.remove_by_name(name)
+
     def _draw_regions(self, v: GroundView, regions: tuple[StoredRegion, ...], classes: RegionClasses | None) -> None:
-        z = ground_height(v.points, v.ground)
+        z = ground_height(v.points, v.ground) if regions and classes is not None else None
         if not regions or classes is None or z is None:
-            self.scene.remove_by_name("/ground/regions")
+            self._remove("/ground/regions")
             return
         world_z = float((v.T_world_lidar @ np.array([0.0, 0.0, z, 1.0]))[2])  # the frame's ground, in the world
         edges, colours = [], []
@@ -246,5 +260,6 @@ class GroundPanel:
             edges.append(e)
             rgb = classes.colours.get(r.class_name, np.array([128, 128, 128], np.uint8))
             colours.append(np.broadcast_to(rgb, (len(e), 2, 3)))
+        self._on_canvas.add("/ground/regions")
         self.scene.add_line_segments("/ground/regions", np.concatenate(edges), np.concatenate(colours).astype(np.uint8),
                                      thickness=2.0, thickness_units="screen")

@@ -475,10 +475,10 @@ class ClientTab:
             predicted = predicted_info(t)
             if self.review.gui_predicted.content != predicted:  # an unchanged text costs the browser nothing
                 self.review.gui_predicted.content = predicted
-            self.ground.draw()  # the lasso's outlines follow the frame, in the same update
 
         if not self.scene.render(texts, reset_camera=reset_camera):
             return False
+        self.ground.draw()  # the lasso's outlines follow the frame
         if self.ground.sequence_id != self.scene.frame_sequence:  # a track of another sequence
             self.later(self.ground.refresh)
         gen, seg = self.scene.generation, self.session.segment_at(fi)
