@@ -249,21 +249,6 @@ class ApiClient:
     def sequences(self) -> list[dict[str, Any]]:
         return self._json("GET", "/sequences")
 
-    # ------------------------------------------------------------------ ground regions
-    def ground_regions(self, sequence_id: int) -> list[dict[str, Any]]:
-        """GroundRegionPublic of the sequence (id, class_name, polygon [[x, y], ...] world), oldest first."""
-        return self._json("GET", f"/sequences/{sequence_id}/ground-regions")
-
-    def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]]) -> dict[str, Any]:
-        """Label the ground points inside `polygon` (world x, y; 3..1000 vertices) as `class_name` in
-        every frame; 422 (ApiError) for a class outside the sequence's label set or no area."""
-        return self._json("POST", f"/sequences/{sequence_id}/ground-regions",
-                          json={"class_name": class_name, "polygon": polygon})
-
-    def delete_ground_region(self, region_id: int) -> dict[str, Any]:
-        """Undo a ground region (404 when it is gone already)."""
-        return self._json("DELETE", f"/ground-regions/{region_id}")
-
     # ------------------------------------------------------------------ progress and jobs
     def stats(self, sequence_id: int | None = None) -> dict[str, Any]:
         """ProgressStats: tracks_by_status, tracks_reviewed, samples_labelled_per_class, ..."""
@@ -302,3 +287,18 @@ class ApiClient:
 
     def post(self, path: str, body: dict[str, Any] | None = None) -> Any:
         return self._json("POST", path, json=body or {})
+
+    # ------------------------------------------------------------------ ground regions
+    def ground_regions(self, sequence_id: int) -> list[dict[str, Any]]:
+        """GroundRegionPublic of the sequence (id, class_name, polygon [[x, y], ...] world), oldest first."""
+        return self._json("GET", f"/sequences/{sequence_id}/ground-regions")
+
+    def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]]) -> dict[str, Any]:
+        """Label the ground points inside `polygon` (world x, y; 3..1000 vertices) as `class_name` in
+        every frame; 422 (ApiError) for a class outside the sequence's label set or no area."""
+        return self._json("POST", f"/sequences/{sequence_id}/ground-regions",
+                          json={"class_name": class_name, "polygon": polygon})
+
+    def delete_ground_region(self, region_id: int) -> dict[str, Any]:
+        """Undo a ground region (404 when it is gone already)."""
+        return self._json("DELETE", f"/ground-regions/{region_id}")
