@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 import viser
 
-from annotator_ui.client import ApiClient, ApiError
+from annotator_ui.client import ApiClient, ApiError, FramePayload
+from annotator_ui.colours import fade
 from annotator_ui.geometry import polyline_segments, world_to_lidar
 from annotator_ui.ground_regions import (
     GroundView,
@@ -31,6 +32,7 @@ from annotator_ui.ground_regions import (
     StoredRegion,
     click_on_ground,
     ground_height,
+    labelable,
     paint_regions,
     to_world_xy,
 )
@@ -197,15 +199,21 @@ class GroundPanel:
         self.gui_status.content = f"{n} vertices; {hint}." if n or self.drawing else ""
 
     # ------------------------------------------------------------------ the scene
-    def paint(self, colours: np.ndarray, points: np.ndarray, eligible: np.ndarray, view: GroundView,
-              shade: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
-        """(M, 3) colours of (M, 3) lidar points of `view`'s frame with the points the stored
-        regions label (`eligible` (M,) bool: ground_regions.labelable) in their class colours."""
+    def paint(self, colours: np.ndarray, payload: FramePayload, keep: np.ndarray,
+              tracks: dict[int, dict[str, Any]] | None, frame_index: int) -> np.ndarray:
+        """(M, 3) colours of the background cloud (`keep` (M,) indices into the frame shown) with
+        the points the stored regions label (ground_regions.labelable; `tracks`: the frame's
+        TrackPublic by id, None in the track mode) in their class colours, faded like the rest
+        of the background. `colours` itself when none is."""
+        v = self.view()
         with self._lock:
             regions, classes = self.regions, self.classes
-            if self.sequence_id != view.sequence_id or classes is None:
+            if v is None or self.sequence_id != v.sequence_id or classes is None or not regions:
                 return colours
-        return paint_regions(colours, to_world_xy(points, view.T_world_lidar), eligible, regions, classes, shade)
+        assert payload.ground is not None
+        eligible = labelable(payload.ground[keep], payload.track[keep], tracks, frame_index)
+        return paint_regions(colours, to_world_xy(payload.points[keep], v.T_world_lidar), eligible, regions, classes,
+                             lambda c: fade(c, np.zeros(len(c), bool)))
 
     def draw(self) -> None:
         """The draft polygon and the stored outlines, in the frame shown (call after a frame change,

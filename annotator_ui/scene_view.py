@@ -44,7 +44,6 @@ from annotator_ui.cloud_lod import MAX_CLOUD_POINTS, VOXEL_M, CloudMemo, lod
 from annotator_ui.colours import ColourMode, fade, point_colours
 from annotator_ui.frame_cache import FrameCache
 from annotator_ui.geometry import polyline_segments, pose_matrix, world_to_lidar
-from annotator_ui.ground_regions import GroundView, labelable
 from annotator_ui.review import ReviewSession
 from annotator_ui.track_look import OUTLINE, aggregate, box_outline, track_colours
 from annotator_ui.track_views_panel import TrackViewsPanel, frame_cuts
@@ -86,7 +85,7 @@ class SceneView:
         self.frame_ground: np.ndarray | None = None  # (N,) bool ground estimate per point
         self.frame_pose: np.ndarray = np.eye(4)  # T_world_lidar of the frame shown
         self.frame_sequence: int | None = None
-        # the ground lasso's colouring of the background (GroundPanel.paint), None = none
+        # the ground regions' colours over the background (GroundPanel.paint), None = none
         self.paint_ground: Callable[..., np.ndarray] | None = None
         self.shown: Shown | None = None
         self._sent: Shown | None = None
@@ -175,7 +174,8 @@ class SceneView:
             self.frame_points, self.frame_tracks = payload.points, payload.track
             self.frame_ground, self.frame_pose = payload.ground, pose_matrix(frame.get("pose"))
             self.frame_sequence = int(t["sequence_id"])
-            colours = self._paint_regions(payload, keep, colours, info, fi)
+            if self.paint_ground is not None:
+                colours = self.paint_ground(colours, payload, keep, info, fi)
             t_coloured = time.perf_counter()
             self.generation += 1
             with self.client.atomic():
@@ -203,23 +203,6 @@ class SceneView:
         keep = lod(payload.points, self.budget, self.voxel_m)
         colours = point_colours(payload.segment[keep], payload.track[keep], mode, info)
         return keep, fade(colours, np.zeros(len(keep), bool))
-
-    def ground_view(self) -> GroundView | None:
-        """The frame shown, as the ground lasso reads it (None before the first draw)."""
-        if self.frame_points is None or self.frame_ground is None or self.frame_sequence is None:
-            return None
-        return GroundView(self.frame_points, self.frame_ground, self.frame_pose, self.frame_sequence)
-
-    def _paint_regions(self, payload: FramePayload, keep: np.ndarray, colours: np.ndarray,
-                       info: dict[int, dict[str, Any]] | None, frame_index: int) -> np.ndarray:
-        """The background's colours with the ground points that stored regions label in their
-        class colours, faded like the rest of the background (the same array when none is)."""
-        view = self.ground_view()
-        if self.paint_ground is None or view is None or payload.ground is None:
-            return colours
-        eligible = labelable(payload.ground[keep], payload.track[keep], info, frame_index)
-        return self.paint_ground(colours, payload.points[keep], eligible, view,
-                                 lambda c: fade(c, np.zeros(len(c), bool)))
 
     def _draw_cloud(self, frame_id: int, payload: FramePayload, keep: np.ndarray, colours: np.ndarray) -> None:
         """Send the background cloud: whole when the client holds another frame's, else only its

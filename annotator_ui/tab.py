@@ -24,6 +24,7 @@ from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
 from annotator_ui.ground_panel import GroundPanel
+from annotator_ui.ground_regions import GroundView
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
 from annotator_ui.prefetch import prefetch_next
@@ -100,7 +101,7 @@ class ClientTab:
             self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
                                       self.newest_model, self.notify, self.track_points)
         with tabs.add_tab("Ground", viser.Icon.LASSO_POLYGON):
-            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.scene.ground_view,
+            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.ground_view,
                                       lambda seq: self.sequences.get(seq, {}).get("label_set"), self._recolour)
         self.scene.paint_ground = self.ground.paint
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
@@ -130,6 +131,13 @@ class ClientTab:
         """The sequence whose changes this tab follows (the shown track's)."""
         t = self.session.track
         return int(t["sequence_id"]) if t is not None else self.session.sequence_id
+
+    def ground_view(self) -> GroundView | None:
+        """The frame shown, as the ground lasso reads it (None before the first draw)."""
+        s = self.scene
+        if s.frame_points is None or s.frame_ground is None or s.frame_sequence is None:
+            return None
+        return GroundView(s.frame_points, s.frame_ground, s.frame_pose, s.frame_sequence)
 
     @property
     def frame_points(self) -> np.ndarray | None:

@@ -111,7 +111,7 @@ def _click(tab, target: np.ndarray) -> None:
 
 def _ground_patch(tab) -> np.ndarray:
     """(4, 3) lidar corners of a square around the frame's densest ground, on that ground."""
-    view = tab.scene.ground_view()
+    view = tab.ground_view()
     g = view.points[view.ground]
     centre = np.median(g[np.linalg.norm(g[:, :2], axis=1) < 15], axis=0)
     corners = centre[None, :2] + np.array([[-3, -3], [3, -3], [3, 3], [-3, 3]], np.float64)
@@ -119,7 +119,7 @@ def _ground_patch(tab) -> np.ndarray:
 
 
 def _expected_inside(tab, polygon_world: np.ndarray) -> np.ndarray:
-    view, keep = tab.scene.ground_view(), tab.scene._cloud_keep
+    view, keep = tab.ground_view(), tab.scene._cloud_keep
     inside = points_in_polygon(to_world_xy(view.points[keep], view.T_world_lidar), polygon_world)
     return inside & view.ground[keep] & (tab.scene.frame_tracks[keep] == 0)  # the track mode's rule
 
@@ -132,7 +132,7 @@ def test_ground_lasso_draws_labels_colours_and_undoes(tab, live_api):
     panel.gui_draw.value = True
     for c in corners:
         _click(tab, c)
-    T = scene.ground_view().T_world_lidar
+    T = tab.ground_view().T_world_lidar
     want = (np.column_stack([corners, np.ones(4)]) @ T.T)[:, :2]
     assert len(panel.draft) == 4 and np.allclose(np.array(panel.draft)[:, :2], want, atol=0.3)
     tab.headless.wait_for(lambda m: m.type == "LineSegmentsMessage" and m.name == "/ground/draft")
