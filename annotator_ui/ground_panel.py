@@ -48,7 +48,7 @@ def _segments(vertices: np.ndarray, closed: bool) -> np.ndarray:
 
 
 def _keys(regions: tuple[StoredRegion, ...]) -> list[tuple[int, str, bytes]]:
-    """What tells two region lists apart (ids alone do not: SQLite reuses a deleted one's)."""
+    """What tells two region lists apart: ids, and what a region labels with what."""
     return [(r.id, r.class_name, r.polygon.tobytes()) for r in regions]
 
 

@@ -9,8 +9,8 @@ the query, so a change committed just after the query by a transaction that stam
 before is reported by the next poll; the viewer compares versions and ETags, so a repeat is
 harmless. A track a split created and its undo removed is no longer listed: its frames are
 those of the track it was cut from, which is. Every answer also carries a digest of the
-sequence's ground regions (a drawn or undone region changes it; undo deletes the row, so a
-timestamp cannot say so), for the viewer to re-read them and recolour the ground.
+sequence's live ground regions (a drawn or undone region changes it, whenever it happened), for
+the viewer to re-read them and recolour the ground.
 
 Tracks count unevenly (a parked bus and a one-frame bush are one track each), so progress is in
 points: the points of the kept frames of every track, split by the track's state, and among the
@@ -67,14 +67,14 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
 
 
 def regions_digest(session: Session, sequence_id: int) -> str:
-    """A short digest of the sequence's ground regions (ids and creation times: SQLite may give a
-    new region the id of one just deleted, never its time); "" when it has none."""
-    rows = session.execute(select(GroundRegion.id, GroundRegion.created_at)
-                           .where(GroundRegion.sequence_id == sequence_id).order_by(GroundRegion.id)).all()
-    if not rows:
+    """A short digest of the ids of the sequence's live ground regions (an undone one is marked
+    deleted, and so leaves the digest); "" when it has none."""
+    ids = session.scalars(select(GroundRegion.id).where(GroundRegion.sequence_id == sequence_id,
+                                                        GroundRegion.deleted_at.is_(None))
+                          .order_by(GroundRegion.id)).all()
+    if not ids:
         return ""
-    text = ";".join(f"{r.id}@{r.created_at.isoformat()}" for r in rows)
-    return hashlib.sha1(text.encode()).hexdigest()[:16]
+    return hashlib.sha1(",".join(str(i) for i in ids).encode()).hexdigest()[:16]
 
 
 def points_progress(session: Session, sequence_id: int) -> PointsProgress:

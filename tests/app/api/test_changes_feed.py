@@ -101,5 +101,5 @@ def test_changes_feed_regions_digest_changes_when_a_ground_region_is_drawn_or_un
     assert drawn != ""
     assert client.delete(f"/api/v1/ground-regions/{first['id']}", headers=op.headers).status_code == 200
     assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] == ""
-    _post(client, op, f"/sequences/{seq}/ground-regions", square)  # may reuse the deleted id
+    _post(client, op, f"/sequences/{seq}/ground-regions", square)  # the same polygon again: a new region
     assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] not in ("", drawn)
