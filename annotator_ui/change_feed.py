@@ -2,7 +2,8 @@
 change feed (`GET /sequences/{id}/changes`), drops the cached frames a split, merge or undo
 rewrote, and pushes the change to each tab that shows a changed track or a rewritten frame (the
 tab re-reads its track and redraws). A tab's own edit polls at once (`poll_now`), so the tab
-draws the new frames before the poller's next round; other tabs follow within `POLL_S`.
+draws the new frames before the poller's next round; other tabs follow within `POLL_S`. The feed's
+`regions` digest tells the tabs when the sequence's ground regions were drawn or undone.
 """
 
 from __future__ import annotations
@@ -27,10 +28,13 @@ class Watcher(Protocol):
 
     def service_changed(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None: ...
 
+    def regions_changed(self) -> None: ...
+
 
 @dataclass
 class _Cursor:
     since: str | None = None
+    regions: str | None = None  # the digest of the sequence's ground regions last seen
 
 
 class ChangeFeed:
@@ -71,12 +75,21 @@ class ChangeFeed:
                 return
             first = cursor.since is None
             cursor.since = feed["cursor"]
-            if first:
-                return  # the start of the feed: what the tabs read so far is current
-            if feed.get("truncated"):
-                self.cache.drop_all()
-            frames = {int(f["id"]): str(f["etag"]) for f in feed["frames"]}
-            self.cache.invalidate(frames)
+            regions = feed.get("regions", "")
+            # the first answer too: a region drawn before it and after the tab read them is news
+            regions_moved = regions != cursor.regions
+            cursor.regions = regions
+            if not first:  # else the start of the feed: what the tabs read so far is current
+                if feed.get("truncated"):
+                    self.cache.drop_all()
+                self.cache.invalidate({int(f["id"]): str(f["etag"]) for f in feed["frames"]})
+        if regions_moved:
+            for w in watchers:
+                if w is not exclude:
+                    w.regions_changed()
+        if first:
+            return
+        frames = {int(f["id"]): str(f["etag"]) for f in feed["frames"]}
         tracks = {int(t["id"]): t for t in feed["tracks"]}
         if not tracks:
             return

@@ -53,6 +53,7 @@ class FramePayload:
     segment:   (N,) int32, -1 = ground / no segment
     track:     (N,) int64, database track id, 0 = no track
     etag:      the service's version of the frame (a split, merge or undo changes it)
+    ground:    (N,) bool, the ground estimate (what a ground region labels); None = all False
     """
 
     points: np.ndarray
@@ -60,15 +61,21 @@ class FramePayload:
     segment: np.ndarray
     track: np.ndarray
     etag: str = ""
+    ground: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.points)
         assert self.points.shape == (n, 3) and self.points.dtype == np.float32, self.points.shape
         assert self.intensity.shape == (n,) and self.segment.shape == (n,) and self.track.shape == (n,)
+        if self.ground is None:
+            object.__setattr__(self, "ground", np.zeros(n, bool))
+        assert self.ground is not None and self.ground.shape == (n,) and self.ground.dtype == np.bool_
 
     @property
     def nbytes(self) -> int:
-        return int(self.points.nbytes + self.intensity.nbytes + self.segment.nbytes + self.track.nbytes)
+        assert self.ground is not None
+        return int(self.points.nbytes + self.intensity.nbytes + self.segment.nbytes + self.track.nbytes
+                   + self.ground.nbytes)
 
     @classmethod
     def from_npz(cls, body: bytes, etag: str = "") -> FramePayload:
@@ -80,6 +87,7 @@ class FramePayload:
                 intensity=np.ascontiguousarray(z["intensity"], dtype=np.float32),
                 segment=np.ascontiguousarray(z["segment"], dtype=np.int32),
                 track=np.ascontiguousarray(z["track"], dtype=np.int64),
+                ground=np.ascontiguousarray(z["ground"], dtype=bool) if "ground" in z.files else None,
             )
 
 
@@ -230,7 +238,8 @@ class ApiClient:
 
     def changes(self, sequence_id: int, since: str | None = None) -> dict[str, Any]:
         """SequenceChanges: `cursor` (pass back as `since`), changed `tracks` (id, version, status,
-        n_points) and the `frames` (id, index, etag) they have points in."""
+        n_points), the `frames` (id, index, etag) they have points in, and `regions`, a digest of
+        the sequence's ground regions."""
         return self._json("GET", f"/sequences/{sequence_id}/changes", params={} if since is None else {"since": since})
 
     def points_progress(self, sequence_id: int) -> dict[str, Any]:
@@ -282,3 +291,18 @@ class ApiClient:
 
     def post(self, path: str, body: dict[str, Any] | None = None) -> Any:
         return self._json("POST", path, json=body or {})
+
+    # ------------------------------------------------------------------ ground regions
+    def ground_regions(self, sequence_id: int) -> list[dict[str, Any]]:
+        """GroundRegionPublic of the sequence (id, class_name, polygon [[x, y], ...] world), oldest first."""
+        return self._json("GET", f"/sequences/{sequence_id}/ground-regions")
+
+    def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]]) -> dict[str, Any]:
+        """Label the ground points inside `polygon` (world x, y; 3..1000 vertices) as `class_name` in
+        every frame; 422 (ApiError) for a class outside the sequence's label set or no area."""
+        return self._json("POST", f"/sequences/{sequence_id}/ground-regions",
+                          json={"class_name": class_name, "polygon": polygon})
+
+    def delete_ground_region(self, region_id: int) -> dict[str, Any]:
+        """Undo a ground region (404 when it is gone already)."""
+        return self._json("DELETE", f"/ground-regions/{region_id}")

@@ -2,7 +2,8 @@
 its outline, the aggregated cloud, the path over the route, and the camera aimed at the track.
 
 Scene (the current frame's lidar frame, sensor at the origin, z up, points in float32):
-  /frame/points   every point of the frame, coloured by the colour mode, faded around the track
+  /frame/points   every point of the frame, coloured by the colour mode, faded around the track;
+                  the ground points that stored ground regions label in their class colours
   /frame/track    the reviewed track's points in this frame in their real colours (height or
                   intensity; grey outside the kept range)
   /frame/outline  a box around them (the halo that finds the track without hiding its shape)
@@ -83,6 +84,11 @@ class SceneView:
         self.generation = 0  # bumped per frame drawn (a late sample load checks it)
         self.frame_points: np.ndarray | None = None  # (N, 3) float32 points of the frame shown
         self.frame_tracks: np.ndarray | None = None  # (N,) track id per point
+        self.frame_ground: np.ndarray | None = None  # (N,) bool ground estimate per point
+        self.frame_pose: np.ndarray = np.eye(4)  # T_world_lidar of the frame shown
+        self.frame_sequence: int | None = None
+        # the ground regions' colours over the background (GroundPanel.paint), None = none
+        self.paint_ground: Callable[..., np.ndarray] | None = None
         self.shown: Shown | None = None
         self._sent: Shown | None = None
         self._cloud: viser.PointCloudHandle | None = None  # the background cloud on the client
@@ -165,10 +171,14 @@ class SceneView:
                 keep, colours = self.prepare_cloud(int(frame["id"]), payload)
             else:  # other modes follow the reviews
                 keep, colours = self._background(payload, self.colour_mode, info)
-            t_coloured = time.perf_counter()
             # what the canvas shows is known before the client sees it (a click or a cut may
             # arrive as soon as the cloud does)
             self.frame_points, self.frame_tracks = payload.points, payload.track
+            self.frame_ground, self.frame_pose = payload.ground, pose_matrix(frame.get("pose"))
+            self.frame_sequence = int(t["sequence_id"])
+            if self.paint_ground is not None:
+                colours = self.paint_ground(colours, payload, keep, info, fi)
+            t_coloured = time.perf_counter()
             self.generation += 1
             with self.client.atomic():
                 self._draw_cloud(int(frame["id"]), payload, keep, colours)

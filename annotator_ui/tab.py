@@ -23,6 +23,8 @@ from annotator_ui.bulk_panel import BulkPanel
 from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
+from annotator_ui.ground_panel import GroundPanel
+from annotator_ui.ground_regions import GroundView
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
 from annotator_ui.prefetch import prefetch_next
@@ -92,6 +94,9 @@ class ClientTab:
         with tabs.add_tab("Repair", viser.Icon.CUT):
             self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
                                       self.newest_model, self.notify, self.track_points)
+        with tabs.add_tab("Ground", viser.Icon.LASSO_POLYGON):
+            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.ground_view, self._recolour)
+        self.scene.paint_ground = self.ground.paint
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api, self.sequence_id)
         with tabs.add_tab("Model", viser.Icon.SPARKLES):
@@ -153,6 +158,13 @@ class ClientTab:
         t = self.session.track
         return int(t["sequence_id"]) if t is not None else self.session.sequence_id
 
+    def ground_view(self) -> GroundView | None:
+        """The frame shown, as the ground lasso reads it (None before the first draw)."""
+        s = self.scene
+        if s.frame_points is None or s.frame_ground is None or s.frame_sequence is None:
+            return None
+        return GroundView(s.frame_points, s.frame_ground, s.frame_pose, s.frame_sequence)
+
     @property
     def frame_points(self) -> np.ndarray | None:
         return self.scene.frame_points
@@ -180,7 +192,8 @@ class ClientTab:
         self.session.sequence_id = int(ready[0]["id"]) if ready else None
         self.review.set_sequences(ready, self.session.sequence_id)
         self._load(lambda: self.session.next())
-        for fn in (self.progress.refresh, self.jobs.refresh_types, self.anchors.refresh, self.bulk.refresh):
+        for fn in (self.progress.refresh, self.jobs.refresh_types, self.anchors.refresh, self.bulk.refresh,
+                   self.ground.refresh):
             self.later(fn)
 
     def later(self, fn: Any) -> None:
@@ -215,6 +228,7 @@ class ClientTab:
             self._load(lambda: self.session.next())
         self.later(self.progress.refresh)
         self.later(self.bulk.refresh)
+        self.later(self.ground.refresh)
 
     # ------------------------------------------------------------------ actions
     def press(self, action: Action) -> None:
@@ -323,6 +337,19 @@ class ClientTab:
         if not self._closed.is_set():
             self._keys.submit(self._follow_service, tracks, frames)
 
+    def regions_changed(self) -> None:
+        """The change feed: the ground regions of the watched sequence changed (any tab, any operator)."""
+        self.later(self.ground.refresh)
+
+    def _recolour(self) -> None:
+        """Redraw the frame shown in key order (the ground regions changed its colours)."""
+        if not self._closed.is_set():
+            self._keys.submit(self._redraw_frame)
+
+    def _redraw_frame(self) -> None:
+        with self._busy:
+            self.render_frame()
+
     def _follow_service(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None:
         with self._busy:
             t, shown = self.session.track, self.scene.sent
@@ -428,6 +455,9 @@ class ClientTab:
 
     # ------------------------------------------------------------------ picking and colours
     def _on_click(self, event: viser.SceneClickEvent) -> None:
+        if self.ground.drawing:  # the lasso takes the clicks while it draws
+            self.ground.clicked(np.asarray(event.ray_origin), np.asarray(event.ray_direction))
+            return
         pts, tracks = self.frame_points, self.frame_tracks
         if pts is None or tracks is None:
             return
@@ -483,6 +513,9 @@ class ClientTab:
 
         if not self.scene.render(texts, reset_camera=reset_camera):
             return False
+        self.ground.draw()  # the lasso's outlines follow the frame
+        if self.ground.sequence_id != self.scene.frame_sequence:  # a track of another sequence
+            self.later(self.ground.refresh)
         gen, seg = self.scene.generation, self.session.segment_at(fi)
         self.scene.after_shown(lambda: self.later(lambda: self._load_sample(gen, seg)))
         if reset_camera:

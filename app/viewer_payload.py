@@ -4,12 +4,13 @@
     intensity  (N,)   float32  in [0, 1]
     segment    (N,)   int32    local segment id, -1 = ground / none
     track      (N,)   int32    database track id, 0 = none (int64 once ids pass 2**31)
+    ground     (N,)   bool     the ground estimate (the points a ground region can label)
 
 `payload_from_artifact` builds it from a frame artifact (app/artifacts.py) without decoding what it
 does not change: the artifact's stored members (points, intensity) are copied byte for byte with
-the CRC-32 its ZIP directory already holds, segment is inflated (its CRC is in the directory too),
-and only track is narrowed to int32 and checksummed. Every member is written once, straight into
-one buffer, returned as a read-only memoryview that Starlette sends without a copy.
+the CRC-32 its ZIP directory already holds, segment and ground are inflated (their CRCs are in the
+directory too), and only track is narrowed to int32 and checksummed. Every member is written once,
+straight into one buffer, returned as a read-only memoryview that Starlette sends without a copy.
 `frame_payload` builds the same archive from arrays; it is the fallback for an artifact whose
 layout the fast path does not expect.
 """
@@ -26,7 +27,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-PAYLOAD_ARRAYS = ("points", "intensity", "segment", "track")
+PAYLOAD_ARRAYS = ("points", "intensity", "segment", "track", "ground")
 
 # ZIP records (as zipfile's structFileHeader, structCentralDir, structEndArchive)
 _LOCAL = struct.Struct("<4s2B4HL2L2H")

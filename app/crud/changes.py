@@ -8,7 +8,9 @@ rewrites only frames of the tracks it changes). The cursor it gets back lies `OV
 the query, so a change committed just after the query by a transaction that stamped it just
 before is reported by the next poll; the viewer compares versions and ETags, so a repeat is
 harmless. A track a split created and its undo removed is no longer listed: its frames are
-those of the track it was cut from, which is.
+those of the track it was cut from, which is. Every answer also carries a digest of the
+sequence's live ground regions (a drawn or undone region changes it, whenever it happened), for
+the viewer to re-read them and recolour the ground.
 
 Tracks count unevenly (a parked bus and a one-frame bush are one track each), so progress is in
 points: the points of the kept frames of every track, split by the track's state, and among the
@@ -17,6 +19,7 @@ labelled ones by where the class came from (`review` or `bulk`).
 
 from __future__ import annotations
 
+import hashlib
 from datetime import datetime, timedelta
 
 from sqlalchemy import and_, func, select
@@ -24,7 +27,7 @@ from sqlalchemy.orm import Session
 
 from app.artifacts import frame_etag
 from app.core.errors import NotFound
-from app.models import Frame, Segment, Sequence, Track, utcnow
+from app.models import Frame, GroundRegion, Segment, Sequence, Track, utcnow
 from app.schemas.changes import FrameVersion, PointsProgress, SequenceChanges, TrackVersion
 
 OVERLAP = timedelta(seconds=5)
@@ -41,8 +44,9 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
     points in; `since=None` starts a feed (a cursor, nothing changed)."""
     _require_sequence(session, sequence_id)
     cursor = utcnow() - OVERLAP
+    regions = regions_digest(session, sequence_id)
     if since is None:
-        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False)
+        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, regions=regions)
     since = since.replace(tzinfo=None)  # the columns hold naive UTC
     rows = session.execute(
         select(Track.id, Track.version, Track.status, Track.n_points)
@@ -59,7 +63,18 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
             ).order_by(Frame.index)
         ).all()
         frames = [FrameVersion(id=f.id, index=f.index, etag=frame_etag(f.artifact)) for f in frame_rows]
-    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated)
+    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated, regions=regions)
+
+
+def regions_digest(session: Session, sequence_id: int) -> str:
+    """A short digest of the ids of the sequence's live ground regions (an undone one is marked
+    deleted, and so leaves the digest); "" when it has none."""
+    ids = session.scalars(select(GroundRegion.id).where(GroundRegion.sequence_id == sequence_id,
+                                                        GroundRegion.deleted_at.is_(None))
+                          .order_by(GroundRegion.id)).all()
+    if not ids:
+        return ""
+    return hashlib.sha1(",".join(str(i) for i in ids).encode()).hexdigest()[:16]
 
 
 def points_progress(session: Session, sequence_id: int) -> PointsProgress:

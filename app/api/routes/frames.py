@@ -43,8 +43,9 @@ def frame_payload_route(
     if_none_match: Annotated[str | None, Header()] = None,
 ) -> Response:
     """The viewer payload of a frame: an uncompressed `.npz` with `points` (N,3) float32 (lidar
-    frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none) and `track` (N,)
-    int32 (database track id, 0 = none; int64 once ids pass 2**31).
+    frame), `intensity` (N,) float32, `segment` (N,) int32 (-1 = ground/none), `track` (N,)
+    int32 (database track id, 0 = none; int64 once ids pass 2**31) and `ground` (N,) bool (the
+    ground estimate: the points a ground region labels).
     Load with `numpy.load(io.BytesIO(body))`. The `ETag` changes whenever a split, merge or undo
     rewrites the frame (`GET /sequences/{id}/changes` lists the new one); `If-None-Match` with the
     current one answers 304 without a body."""

@@ -88,3 +88,18 @@ def test_points_progress_counts_the_labelled_tracks_points_by_source(client, fac
     assert after["points_labelled_per_source"] == {"review": labelled["n_points"]} == {"review": after["points_labelled"]}
     assert after["points_discarded"] > 0
     assert after["points_in_tracks"] == before["points_in_tracks"]
+
+
+def test_changes_feed_regions_digest_changes_when_a_ground_region_is_drawn_or_undone(client, factory):
+    seq = factory.ingested_sequence(n_frames=2, n_objects=1)
+    op = factory.user()
+    start = _get(client, op, f"/sequences/{seq}/changes").json()
+    assert start["regions"] == ""
+    square = {"class_name": "bush", "polygon": [[0, 0], [5, 0], [5, 5], [0, 5]]}
+    first = _post(client, op, f"/sequences/{seq}/ground-regions", square)
+    drawn = _get(client, op, f"/sequences/{seq}/changes", since=start["cursor"]).json()["regions"]
+    assert drawn != ""
+    assert client.delete(f"/api/v1/ground-regions/{first['id']}", headers=op.headers).status_code == 200
+    assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] == ""
+    _post(client, op, f"/sequences/{seq}/ground-regions", square)  # the same polygon again: a new region
+    assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] not in ("", drawn)

@@ -1,0 +1,272 @@
+"""The Ground tab: the top view's lasso (issue 35). The operator picks a class, ticks *Draw* and
+clicks the ground in the 3D view; each click adds a vertex where the click ray meets the ground
+of the frame shown (annotator_ui.ground_regions.click_on_ground). *Close & label* stores the
+polygon (world x, y) as a ground region of the sequence: the service then gives the ground points
+inside it that class in every frame. *Undo last region* deletes the sequence's newest region.
+
+Scene (the shown frame's lidar frame, like every node of the tab):
+  /ground/draft    the polygon being drawn: its edges (yellow) and the closing edge (grey)
+  /ground/nodes    its vertices
+  /ground/regions  the outlines of the stored regions, in their class colours, at the frame's
+                   ground height
+The stored regions also colour the frame's ground points (SceneView asks `paint`), so what the
+tab shows is what the exports write; the tab re-reads them after each of its edits and when the
+change feed says another tab or operator changed them.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import viser
+
+from annotator_ui.client import ApiClient, ApiError, FramePayload
+from annotator_ui.colours import fade
+from annotator_ui.geometry import polyline_segments, world_to_lidar
+from annotator_ui.ground_regions import (
+    GroundView,
+    RegionClasses,
+    StoredRegion,
+    click_on_ground,
+    ground_height,
+    labelable,
+    paint_regions,
+    to_world_xy,
+)
+
+DRAFT = (255, 215, 0)
+CLOSING = (150, 150, 150)
+MAX_VERTICES = 1000  # the service's limit
+
+
+def _segments(vertices: np.ndarray, closed: bool) -> np.ndarray:
+    """(K, 3) vertices -> (S, 2, 3) edges (the closing edge too when `closed`)."""
+    return polyline_segments(np.concatenate([vertices, vertices[:1]]) if closed else vertices)
+
+
+def _keys(regions: tuple[StoredRegion, ...]) -> list[tuple[int, str, bytes]]:
+    """What tells two region lists apart: ids, and what a region labels with what."""
+    return [(r.id, r.class_name, r.polygon.tobytes()) for r in regions]
+
+
+class GroundPanel:
+    """Draw, store and undo ground regions; colour the ground points they label."""
+
+    def __init__(self, gui: viser.GuiApi, scene: viser.SceneApi, api: ApiClient,
+                 notify: Callable[[str, str, str], None], view: Callable[[], GroundView | None],
+                 recolour: Callable[[], None]) -> None:
+        self.scene, self.api, self.notify, self.view, self.recolour = scene, api, notify, view, recolour
+        gui.add_markdown("Tick the Draw box, click the ground around an area (a lawn, a sidewalk), then "
+                         "close and label it: its ground points take the class in every frame.")
+        self.gui_class = gui.add_dropdown("Region class", ("ground",), initial_value="ground")
+        self.gui_draw = gui.add_checkbox("Draw", initial_value=False, hint="While ticked, a click adds a vertex.")
+        self.gui_status = gui.add_markdown("")
+        self.gui_close = gui.add_button("Close & label", color="green", icon=viser.Icon.LASSO_POLYGON, disabled=True)
+        self.gui_clear = gui.add_button("Clear", icon=viser.Icon.ERASER, disabled=True)
+        self.gui_undo = gui.add_button("Undo last region", icon=viser.Icon.ARROW_BACK_UP, disabled=True)
+        self.gui_regions = gui.add_markdown("")
+        self.sequence_id: int | None = None  # whose regions and classes are loaded
+        self.classes: RegionClasses | None = None
+        self.regions: tuple[StoredRegion, ...] = ()
+        self.draft: list[np.ndarray] = []  # (3,) world vertices: they stay put while the frame changes
+        self._lock = threading.RLock()
+        self._refreshing = threading.Lock()
+        self._drawing = threading.Lock()
+        self._on_canvas: set[str] = set()  # scene nodes this panel drew (a frame step removes only those)
+        self.gui_close.on_click(lambda _: self.close_and_label())
+        self.gui_clear.on_click(lambda _: self.clear())
+        self.gui_undo.on_click(lambda _: self.undo())
+        self.gui_draw.on_update(lambda _: self._show_status())
+
+    @property
+    def drawing(self) -> bool:
+        return bool(self.gui_draw.value)
+
+    # ------------------------------------------------------------------ drawing
+    def clicked(self, ray_origin: np.ndarray, ray_direction: np.ndarray) -> np.ndarray | None:
+        """A click while drawing: the vertex (world) where its ray meets the ground, or None."""
+        v = self.view()
+        if v is None:
+            self.notify("No frame", "Show a frame before drawing on its ground.", "yellow")
+            return None
+        hit = click_on_ground(v.points, v.ground, np.asarray(ray_origin), np.asarray(ray_direction))
+        if hit is None:
+            self.notify("Not on the ground", "The click does not come down on this frame's ground; click lower.", "yellow")
+            return None
+        vertex = (v.T_world_lidar @ np.append(hit, 1.0))[:3]
+        with self._lock:
+            if self.sequence_id != v.sequence_id:
+                self._load(v.sequence_id)
+            if len(self.draft) >= MAX_VERTICES:
+                self.notify("Too many vertices", f"A region has at most {MAX_VERTICES}; close it.", "yellow")
+                return None
+            self.draft.append(vertex)
+        self.draw()
+        return vertex
+
+    def clear(self) -> None:
+        with self._lock:
+            self.draft = []
+        self.draw()
+
+    def close_and_label(self) -> dict[str, Any] | None:
+        """Store the drawn polygon with the chosen class; the region as the service holds it."""
+        with self._lock:
+            seq, polygon = self.sequence_id, [[float(p[0]), float(p[1])] for p in self.draft]
+        if seq is None or len(polygon) < 3:
+            self.notify("Not a polygon yet", "Click at least three points on the ground.", "yellow")
+            return None
+        class_name = str(self.gui_class.value)
+        try:
+            region = self.api.create_ground_region(seq, class_name, polygon)
+        except ApiError as exc:
+            self.notify("Region not stored", exc.detail, "red")
+            return None
+        with self._lock:
+            self.draft = []
+        self.notify("Ground labelled", f"Region #{region['id']}: its ground points are {class_name} in every frame.", "green")
+        self.refresh()
+        return region
+
+    def undo(self) -> dict[str, Any] | None:
+        """Delete the newest region of the sequence (read now: another tab may have added one)."""
+        seq = self.sequence_id
+        if seq is None:
+            return None
+        try:
+            newest = max(self.api.ground_regions(seq), key=lambda r: int(r["id"]), default=None)
+            if newest is None:
+                self.notify("Nothing to undo", "The sequence has no ground region.", "yellow")
+                return None
+            gone = self.api.delete_ground_region(int(newest["id"]))
+        except ApiError as exc:
+            self.notify("Undo refused", exc.detail, "yellow")
+            self.refresh()
+            return None
+        self.notify("Region undone", f"Region #{gone['id']} ({gone['class_name']}) no longer labels the ground.", "blue")
+        self.refresh()
+        return gone
+
+    # ------------------------------------------------------------------ what the service holds
+    def _load(self, sequence_id: int) -> None:
+        """Another sequence: its classes, no draft."""
+        self.classes = RegionClasses.of(self.api, sequence_id)
+        self.gui_class.options = self.classes.names
+        if self.gui_class.value not in self.classes.names:
+            self.gui_class.value = self.classes.names[0]
+        self.sequence_id, self.draft, self.regions = sequence_id, [], ()
+
+    def refresh(self) -> bool:
+        """Re-read the regions of the frame's sequence; recolour the frame when they changed.
+        Refreshes run one at a time (the feed, the tab's edits and its start all ask for one), so
+        the list read last is the one kept."""
+        v = self.view()
+        if v is None:
+            return False
+        with self._refreshing:
+            try:
+                with self._lock:
+                    if self.sequence_id != v.sequence_id:
+                        self._load(v.sequence_id)
+                regions = tuple(StoredRegion.from_public(r) for r in self.api.ground_regions(v.sequence_id))
+            except ApiError as exc:
+                self.gui_regions.content = f"Ground regions unavailable: {exc.detail}"
+                return False
+            with self._lock:
+                changed = _keys(regions) != _keys(self.regions)
+                self.regions = regions
+        self._show_list()
+        self.draw()
+        if changed:
+            self.recolour()
+        return changed
+
+    def _show_list(self) -> None:
+        rows = [f"- #{r.id}: {r.class_name}, {len(r.polygon)} vertices" for r in self.regions[-8:]]
+        self.gui_regions.content = ("**Ground regions** (newest last; it wins where they overlap)  \n" + "\n".join(rows)
+                                    if rows else "No ground region yet.")
+        self.gui_undo.disabled = not self.regions
+
+    def _show_status(self) -> None:
+        n = len(self.draft)
+        self.gui_close.disabled = n < 3
+        self.gui_clear.disabled = n == 0
+        hint = "click the ground to add vertices" if self.drawing else "tick Draw to add vertices"
+        self.gui_status.content = f"{n} vertices; {hint}." if n or self.drawing else ""
+
+    # ------------------------------------------------------------------ the scene
+    def paint(self, colours: np.ndarray, payload: FramePayload, keep: np.ndarray,
+              tracks: dict[int, dict[str, Any]] | None, frame_index: int) -> np.ndarray:
+        """(M, 3) colours of the background cloud (`keep` (M,) indices into the frame shown) with
+        the points the stored regions label (ground_regions.labelable; `tracks`: the frame's
+        TrackPublic by id, None in the track mode) in their class colours, faded like the rest
+        of the background. `colours` itself when none is."""
+        v = self.view()
+        with self._lock:
+            regions, classes = self.regions, self.classes
+            if v is None or self.sequence_id != v.sequence_id or classes is None or not regions:
+                return colours
+        assert payload.ground is not None
+        eligible = labelable(payload.ground[keep], payload.track[keep], tracks, frame_index)
+        return paint_regions(colours, to_world_xy(payload.points[keep], v.T_world_lidar), eligible, regions, classes,
+                             lambda c: fade(c, np.zeros(len(c), bool)))
+
+    def draw(self) -> None:
+        """The draft polygon and the stored outlines, in the frame shown (call after a frame change,
+        outside the client's atomic updates: draws from the GUI, the feed and the keys take turns,
+        since viser cannot replace one scene node from two threads at once)."""
+        with self._drawing:
+            self._draw()
+
+    def _draw(self) -> None:
+        v = self.view()
+        with self._lock:
+            draft = np.array(self.draft, np.float64).reshape(-1, 3)
+            regions, classes = self.regions, self.classes
+            mine = v is not None and self.sequence_id == v.sequence_id
+        self._show_status()
+        if v is None or not mine:
+            for name in ("/ground/draft", "/ground/nodes", "/ground/regions"):
+                self._remove(name)
+            return
+        if len(draft):
+            pts = world_to_lidar(draft, v.T_world_lidar)
+            self._on_canvas.update(("/ground/nodes", "/ground/draft"))
+            self.scene.add_point_cloud("/ground/nodes", pts, DRAFT, point_size=0.25, point_shape="circle",
+                                       point_shading="flat", precision="float32")
+            edges = _segments(pts, closed=len(pts) >= 3)
+            colours = np.repeat(np.array([DRAFT] * (len(pts) - 1) + ([CLOSING] if len(pts) >= 3 else []),
+                                         np.uint8).reshape(-1, 1, 3), 2, axis=1)
+            if len(edges):
+                self.scene.add_line_segments("/ground/draft", edges, colours, thickness=3.0, thickness_units="screen")
+            else:
+                self._remove("/ground/draft")
+        else:
+            self._remove("/ground/draft")
+            self._remove("/ground/nodes")
+        self._draw_regions(v, regions, classes)
+
+    def _remove(self, name: str) -> None:
+        if name in self._on_canvas:
+            self._on_canvas.discard(name)
+            self.scene.remove_by_name(name)
+
+    def _draw_regions(self, v: GroundView, regions: tuple[StoredRegion, ...], classes: RegionClasses | None) -> None:
+        z = ground_height(v.points, v.ground) if regions and classes is not None else None
+        if not regions or classes is None or z is None:
+            self._remove("/ground/regions")
+            return
+        world_z = float((v.T_world_lidar @ np.array([0.0, 0.0, z, 1.0]))[2])  # the frame's ground, in the world
+        edges, colours = [], []
+        for r in regions:
+            poly = world_to_lidar(np.column_stack([r.polygon, np.full(len(r.polygon), world_z)]), v.T_world_lidar)
+            e = _segments(poly, closed=True)
+            edges.append(e)
+            rgb = classes.colours.get(r.class_name, np.array([128, 128, 128], np.uint8))
+            colours.append(np.broadcast_to(rgb, (len(e), 2, 3)))
+        self._on_canvas.add("/ground/regions")
+        self.scene.add_line_segments("/ground/regions", np.concatenate(edges), np.concatenate(colours).astype(np.uint8),
+                                     thickness=2.0, thickness_units="screen")

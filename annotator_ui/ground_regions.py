@@ -1,0 +1,185 @@
+"""Ground regions on the viewer's side: where a click meets the ground, which points a stored
+region labels, and their colours. No GUI here (annotator_ui/ground_panel.py draws and posts).
+
+The service's rule (app/services/point_labels.py, pipeline.propagation.region_labels): a region
+gives its class to the ground points inside its polygon (world x, y) in every frame, where
+"ground" is the frame's ground estimate plus the points of tracks that are no object (discarded,
+or predicted `no_object`) in their kept frames, and never to a point of a track decided with a
+class (accepted with a label) in its kept frames; the newest region wins where regions overlap.
+The viewer paints exactly those points, with the containment test the service uses
+(`pipeline.propagation.GroundRegion.contains`). In the *track* colour mode the viewer does not
+read the tracks' states, and the points of a track keep the track's hue there: that mode shows
+tracks, not classes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from annotator_ui.client import ApiClient
+from annotator_ui.geometry import pick_point
+from pipeline.assist import NO_OBJECT
+from pipeline.propagation import GroundRegion
+
+NEAR_GROUND_M = 2.0  # ground points within this distance (x, y) of the spot clicked set its height
+MIN_NEAR_GROUND = 5  # fewer ground points than this near the click: the frame's median height
+MAX_CLICK_RANGE_M = 200.0  # a click ray that meets the ground farther than this picks nothing
+
+
+@dataclass(frozen=True)
+class RegionClasses:
+    """The classes a region can take: every point class of the sequence's label set, its ground
+    classes first (what a lasso mostly labels), with their RGB colours ((3,) uint8 each)."""
+
+    names: tuple[str, ...]
+    colours: Mapping[str, np.ndarray]
+
+    @classmethod
+    def from_label_set(cls, classes: Sequence[Mapping[str, Any]]) -> RegionClasses:
+        """From label-set class rows (`name`, `colour`, `ground`), as the service and the presets give them."""
+        rows = sorted(classes, key=lambda c: not c.get("ground", False))  # stable: index order within each
+        return cls(tuple(str(c["name"]) for c in rows), {str(c["name"]): np.array(c["colour"], np.uint8) for c in rows})
+
+    @classmethod
+    def of(cls, api: ApiClient, sequence_id: int) -> RegionClasses:
+        """The sequence's classes, as the service serves them (`GET /sequences/{id}/label-set`): the
+        table it checks a region's class against."""
+        return cls.from_label_set(api.label_set(sequence_id)["classes"])
+
+
+@dataclass(frozen=True)
+class GroundView:
+    """What the lasso needs of the frame shown: points (N, 3) float32 lidar frame, ground (N,)
+    bool, T_world_lidar (4, 4), and the frame's sequence."""
+
+    points: np.ndarray
+    ground: np.ndarray
+    T_world_lidar: np.ndarray
+    sequence_id: int
+
+
+@dataclass(frozen=True)
+class StoredRegion:
+    """A region as the service holds it: polygon (K, 2) float64 world x, y (not closed)."""
+
+    id: int
+    class_name: str
+    polygon: np.ndarray
+
+    @classmethod
+    def from_public(cls, body: Mapping[str, Any]) -> StoredRegion:
+        polygon = np.asarray(body["polygon"], np.float64).reshape(-1, 2)
+        return cls(int(body["id"]), str(body["class_name"]), polygon)
+
+
+def ground_height(points: np.ndarray, ground: np.ndarray, xy: np.ndarray | None = None) -> float | None:
+    """Height (lidar z) of the ground at `xy` (lidar x, y): the median z of the frame's ground
+    points within NEAR_GROUND_M of it (of all of them when `xy` is None or too few are near).
+    None when the frame has no ground point. points (N, 3), ground (N,) bool.
+
+    The median of the ground points, not the sensor height below the pose: the ground points are
+    what a region labels, a road slopes and the sensor tilts, and the median ignores the few
+    points the ground estimate got wrong (a kerb, a low bush)."""
+    pts = points[np.asarray(ground, bool)]
+    if not len(pts):
+        return None
+    if xy is not None:
+        near = np.sum((pts[:, :2] - np.asarray(xy, np.float64)) ** 2, axis=1) <= NEAR_GROUND_M**2
+        if int(near.sum()) >= MIN_NEAR_GROUND:
+            return float(np.median(pts[near, 2]))
+    return float(np.median(pts[:, 2]))
+
+
+def _meet(origin: np.ndarray, direction: np.ndarray, z: float) -> np.ndarray | None:
+    """Where the ray meets the plane at height z (None: parallel, behind, or too far)."""
+    if abs(direction[2]) < 1e-9:
+        return None
+    t = (z - origin[2]) / direction[2]
+    hit = origin + t * direction
+    if t <= 0 or np.linalg.norm(hit[:2] - origin[:2]) > MAX_CLICK_RANGE_M:
+        return None
+    return hit
+
+
+def click_on_ground(points: np.ndarray, ground: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> np.ndarray | None:
+    """(3,) lidar point where a click ray meets the ground under the frame, or None (the frame has
+    no ground, or the ray does not come down to it). The spot aimed at is the ground point the ray
+    passes nearest (`pick_point`: what the operator sees under the cursor), else, between sparse
+    returns, where the ray meets the frame's median ground height; the ground points around that
+    spot give the height the vertex takes, so a vertex on a ramp or a kerb's far side sits on it."""
+    o = np.asarray(origin, np.float64).reshape(3)
+    d = np.asarray(direction, np.float64).reshape(3)
+    z = ground_height(points, ground)
+    if z is None or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
+        return None
+    i = pick_point(points, o, d, candidates=np.asarray(ground, bool))
+    if i >= 0:
+        spot = np.asarray(points[i, :2], np.float64)
+    else:
+        first = _meet(o, d, z)
+        if first is None:
+            return None
+        spot = first[:2]
+    local = ground_height(points, ground, spot)
+    return _meet(o, d, z if local is None else local)
+
+
+def labelable(ground: np.ndarray, track: np.ndarray, tracks: Mapping[int, Mapping[str, Any]] | None,
+              frame_index: int | None) -> np.ndarray:
+    """(N,) bool: the points a region may colour (the module docstring's rule). `tracks` maps a
+    track id to its TrackPublic (None: the track mode, where points of a track keep its hue)."""
+    ground = np.asarray(ground, bool)
+    track = np.asarray(track, np.int64)
+    if tracks is None:
+        return ground & (track == 0)
+
+    def kept(t: Mapping[str, Any]) -> bool:
+        return frame_index is None or int(t.get("keep_start", frame_index)) <= frame_index <= int(t.get("keep_end", frame_index))
+
+    decided = [i for i, t in tracks.items() if t.get("status") == "accepted" and t.get("label") and kept(t)]
+    no_object = [i for i, t in tracks.items()
+                 if (t.get("status") == "discarded" or t.get("predicted_class") == NO_OBJECT) and kept(t)]
+    return (ground | np.isin(track, no_object)) & ~np.isin(track, decided)
+
+
+def region_classes_of_points(points_world_xy: np.ndarray, eligible: np.ndarray,
+                             regions: Sequence[StoredRegion]) -> np.ndarray:
+    """(N,) int: per point the index into `regions` of the newest region that labels it, -1 = none."""
+    out = np.full(len(points_world_xy), -1, np.int64)
+    idx = np.flatnonzero(np.asarray(eligible, bool))
+    if not len(idx):
+        return out
+    xy = np.asarray(points_world_xy, np.float64)[idx]
+    for k, r in enumerate(regions):  # oldest first: a newer region overwrites an older one
+        out[idx[GroundRegion(r.polygon, 0).contains(xy)]] = k
+    return out
+
+
+def paint_regions(colours: np.ndarray, points_world_xy: np.ndarray, eligible: np.ndarray,
+                  regions: Sequence[StoredRegion], classes: RegionClasses,
+                  shade: Any = None) -> np.ndarray:
+    """(N, 3) uint8 colours with the points that regions label in their class colours (`shade`
+    maps (M, 3) colours to those the cloud shows, e.g. its fade). `colours` itself when no point
+    changes (the scene then sends nothing new)."""
+    if not regions:
+        return colours
+    which = region_classes_of_points(points_world_xy, eligible, regions)
+    hit = which >= 0
+    if not hit.any():
+        return colours
+    grey = np.array([128, 128, 128], np.uint8)  # a class the table does not know (another label set)
+    lut = np.stack([classes.colours.get(r.class_name, grey) for r in regions])
+    new = lut[which[hit]]
+    out = colours.copy()
+    out[hit] = new if shade is None else shade(new)
+    return out
+
+
+def to_world_xy(points: np.ndarray, T_world_lidar: np.ndarray) -> np.ndarray:
+    """(N, 3) lidar points -> (N, 2) float64 world x, y."""
+    T = np.asarray(T_world_lidar, np.float64)
+    return np.asarray(points, np.float64) @ T[:2, :3].T + T[:2, 3]

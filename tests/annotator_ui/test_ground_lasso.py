@@ -1,0 +1,179 @@
+"""The ground lasso (issue 35): clicks become vertices on the frame's ground, Close & label stores
+the polygon with the chosen class, undo deletes the newest region, and the frame's ground points
+inside stored regions are drawn in the region's class colour (only those: the service's rule),
+in this tab and, through the change feed, in the others."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import httpx
+import numpy as np
+import pytest
+
+from annotator_ui.colours import fade
+from annotator_ui.ground_regions import (
+    RegionClasses,
+    StoredRegion,
+    click_on_ground,
+    labelable,
+    paint_regions,
+    to_world_xy,
+)
+from annotator_ui.headless import HeadlessClient, is_points
+from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
+from pipeline.classes import CLASS_COLOURS
+from pipeline.regions import points_in_polygon
+from tests.annotator_ui.test_viewer import wait_until
+
+CLASSES = RegionClasses.from_label_set([{"name": n, "colour": CLASS_COLOURS[n], "ground": n == "ground"}
+                                        for n in CLASS_COLOURS])
+
+
+def _square(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], np.float64)
+
+
+# ---------------------------------------------------------------------------- geometry, no service
+def test_ground_click_meets_the_local_ground_under_the_click():
+    # flat ground at -1.7 m around the sensor, a ramp up to -0.7 m between x = 18 and 22 m
+    xs, ys = np.meshgrid(np.arange(-30, 30, 0.5), np.arange(-10, 10, 0.5))
+    pts = np.column_stack([xs.ravel(), ys.ravel(), np.where((xs >= 18) & (xs <= 22), -0.7, -1.7).ravel()])
+    ground = np.ones(len(pts), bool)
+    origin = np.array([0.0, 0.0, 5.0])
+    near = click_on_ground(pts, ground, origin, np.array([10.0, 2.0, -1.7]) - origin)
+    assert near is not None and np.allclose(near, [10.0, 2.0, -1.7], atol=1e-6)
+    far = click_on_ground(pts, ground, origin, np.array([20.0, 0.0, -0.7]) - origin)
+    assert far is not None and abs(far[2] + 0.7) < 1e-6 and abs(far[0] - 20.0) < 1e-6  # the ramp's height, not -1.7
+
+
+def test_ground_click_that_does_not_come_down_or_has_no_ground_picks_nothing():
+    pts = np.array([[5.0, 0, -1.7], [6, 0, -1.7], [7, 0, -1.7]])
+    assert click_on_ground(pts, np.ones(3, bool), np.zeros(3), np.array([1.0, 0, 0.2])) is None  # above the horizon
+    assert click_on_ground(pts, np.zeros(3, bool), np.zeros(3), np.array([1.0, 0, -0.2])) is None  # no ground
+
+
+def test_ground_labelable_follows_the_services_rule():
+    ground = np.array([True, True, True, False, False, True])
+    track = np.array([0, 5, 6, 7, 0, 8])
+    tracks = {5: {"status": "accepted", "label": "car", "keep_start": 0, "keep_end": 9},  # decided: keeps its class
+              6: {"status": "pending", "label": None, "keep_start": 0, "keep_end": 9},
+              7: {"status": "discarded", "label": None, "keep_start": 0, "keep_end": 9},  # no object: ground
+              8: {"status": "accepted", "label": "car", "keep_start": 3, "keep_end": 9}}  # decided, not in frame 1
+    assert labelable(ground, track, tracks, 1).tolist() == [True, False, True, True, False, True]
+    assert labelable(ground, track, None, 1).tolist() == [True, False, False, False, False, False]  # track mode
+
+
+def test_ground_paint_colours_eligible_points_inside_the_newest_region_only():
+    xy = np.array([[1.0, 1.0], [3.0, 1.0], [1.0, 1.0], [9.0, 9.0]])
+    eligible = np.array([True, True, False, True])
+    colours = np.full((4, 3), 7, np.uint8)
+    old = StoredRegion(1, "bush", _square(0, 0, 4, 2))
+    new = StoredRegion(2, "building", _square(2, 0, 4, 2))
+    out = paint_regions(colours, xy, eligible, [old, new], CLASSES)
+    assert out[0].tolist() == list(CLASS_COLOURS["bush"]) and out[1].tolist() == list(CLASS_COLOURS["building"])
+    assert out[2].tolist() == [7, 7, 7] and out[3].tolist() == [7, 7, 7]  # not ground / outside
+    assert paint_regions(colours, xy, eligible, [StoredRegion(3, "bush", _square(20, 20, 21, 21))], CLASSES) is colours
+
+
+def test_ground_region_classes_put_ground_classes_first():
+    classes = RegionClasses.from_label_set([{"name": "car", "colour": [1, 2, 3], "ground": False},
+                                            {"name": "road", "colour": [4, 5, 6], "ground": True}])
+    assert classes.names == ("road", "car") and classes.colours["road"].tolist() == [4, 5, 6]
+
+
+# ---------------------------------------------------------------------------- in a connected tab
+@pytest.fixture
+def viewer(live_api):
+    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
+    yield v
+    v.stop()
+
+
+@pytest.fixture
+def tab(viewer, live_api):
+    c = HeadlessClient(viewer.url)
+    c.wait_for(is_points("/frame/points"))
+    wait_until(lambda: len(viewer.tabs) == 1 and viewer.tabs[0].session.track is not None)
+    t = next(iter(viewer.tabs.values()))
+    t.headless = c
+    yield t
+    c.close()
+    admin = {"Authorization": f"Bearer {live_api.admin_token}"}
+    for r in httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions", headers=admin).json():
+        httpx.delete(f"{live_api.url}/api/v1/ground-regions/{r['id']}", headers=admin)  # the service is shared
+
+
+def _click(tab, target: np.ndarray) -> None:
+    origin = target + np.array([-6.0, -4.0, 9.0])  # a camera above and behind the spot
+    tab._on_click(SimpleNamespace(ray_origin=tuple(origin), ray_direction=tuple(target - origin)))
+
+
+def _ground_patch(tab) -> np.ndarray:
+    """(4, 3) lidar corners of a square around the frame's densest ground, on that ground."""
+    view = tab.ground_view()
+    g = view.points[view.ground]
+    centre = np.median(g[np.linalg.norm(g[:, :2], axis=1) < 15], axis=0)
+    corners = centre[None, :2] + np.array([[-3, -3], [3, -3], [3, 3], [-3, 3]], np.float64)
+    return np.column_stack([corners, np.full(4, np.median(g[:, 2]))])
+
+
+def _expected_inside(tab, polygon_world: np.ndarray) -> np.ndarray:
+    view, keep = tab.ground_view(), tab.scene._cloud_keep
+    inside = points_in_polygon(to_world_xy(view.points[keep], view.T_world_lidar), polygon_world)
+    return inside & view.ground[keep] & (tab.scene.frame_tracks[keep] == 0)  # the track mode's rule
+
+
+def test_ground_lasso_draws_labels_colours_and_undoes(tab, live_api):
+    panel, scene = tab.ground, tab.scene
+    wait_until(lambda: panel.sequence_id == live_api.sequence_id)
+    before = scene._cloud_colours.copy()
+    corners = _ground_patch(tab)
+    panel.gui_draw.value = True
+    for c in corners:
+        _click(tab, c)
+    T = tab.ground_view().T_world_lidar
+    want = (np.column_stack([corners, np.ones(4)]) @ T.T)[:, :2]
+    assert len(panel.draft) == 4 and np.allclose(np.array(panel.draft)[:, :2], want, atol=0.3)
+    tab.headless.wait_for(lambda m: m.type == "LineSegmentsMessage" and m.name == "/ground/draft")
+    assert tab.session.track_id is not None  # the clicks drew; they opened no other track
+    panel.gui_class.value = "building"
+    region = panel.close_and_label()
+    assert region is not None and panel.draft == []
+    api = httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions",
+                    headers={"Authorization": f"Bearer {live_api.admin_token}"}).json()
+    assert [(r["id"], r["class_name"]) for r in api] == [(region["id"], "building")]
+    stored = np.array(api[0]["polygon"])
+    assert np.allclose(stored, want, atol=0.3)
+
+    inside = _expected_inside(tab, stored)
+    assert inside.sum() >= 10, "the patch holds the frame's ground"
+    wait_until(lambda: not np.array_equal(scene._cloud_colours, before))
+    shown = scene._cloud_colours
+    building = fade(np.array([CLASS_COLOURS["building"]], np.uint8), np.zeros(1, bool))[0]
+    assert (shown[inside] == building).all()
+    assert np.array_equal(shown[~inside], before[~inside])  # outside, and points that are not ground, keep theirs
+    tab.headless.wait_for(lambda m: m.type == "LineSegmentsMessage" and m.name == "/ground/regions")
+
+    gone = panel.undo()
+    assert gone is not None and gone["id"] == region["id"] and panel.regions == ()
+    wait_until(lambda: np.array_equal(scene._cloud_colours, before))
+    assert panel.undo() is None  # nothing left to undo
+
+
+def test_ground_regions_of_another_operator_reach_the_tab_through_the_change_feed(tab, live_api):
+    wait_until(lambda: tab.ground.sequence_id == live_api.sequence_id)
+    before = tab.scene._cloud_colours.copy()
+    admin = {"Authorization": f"Bearer {live_api.admin_token}"}
+    everywhere = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
+    r = httpx.post(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions",
+                   json={"class_name": "bush", "polygon": everywhere}, headers=admin)
+    assert r.status_code == 200, r.text
+    wait_until(lambda: [g.id for g in tab.ground.regions] == [r.json()["id"]])
+    inside = _expected_inside(tab, np.array(everywhere, np.float64))
+    wait_until(lambda: not np.array_equal(tab.scene._cloud_colours, before))
+    bush = fade(np.array([CLASS_COLOURS["bush"]], np.uint8), np.zeros(1, bool))[0]
+    assert inside.any() and (tab.scene._cloud_colours[inside] == bush).all()
+    assert httpx.delete(f"{live_api.url}/api/v1/ground-regions/{r.json()['id']}", headers=admin).status_code == 200
+    wait_until(lambda: tab.ground.regions == ())
+    wait_until(lambda: np.array_equal(tab.scene._cloud_colours, before))
