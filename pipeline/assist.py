@@ -3,8 +3,10 @@ operator's reviews as they come in, over what the shipped (or the sequence's own
 
 Each sample is described by the CNN's embedding and class probabilities and by its segment's
 size, range and height; a random forest fitted on the samples of reviewed tracks classifies every
-other sample. Until the reviews show two classes the CNN's own probabilities stand; from then on
-the forest alone decides. Measured on the shared real clips (docs/effort.md): the forest labelled
+other sample into the sequence's own classes, whatever classes the CNN was trained on (its view
+is only the forest's input). Until the reviews show two classes the CNN's own probabilities
+stand when it was trained on the sequence's classes, and nothing is predicted otherwise; from
+then on the forest alone decides. Measured on the shared real clips (docs/effort.md): the forest labelled
 about as many points right as the CNN fine-tuned on the same reviews (0.757 against 0.760 on the
 mean of the three clips after 50 oracle reviews) and refits about a hundred times faster, which
 keeps a retrain within the minute a reviewer waits; letting the CNN keep its probability for
@@ -73,25 +75,28 @@ def _full(forest: object, x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def _cnn(features: SampleFeatures, n: int) -> np.ndarray:
-    """(N, n) the CNN's probabilities, 0 for the head's classes beyond the CNN's."""
+def _cnn(features: SampleFeatures, n: int, speaks: bool) -> np.ndarray:
+    """(N, n) the CNN's probabilities, 0 for the head's classes beyond the CNN's; all 0 when the
+    CNN was not trained on the head's classes (`speaks` False)."""
     out = np.zeros((len(features.probs), n), np.float32)
-    out[:, : features.probs.shape[1]] = features.probs
+    if speaks:
+        out[:, : features.probs.shape[1]] = features.probs
     return out
 
 
-def assist_probs(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, seed: int = 0) -> np.ndarray:
-    """(N, K + 1) float32 probabilities of every sample over the CNN's K classes and NO_OBJECT
-    (class K): the CNN's alone while the reviews show fewer than two classes, else the forest
-    fitted on `labelled` (indices) with `labels` (0..K)."""
+def assist_probs(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, k: int, cnn_speaks: bool = True,
+                 seed: int = 0) -> np.ndarray | None:
+    """(N, k + 1) float32 probabilities of every sample over the sequence's k classes and
+    NO_OBJECT (class k): the forest fitted on `labelled` (indices) with `labels` (0..k) once the
+    reviews show two classes; before, the CNN's own when it was trained on those k classes
+    (`cnn_speaks`), else None (nothing to predict with)."""
     labelled, labels = np.asarray(labelled, np.int64), np.asarray(labels, np.int64)
     if labelled.shape != labels.shape:
         raise DataError(None, f"labelled {labelled.shape} and labels {labels.shape} differ")
-    n = features.probs.shape[1] + 1
     if len(np.unique(labels)) < 2:
-        return _cnn(features, n)
+        return _cnn(features, k + 1, True) if cnn_speaks else None
     x = features.matrix()
-    return _full(_fit(x[labelled], labels, seed), x, n)
+    return _full(_fit(x[labelled], labels, seed), x, k + 1)
 
 
 def track_means(probs: np.ndarray, group: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
@@ -124,19 +129,19 @@ class HeldOutTracks:
         return (float((self.truth[sel] == class_index).mean()) if n else None), n
 
 
-def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, group: np.ndarray,
-                    seed: int = 0) -> HeldOutTracks | None:
+def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, group: np.ndarray, k: int,
+                    cnn_speaks: bool = True, seed: int = 0) -> HeldOutTracks | None:
     """Cross-validated track predictions of the reviewed tracks (`group`: the track of each
-    labelled sample): FOLDS folds of whole tracks. None with fewer than two classes or tracks
-    than folds."""
+    labelled sample) over k classes and NO_OBJECT, as `assist_probs`: FOLDS folds of whole
+    tracks. None with fewer than two classes or tracks than folds."""
     labelled, labels, group = (np.asarray(a, np.int64) for a in (labelled, labels, group))
     tracks, inverse = np.unique(group, return_inverse=True)
     if len(np.unique(labels)) < 2 or len(tracks) < FOLDS:
         return None
     fold = np.random.default_rng(seed).permutation(len(tracks)) % FOLDS
     x = features.matrix()[labelled]
-    n = features.probs.shape[1] + 1
-    base = _cnn(features, n)[labelled]
+    n = k + 1
+    base = _cnn(features, n, cnn_speaks)[labelled]
     probs = np.zeros_like(base)
     for f in range(FOLDS):
         out = fold[inverse] == f

@@ -5,7 +5,8 @@ operator's reviews so far, and orders the review queue by what a review would co
    samples of tracks an operator reviewed (bulk-accepted classes are the model's own guesses and
    are not trained on); the samples of discarded tracks are `no_object`.
 2. Score every sample with the base CNN: the newest model trained on this sequence, else the
-   shipped default model (its embedding and class probabilities).
+   shipped default model (its embedding and class probabilities), of any label set: the head
+   reads its view, and learns the sequence's own classes from the reviews.
 3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
 4. Per track, the mean probability of its kept samples gives its predicted class and confidence,
    and its queue priority (`crud.queue_priority`); the reviewed tracks' held-out predictions give
@@ -68,30 +69,6 @@ def base_model(session: Session, sequence_id: int, model_id: int | None) -> Chos
     from pipeline.model import default_model_path
 
     return ChosenModel(None, str(default_model_path()))
-
-
-def _checked_base_model(session: Session, sequence_id: int, model_id: int | None) -> ChosenModel:
-    """`base_model`, once it is of the sequence's label set (Invalid naming both otherwise: the
-    head learns the reviews' classes on top of the CNN's)."""
-    from app.services.label_sets import require_model_label_set
-
-    chosen = base_model(session, sequence_id, model_id)
-    label_set = crud.sequence_label_set(session, sequence_id)
-    assert label_set is not None, sequence_id  # ready_sequence checked it
-    require_model_label_set(chosen.name, chosen.path, label_set)
-    return chosen
-
-
-def _has_base_model(session: Session, sequence_id: int) -> bool:
-    """Whether an assist run has a CNN of the sequence's label set without loading one: a model
-    trained on it, or the shipped default model's (trained on the default set)."""
-    from pipeline.label_sets import DEFAULT_LABEL_SET, preset
-
-    label_set = crud.sequence_label_set(session, sequence_id)
-    default = preset(DEFAULT_LABEL_SET)
-    if label_set is not None and label_set.name == default.name and label_set.same_classes(default):
-        return True
-    return newest_model_trained_on(session, sequence_id) is not None
 
 
 def _read(session: Session, sequence_id: int) -> dict[str, Any]:
@@ -172,17 +149,23 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     t0 = time.perf_counter()
     with ctx.db.read() as s:
         data = _read(s, params.sequence_id)
-        chosen = _checked_base_model(s, params.sequence_id, params.model_id)
+        chosen = base_model(s, params.sequence_id, params.model_id)
+        label_set = crud.sequence_label_set(s, params.sequence_id)
+    assert label_set is not None, params.sequence_id  # _read checked it is ready
     ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
     features, cnn_classes = _features(ctx, data, chosen, 512)
-    classes = (*cnn_classes, NO_OBJECT)
+    k = len(label_set.sample_class_names)
+    speaks = tuple(cnn_classes) == label_set.sample_class_names
+    classes = (*label_set.sample_class_names, NO_OBJECT)
     ctx.progress(0.6, "fitting the head on the reviews")
     group, tracks = _kept_group(data)
-    labelled, labels = _training_labels(data, group, len(cnn_classes))
-    probs = assist_probs(features, labelled, labels, params.seed)
-    held = held_out_tracks(features, labelled, labels, group[labelled], params.seed)
-    mean, counts = track_means(probs, group, len(tracks))
-    predicted = _write(ctx, tracks, mean, counts, tuple(classes))
+    labelled, labels = _training_labels(data, group, k)
+    probs = assist_probs(features, labelled, labels, k, speaks, params.seed)
+    held = held_out_tracks(features, labelled, labels, group[labelled], k, speaks, params.seed)
+    predicted = 0
+    if probs is not None:
+        mean, counts = track_means(probs, group, len(tracks))
+        predicted = _write(ctx, tracks, mean, counts, classes)
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
@@ -224,7 +207,7 @@ def schedule(db: Database, settings: Settings) -> list[int]:
         runs = _runs(s)
         ready = crud.ready_sequence_ids(s)
         due = {q: a for q in ready
-               if (a := _due(s, q, runs.get(q), settings.assist_every)) is not None and _has_base_model(s, q)}
+               if (a := _due(s, q, runs.get(q), settings.assist_every)) is not None}
     if not due:
         return []
     with db.write() as s:
@@ -238,7 +221,7 @@ def schedule(db: Database, settings: Settings) -> list[int]:
 
 def prepare_assist(session: Session, params: AssistParams) -> None:
     ready_sequence(session, params.sequence_id)
-    _checked_base_model(session, params.sequence_id, params.model_id)
+    base_model(session, params.sequence_id, params.model_id)
 
 
 register(

@@ -104,9 +104,9 @@ def _head_probs(head: str, clip: Clip, labelled: np.ndarray, labels: np.ndarray)
     if head == "cnn" or len(np.unique(labels)) < 2:
         return feats.probs
     if head == "forest":
-        return assist_probs(feats, labelled, labels)[:, :NUM_SAMPLE_CLASSES]
+        return assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES)[:, :NUM_SAMPLE_CLASSES]
     if head == "forest_keeps_unseen":
-        forest = assist_probs(feats, labelled, labels)[:, :NUM_SAMPLE_CLASSES]
+        forest = assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES)[:, :NUM_SAMPLE_CLASSES]
         unseen = np.setdiff1d(np.arange(NUM_SAMPLE_CLASSES), labels)
         out = forest * (1.0 - feats.probs[:, unseen].sum(axis=1, keepdims=True))
         out[:, unseen] = feats.probs[:, unseen]

@@ -20,21 +20,29 @@ def _features(n_per: int = 40, seed: int = 0) -> tuple[SampleFeatures, np.ndarra
 def test_assist_probs_learn_the_reviewed_classes_over_the_cnn_s_guess():
     feats, truth = _features()
     labelled = np.r_[0:10, 40:50]
-    probs = assist_probs(feats, labelled, truth[labelled])
+    probs = assist_probs(feats, labelled, truth[labelled], 4)
     assert probs.shape == (80, 5) and np.allclose(probs.sum(axis=1), 1.0, atol=1e-5)  # 4 classes + no_object
     assert (probs.argmax(axis=1) == truth).mean() > 0.95  # the CNN said class 2 everywhere
 
 
 def test_assist_probs_are_the_cnn_s_until_two_classes_are_reviewed():
     feats, truth = _features()
-    probs = assist_probs(feats, np.arange(5), truth[:5])
+    probs = assist_probs(feats, np.arange(5), truth[:5], 4)
     assert np.array_equal(probs[:, :4], feats.probs) and not probs[:, 4].any()
+    assert assist_probs(feats, np.arange(5), truth[:5], 4, cnn_speaks=False) is None  # a CNN of other classes
+
+
+def test_assist_probs_learn_classes_the_cnn_was_not_trained_on():
+    feats, truth = _features()
+    labels = truth + 5  # the sequence's label set has 9 classes; the CNN knows 4 others
+    probs = assist_probs(feats, np.r_[0:10, 40:50], labels[np.r_[0:10, 40:50]], 9, cnn_speaks=False)
+    assert probs.shape == (80, 10) and (probs.argmax(axis=1) == labels).mean() > 0.95
 
 
 def test_assist_probs_learn_no_object_from_discarded_tracks():
     feats, truth = _features()
     labels = np.where(truth == 1, 4, 0)  # the second cluster was discarded
-    probs = assist_probs(feats, np.arange(80), labels)
+    probs = assist_probs(feats, np.arange(80), labels, 4)
     assert (probs.argmax(axis=1) == labels).mean() > 0.95
 
 
@@ -48,9 +56,9 @@ def test_track_means_average_each_track_s_samples():
 def test_held_out_tracks_leave_whole_tracks_out():
     feats, truth = _features()
     group = np.arange(80) // 4  # 20 tracks of 4 samples, 10 per class
-    held = held_out_tracks(feats, np.arange(80), truth, group)
+    held = held_out_tracks(feats, np.arange(80), truth, group, 4)
     assert held is not None and len(held.truth) == 20 and (held.samples == 4).all()
     precision, support = held.precision(0, 0.5)
     assert support >= 8 and precision > 0.9
-    assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10]) is None  # one class only
+    assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10], 4) is None  # one class only
 

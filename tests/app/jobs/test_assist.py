@@ -24,9 +24,9 @@ def tiny_model(tmp_path):
     return save_checkpoint(tmp_path / "m8.pt", get_model(net, samples), net, samples)
 
 
-def _sequence_with_model(factory, db, tiny_model, n_objects: int = 6) -> int:
+def _sequence_with_model(factory, db, tiny_model, n_objects: int = 6, label_set: str = "paper") -> int:
     """A fake sequence and a model registered as trained on it (so assist runs take it as base)."""
-    seq = factory.ingested_sequence(n_frames=6, n_objects=n_objects)
+    seq = factory.ingested_sequence(n_frames=6, n_objects=n_objects, label_set=label_set)
     with db.write() as s:
         register_model_version(s, name="m8", kind="train", path=tiny_model, config={"params": {"sequence_ids": [seq]}})
         s.commit()
@@ -66,6 +66,30 @@ def test_assist_predicts_every_track_and_orders_the_queue(client, factory, db, s
     pending = [r for r in rows if r.id not in ids[:5]]
     top = max(pending, key=lambda r: (r.priority, -r.id))
     assert client.post("/api/v1/review/next", headers=op.headers).json()["id"] == top.id
+
+
+def test_assist_learns_the_classes_of_a_sequence_of_another_label_set(client, factory, db, settings, tiny_model):
+    """The base CNN knows the paper classes; the sequence is nuScenes': the head predicts nothing
+    from one reviewed class, then the sequence's own classes once two are reviewed."""
+    settings.assist_every = 1
+    seq = _sequence_with_model(factory, db, tiny_model, label_set="nuscenes")
+    ids = factory.track_ids(seq)
+    op = factory.user()
+    worker = Worker(settings, db=db)
+    classes = ["car", "vegetation"] * 3
+    _label(client, op, factory, ids[:1], classes[:1])
+    assert len(worker.schedule()) == 1 and worker.run_once()
+    job = _assist_jobs(db)[-1]
+    assert job.status == "succeeded", job.error
+    assert job.result["tracks_predicted"] == 0
+    _label(client, op, factory, ids[1:5], classes[1:5])
+    assert len(worker.schedule()) == 1 and worker.run_once()
+    job = _assist_jobs(db)[-1]
+    assert job.status == "succeeded", job.error
+    assert job.result["tracks_predicted"] == len(ids) and job.result["reviewed_classes"] == ["car", "vegetation"]
+    with db.read() as s:
+        predicted = set(s.scalars(select(Track.predicted_class).where(Track.sequence_id == seq)).all())
+    assert predicted and predicted <= {"car", "vegetation", "no_object"}
 
 
 def test_assist_runs_once_per_batch_of_reviews(client, factory, db, settings, tiny_model):

@@ -45,26 +45,12 @@ def test_label_set_jobs_model_of_the_sequence_label_set_is_queued(client, factor
     assert r.status_code == 202, r.text
 
 
-@pytest.mark.parametrize("job_type", ["assist", "propose_anchors"])
-def test_label_set_jobs_the_default_model_is_refused_on_a_sequence_of_another_set(client, factory, db, job_type):
+def test_label_set_jobs_the_default_model_is_refused_for_anchors_on_a_sequence_of_another_set(client, factory, db):
+    """Anchors are the CNN's own proposals, so its classes must be the sequence's (the assist head
+    instead learns the sequence's classes over any CNN: tests/app/jobs/test_assist.py)."""
     seq = factory.ingested_sequence(n_frames=4, n_objects=2, label_set="nuscenes")
     admin = factory.user("admin")
-    r = client.post("/api/v1/jobs", json={"type": job_type, "params": {"sequence_id": seq}}, headers=admin.headers)
+    r = client.post("/api/v1/jobs", json={"type": "propose_anchors", "params": {"sequence_id": seq}},
+                    headers=admin.headers)
     assert r.status_code == 422, r.text
     assert "trained on label set 'paper'" in r.text and "not on 'nuscenes'" in r.text
-
-
-def test_label_set_jobs_assist_is_not_scheduled_without_a_model_of_the_sequence_set(client, factory, db, settings):
-    from app.jobs.assist import schedule
-
-    op = factory.user()
-    seqs = {}
-    for label_set in ("nuscenes", "paper"):
-        seqs[label_set] = seq = factory.ingested_sequence(n_frames=4, n_objects=2, label_set=label_set, name=label_set)
-        track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]
-        r = client.post(f"/api/v1/tracks/{track['id']}/label", json={"version": track["version"], "label": "car"},
-                        headers=op.headers)
-        assert r.status_code == 200, r.text  # both sets have a car class
-    queued = schedule(db, settings.model_copy(update={"assist_every": 1}))
-    with db.read() as s:
-        assert [s.get(Job, j).params["sequence_id"] for j in queued] == [seqs["paper"]]
