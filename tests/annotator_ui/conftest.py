@@ -80,3 +80,13 @@ def live_api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveApi]:
     yield LiveApi(base, info.admin_token, info.operator_token, info.sequence_id, settings, itertools.count(1))
     server.should_exit = True
     thread.join(timeout=10)
+
+
+@pytest.fixture
+def viewer(live_api: LiveApi) -> Iterator[object]:
+    """A viewer on the live API, signed in as a new operator, on a free port."""
+    from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
+
+    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
+    yield v
+    v.stop()

@@ -21,7 +21,6 @@ from annotator_ui.ground_regions import (
     to_world_xy,
 )
 from annotator_ui.headless import HeadlessClient, is_points
-from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 from pipeline.classes import CLASS_COLOURS
 from pipeline.regions import points_in_polygon
 from tests.annotator_ui.test_viewer import wait_until
@@ -83,13 +82,6 @@ def test_ground_region_classes_put_ground_classes_first():
 
 
 # ---------------------------------------------------------------------------- in a connected tab
-@pytest.fixture
-def viewer(live_api):
-    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
-    yield v
-    v.stop()
-
-
 @pytest.fixture
 def tab(viewer, live_api):
     c = HeadlessClient(viewer.url)

@@ -21,13 +21,6 @@ TRACK_RE = re.compile(r"\*\*Track (\d+)\*\*")
 
 
 @pytest.fixture
-def viewer(live_api):
-    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
-    yield v
-    v.stop()
-
-
-@pytest.fixture
 def tab_client(viewer):
     c = HeadlessClient(viewer.url)
     c.wait_for(is_points("/frame/points"))

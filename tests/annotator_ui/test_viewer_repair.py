@@ -12,16 +12,8 @@ from annotator_ui.client import ApiClient, ApiError
 from annotator_ui.headless import HeadlessClient, is_points
 from annotator_ui.review_panel import empty_queue_message
 from annotator_ui.tab import ClientTab
-from annotator_ui.viewer import AnnotatorViewer, ViewerConfig
 from pipeline.classes import SAMPLE_CLASSES
 from tests.annotator_ui.test_viewer import wait_until
-
-
-@pytest.fixture
-def viewer(live_api):
-    v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
-    yield v
-    v.stop()
 
 
 @pytest.fixture
