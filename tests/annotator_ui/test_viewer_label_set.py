@@ -8,7 +8,7 @@ from annotator_ui.client import ApiClient
 from annotator_ui.label_set import PAPER, ClassTable, LabelSets
 from pipeline.classes import SAMPLE_CLASSES
 from tests.annotator_ui.test_viewer import wait_until
-from tests.annotator_ui.test_viewer_repair import tab, viewer  # noqa: F401 - fixtures
+from tests.annotator_ui.test_viewer_repair import tab  # noqa: F401 - fixture
 
 CAMPUS = {"name": "campus", "fallback": None, "classes": [
     {"name": "walker", "colour": [255, 0, 0], "key": "q", "ground": False},
