@@ -90,3 +90,18 @@ def viewer(live_api: LiveApi) -> Iterator[object]:
     v = AnnotatorViewer(ViewerConfig(api_url=live_api.url, token=live_api.new_operator(), port=0))
     yield v
     v.stop()
+
+
+@pytest.fixture
+def tab(viewer) -> Iterator[object]:
+    """The viewer's one tab, driven by a headless client, once its first track is drawn."""
+    from annotator_ui.headless import HeadlessClient, is_points
+    from tests.annotator_ui.test_viewer import wait_until
+
+    c = HeadlessClient(viewer.url)
+    c.wait_for(is_points("/frame/points"))
+    wait_until(lambda: len(viewer.tabs) == 1 and viewer.tabs[0].session.track is not None)
+    t = next(iter(viewer.tabs.values()))
+    t.headless = c
+    yield t
+    c.close()

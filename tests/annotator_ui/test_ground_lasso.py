@@ -20,7 +20,6 @@ from annotator_ui.ground_regions import (
     paint_regions,
     to_world_xy,
 )
-from annotator_ui.headless import HeadlessClient, is_points
 from pipeline.classes import CLASS_COLOURS
 from pipeline.regions import points_in_polygon
 from tests.annotator_ui.test_viewer import wait_until
@@ -83,14 +82,9 @@ def test_ground_region_classes_put_ground_classes_first():
 
 # ---------------------------------------------------------------------------- in a connected tab
 @pytest.fixture
-def tab(viewer, live_api):
-    c = HeadlessClient(viewer.url)
-    c.wait_for(is_points("/frame/points"))
-    wait_until(lambda: len(viewer.tabs) == 1 and viewer.tabs[0].session.track is not None)
-    t = next(iter(viewer.tabs.values()))
-    t.headless = c
-    yield t
-    c.close()
+def lasso_tab(tab, live_api):
+    """The tab; the regions it drew are undone after the test (the service is shared)."""
+    yield tab
     admin = {"Authorization": f"Bearer {live_api.admin_token}"}
     for r in httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions", headers=admin).json():
         httpx.delete(f"{live_api.url}/api/v1/ground-regions/{r['id']}", headers=admin)  # the service is shared
@@ -116,7 +110,8 @@ def _expected_inside(tab, polygon_world: np.ndarray) -> np.ndarray:
     return inside & view.ground[keep] & (tab.scene.frame_tracks[keep] == 0)  # the track mode's rule
 
 
-def test_ground_lasso_draws_labels_colours_and_undoes(tab, live_api):
+def test_ground_lasso_draws_labels_colours_and_undoes(lasso_tab, live_api):
+    tab = lasso_tab
     panel, scene = tab.ground, tab.scene
     wait_until(lambda: panel.sequence_id == live_api.sequence_id)
     before = scene._cloud_colours.copy()
@@ -153,7 +148,8 @@ def test_ground_lasso_draws_labels_colours_and_undoes(tab, live_api):
     assert panel.undo() is None  # nothing left to undo
 
 
-def test_ground_regions_of_another_operator_reach_the_tab_through_the_change_feed(tab, live_api):
+def test_ground_regions_of_another_operator_reach_the_tab_through_the_change_feed(lasso_tab, live_api):
+    tab = lasso_tab
     wait_until(lambda: tab.ground.sequence_id == live_api.sequence_id)
     before = tab.scene._cloud_colours.copy()
     admin = {"Authorization": f"Bearer {live_api.admin_token}"}

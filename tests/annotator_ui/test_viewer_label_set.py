@@ -1,6 +1,6 @@
 """The tab's classes are those of the shown track's sequence's label set, read from the service:
 class buttons, hotkeys, colours and dropdowns change when a track of a sequence of another set is
-shown (headless client; fixtures as in test_viewer_repair.py)."""
+shown (headless client; fixtures in conftest.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ from annotator_ui.client import ApiClient
 from annotator_ui.label_set import PAPER, ClassTable, LabelSets
 from pipeline.classes import SAMPLE_CLASSES
 from tests.annotator_ui.test_viewer import wait_until
-from tests.annotator_ui.test_viewer_repair import tab  # noqa: F401 - fixture
 
 CAMPUS = {"name": "campus", "fallback": None, "classes": [
     {"name": "walker", "colour": [255, 0, 0], "key": "q", "ground": False},

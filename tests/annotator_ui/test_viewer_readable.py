@@ -9,7 +9,7 @@ import numpy as np
 from annotator_ui.actions import ACTIONS, key_help
 from annotator_ui.cut_preview import gizmo_scale, inside_box
 from annotator_ui.track_views_panel import FAR_M, SPARSE_POINTS, hard_to_read
-from tests.annotator_ui.test_viewer_repair import _open_multi_frame, tab  # noqa: F401 - fixture
+from tests.annotator_ui.test_viewer_repair import _open_multi_frame
 
 
 def test_readable_inside_box_counts_the_points_of_a_rotated_box():

@@ -9,22 +9,11 @@ import numpy as np
 import pytest
 
 from annotator_ui.client import ApiClient, ApiError
-from annotator_ui.headless import HeadlessClient, is_points
+from annotator_ui.headless import is_points
 from annotator_ui.review_panel import empty_queue_message
 from annotator_ui.tab import ClientTab
 from pipeline.classes import SAMPLE_CLASSES
 from tests.annotator_ui.test_viewer import wait_until
-
-
-@pytest.fixture
-def tab(viewer):
-    c = HeadlessClient(viewer.url)
-    c.wait_for(is_points("/frame/points"))
-    wait_until(lambda: len(viewer.tabs) == 1 and viewer.tabs[0].session.track is not None)
-    t = next(iter(viewer.tabs.values()))
-    t.headless = c
-    yield t
-    c.close()
 
 
 def _open_multi_frame(tab: ClientTab, min_frames: int = 3) -> None:
