@@ -77,12 +77,14 @@ def inspect(
     path: Annotated[Path, typer.Argument(help="A sequence folder or a LiDAR file.")],
     fmt: Annotated[str, typer.Option("--format", help="Reader name, or auto.")] = "auto",
     sensor: SensorOpt = "auto",
+    label_set: Annotated[str, typer.Option(help="A preset or label set file: the classes labels are counted in.")] = DEFAULT_LABEL_SET,
 ) -> None:
     """Print format, sensor (beams x columns, and how it was decided), frame count, points per
     frame, poses and class histogram."""
     from pipeline.inspection import inspect_sequence
+    from pipeline.label_sets import load_label_set
 
-    info = inspect_sequence(path, fmt=fmt, sensor=sensor)
+    info = inspect_sequence(path, fmt=fmt, sensor=sensor, label_set=load_label_set(label_set))
     for w in info.warnings:
         typer.echo(f"warning: {w}", err=True)
     typer.echo(f"path:    {info.path}")
@@ -97,7 +99,7 @@ def inspect(
         typer.echo("classes:")
         total = max(1, sum(info.class_histogram.values()))
         for name, count in info.class_histogram.items():
-            typer.echo(f"  {name:<10} {count:>10}  {100.0 * count / total:5.1f}%")
+            typer.echo(f"  {name:<13} {count:>10}  {100.0 * count / total:5.1f}%")
 
 
 @app.command()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.classes import POINT_CLASSES, UNLABELLED, to_ours
+from pipeline.label_sets import DEFAULT_LABEL_SET, UNLABELLED, LabelSet, preset
 from pipeline.scan import SequenceInfo, SequenceSource
 from pipeline.sequence import open_sequence
 
@@ -22,8 +22,12 @@ def pose_status(source: SequenceSource) -> str:
     return "estimable" if len(source) >= 2 else "absent"
 
 
-def inspect_sequence(path: str | Path, fmt: str = "auto", sensor: str = "auto") -> SequenceInfo:
-    """Open and read every frame of `path`; raises DataError naming the first bad file."""
+def inspect_sequence(path: str | Path, fmt: str = "auto", sensor: str = "auto",
+                     label_set: LabelSet | None = None) -> SequenceInfo:
+    """Open and read every frame of `path`, its labels counted in `label_set`'s classes (the
+    default set's when None); raises DataError naming the first bad file."""
+    label_set = label_set or preset(DEFAULT_LABEL_SET)
+    table = label_set.to_index_table()
     opened = open_sequence(path, fmt, sensor=sensor)
     source = opened.source
     n = len(source)
@@ -37,13 +41,13 @@ def inspect_sequence(path: str | Path, fmt: str = "auto", sensor: str = "auto") 
         dropped += scan.dropped
         if scan.semantic is not None:
             labelled = True
-            histogram += np.bincount(to_ours(scan.semantic), minlength=256)
+            histogram += np.bincount(table[scan.semantic.astype(np.int64) & 0xFFFF], minlength=256)
     warnings = list(getattr(source, "warnings", []))
     if dropped:
         warnings.append(f"{dropped} rows with NaN or inf were dropped")
     classes = None
     if labelled:
-        classes = {name: int(histogram[i]) for i, name in enumerate(POINT_CLASSES)}
+        classes = {name: int(histogram[i]) for i, name in enumerate(label_set.point_class_names)}
         classes["unlabelled"] = int(histogram[UNLABELLED])
     return SequenceInfo(
         path=Path(path),

@@ -36,6 +36,15 @@ def test_cli_inspect_prints_summary(tmp_path: Path) -> None:
         assert text in result.stdout
 
 
+def test_cli_inspect_counts_labels_in_the_label_set_given(tmp_path: Path) -> None:
+    seq = write_sequence(tmp_path / "seq", frames=1, cols=100)  # SemanticKITTI ids 40 (road) and 10 (car)
+    result = runner.invoke(app, ["inspect", str(seq), "--label-set", "semantickitti"])
+    assert result.exit_code == 0, result.stderr
+    names = [line.split()[0] for line in result.stdout.split("classes:")[1].strip().splitlines()]
+    assert "road" in names and "sidewalk" in names and "ground" not in names
+    assert_one_line_error(runner.invoke(app, ["inspect", str(seq), "--label-set", "nope"]), "nope")
+
+
 def test_cli_inspect_warns_about_dropped_rows(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "seq", frames=1, cols=100, labels=False, poses=False)
     f = root / "velodyne" / "000000.bin"
