@@ -11,6 +11,7 @@ merge runs through the tab's `run` (one action at a time, errors shown, the trac
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -47,6 +48,10 @@ class RepairPanel:
         self.scene, self._split, self._merge, self._pose, self._centre = scene, split, merge, pose, centre
         self._model_id, self._notify, self._track_points = model_id, notify, track_points
         self.gizmo: Any = None
+        # the gizmo is added, moved, replaced and read from viser's callback threads and the tab's
+        # (a typed centre while a new track places it; the checkbox's callback and a cut button
+        # both showing it): one at a time, or a thread writes to a handle another just removed
+        self._gizmo_lock = threading.RLock()
         gui.add_markdown("**Split** the track: its points in the region become a new pending track. **Z** undoes.")
         self.gui_show_box = gui.add_checkbox("Show cut box / plane", False)
         self.gui_show_box.on_update(lambda _: self._toggle_gizmo())
@@ -76,14 +81,17 @@ class RepairPanel:
 
     # ------------------------------------------------------------------ gizmo
     def _toggle_gizmo(self) -> None:
-        if not self.gui_show_box.value:
-            self.scene.remove_by_name("/cut")
-            self.scene.remove_by_name("/cut_preview")
-            self.gizmo = None
-            self.gui_preview.content = "Cut preview: show the cut box"
-            return
-        centre = self._centre()
-        self._add_gizmo(tuple(float(v) for v in centre) if centre is not None else (0.0, 0.0, 0.0))
+        """Show or hide the gizmo as the checkbox says (showing it twice shows one)."""
+        with self._gizmo_lock:
+            if not self.gui_show_box.value:
+                self.scene.remove_by_name("/cut")
+                self.scene.remove_by_name("/cut_preview")
+                self.gizmo = None
+                self.gui_preview.content = "Cut preview: show the cut box"
+                return
+            if self.gizmo is None:
+                centre = self._centre()
+                self._add_gizmo(tuple(float(v) for v in centre) if centre is not None else (0.0, 0.0, 0.0))
 
     def _add_gizmo(self, position: tuple[float, ...]) -> None:
         self.gizmo = self.scene.add_transform_controls(
@@ -99,17 +107,23 @@ class RepairPanel:
             self.preview()
 
     def _moved(self) -> None:
-        if self.gizmo is not None:
-            self.gui_centre.value = tuple(round(float(v), 3) for v in self.gizmo.position)
-            self.preview()
+        with self._gizmo_lock:
+            if self.gizmo is not None:
+                self.gui_centre.value = tuple(round(float(v), 3) for v in self.gizmo.position)
+                self.preview()
 
     def _typed_centre(self) -> None:
-        if self.gizmo is not None:
-            self.gizmo.position = tuple(float(v) for v in self.gui_centre.value)
-            self.preview()
+        with self._gizmo_lock:
+            if self.gizmo is not None:
+                self.gizmo.position = tuple(float(v) for v in self.gui_centre.value)
+                self.preview()
 
     def preview(self) -> int:
         """Count and highlight the track's points of this frame inside the box; their number."""
+        with self._gizmo_lock:
+            return self._preview()
+
+    def _preview(self) -> int:
         if self.gizmo is None:
             return 0
         pts = self._track_points()
@@ -125,16 +139,18 @@ class RepairPanel:
 
     def place(self, centre: np.ndarray | None) -> None:
         """Move the gizmo to a newly shown track, sized to it."""
-        if self.gizmo is not None and centre is not None:
-            self.scene.remove_by_name("/cut")
-            self._add_gizmo(tuple(float(v) for v in centre))
+        with self._gizmo_lock:
+            if self.gizmo is not None and centre is not None:
+                self.scene.remove_by_name("/cut")
+                self._add_gizmo(tuple(float(v) for v in centre))
 
     # ------------------------------------------------------------------ regions
     def _world_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The gizmo's centre (3,) and rotation (3, 3) in the world frame."""
         T = self._pose()
-        c = np.asarray(self.gizmo.position, np.float64)
-        R = quaternion_matrix(np.asarray(self.gizmo.wxyz, np.float64))
+        with self._gizmo_lock:
+            c = np.asarray(self.gizmo.position, np.float64)
+            R = quaternion_matrix(np.asarray(self.gizmo.wxyz, np.float64))
         return T[:3, :3] @ c + T[:3, 3], T[:3, :3] @ R
 
     def region(self, kind: str) -> dict[str, Any]:
