@@ -10,17 +10,9 @@ from sqlalchemy.orm import Session
 
 from app.core.errors import Invalid, NotFound
 from app.crud.datasets import get_sequence
-from app.crud.label_sets import label_set_of
+from app.crud.label_sets import check_class, label_set_of
 from app.crud.users import AuthUser
 from app.models import GroundRegion, utcnow
-from pipeline.label_sets import LabelSet
-
-
-def _check_class(label_set: LabelSet, class_name: str) -> None:
-    """Any class of the set, ground classes included (a region is mostly sidewalk or lawn)."""
-    if class_name not in label_set.point_class_names:
-        raise Invalid(f"class_name: unknown class {class_name!r} in label set {label_set.name!r}; "
-                      f"valid: {', '.join(label_set.point_class_names)}")
 
 
 def create_region(session: Session, sequence_id: int, user: AuthUser, class_name: str,
@@ -28,7 +20,7 @@ def create_region(session: Session, sequence_id: int, user: AuthUser, class_name
     """Store a region (NotFound for an unknown sequence, Invalid for a class outside its label
     set or a polygon without area). Commits."""
     seq = get_sequence(session, sequence_id)
-    _check_class(label_set_of(seq), class_name)
+    check_class("class_name", class_name, label_set_of(seq), ground=True)
     if _area(polygon) <= 1e-6:
         raise Invalid("polygon: its vertices enclose no area")
     row = GroundRegion(sequence_id=sequence_id, class_name=class_name, polygon=[[float(x), float(y)] for x, y in polygon],

@@ -76,12 +76,13 @@ def common_label_set(session: Session, sequence_ids: list[int], field: str = "se
     return first
 
 
-def check_class(field: str, name: str | None, label_set: LabelSet) -> str:
-    """`name` when it is one of the set's sample classes (those a track can take); Invalid (422)
-    naming `field`, the set and its classes otherwise."""
-    if name not in label_set.sample_class_names:
-        raise Invalid(f"{field}: unknown class {name!r} in label set {label_set.name!r}; "
-                      f"valid: {', '.join(label_set.sample_class_names)}")
+def check_class(field: str, name: str | None, label_set: LabelSet, ground: bool = False) -> str:
+    """`name` when it is one of the set's sample classes (those a track can take), or with
+    `ground` any of its classes (a ground region's); Invalid (422) naming `field`, the set and
+    its classes otherwise."""
+    names = label_set.point_class_names if ground else label_set.sample_class_names
+    if name not in names:
+        raise Invalid(f"{field}: unknown class {name!r} in label set {label_set.name!r}; valid: {', '.join(names)}")
     return name
 
 

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from bench.effort.ground import plan
+from bench.effort.score import exported_classes
 from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
 from pipeline.classes import UNLABELLED
@@ -203,8 +205,6 @@ class Operator:
     def ground_layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Show every frame's ground layer (points the export labels as ground or by a region):
         their world x, y, true class and current class."""
-        from bench.effort.score import exported_classes
-
         export = self.op.export(self.sequence_id, include_ground=True)
         layer_sources = [i for i, s in enumerate(export.summary.get("sources", [])) if s in ("ground", "region")]
         self.store.forget()
@@ -230,8 +230,6 @@ class Operator:
     def ground_pass(self) -> bool:
         """Draw the lasso that puts the most ground-layer points right (one action); False when
         none is worth `ground_min_gain` points or the ground budget is spent."""
-        from bench.effort.ground import plan
-
         if self.counts.regions >= self.policy.ground_per_frame * len(self.frames):
             return False
         lasso = plan(*self.ground_layer(), len(self.label_set.point_classes))
