@@ -52,6 +52,10 @@ class RepairPanel:
         # (a typed centre while a new track places it; the checkbox's callback and a cut button
         # both showing it): one at a time, or a thread writes to a handle another just removed
         self._gizmo_lock = threading.RLock()
+        # where the gizmo was added, and a centre typed since: the client echoes a new gizmo at
+        # the position it was sent a moment after it is added, which must not undo a typed centre
+        self._added_at: np.ndarray | None = None
+        self._typed: tuple[float, ...] | None = None
         gui.add_markdown("**Split** the track: its points in the region become a new pending track. **Z** undoes.")
         self.gui_show_box = gui.add_checkbox("Show cut box / plane", False)
         self.gui_show_box.on_update(lambda _: self._toggle_gizmo())
@@ -94,6 +98,7 @@ class RepairPanel:
                 self._add_gizmo(tuple(float(v) for v in centre) if centre is not None else (0.0, 0.0, 0.0))
 
     def _add_gizmo(self, position: tuple[float, ...]) -> None:
+        self._added_at, self._typed = np.asarray(position, np.float64), None
         self.gizmo = self.scene.add_transform_controls(
             "/cut", scale=gizmo_scale(self._track_points()), position=position, depth_test=False
         )
@@ -108,14 +113,20 @@ class RepairPanel:
 
     def _moved(self) -> None:
         with self._gizmo_lock:
-            if self.gizmo is not None:
-                self.gui_centre.value = tuple(round(float(v), 3) for v in self.gizmo.position)
-                self.preview()
+            if self.gizmo is None:
+                return
+            if self._typed is not None and np.allclose(self.gizmo.position, self._added_at, atol=1e-6):
+                self.gizmo.position = self._typed  # the client's echo of the new gizmo: keep what was typed
+                return
+            self._typed = None  # dragged: the gizmo says where the box is
+            self.gui_centre.value = tuple(round(float(v), 3) for v in self.gizmo.position)
+            self.preview()
 
     def _typed_centre(self) -> None:
         with self._gizmo_lock:
             if self.gizmo is not None:
-                self.gizmo.position = tuple(float(v) for v in self.gui_centre.value)
+                self._typed = tuple(float(v) for v in self.gui_centre.value)
+                self.gizmo.position = self._typed
                 self.preview()
 
     def preview(self) -> int:

@@ -50,12 +50,11 @@ def test_readable_cut_preview_counts_what_the_cut_takes(tab, live_api):  # noqa:
     lo, hi = pts.min(0), pts.max(0)
     centre = np.array([lo[0], (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2])  # the box holds the lower half in x
     tab.repair.gui_size.value = (float(hi[0] - lo[0]), float(hi[1] - lo[1]) + 0.2, float(hi[2] - lo[2]) + 0.2)
-    # the client echoes the gizmo it was sent (its first position, the track's centre) a moment
-    # after; a centre typed before the echo is undone by it, as the operator would see the box jump
-    time.sleep(0.5)
+    # typed at once: the client's echo of the new gizmo (its first position, the track's centre)
+    # comes a moment later and must not move the box back
     tab.repair.gui_centre.value = tuple(float(v) for v in centre)
     tab.repair._typed_centre()  # as when the operator types the centre
-    time.sleep(0.3)
+    time.sleep(1.0)
     assert np.allclose(tab.repair.gizmo.position, centre)
     n = tab.repair.preview()
     assert 0 < n < len(pts) and f"**{n}** of {len(pts)}" in tab.repair.gui_preview.content
