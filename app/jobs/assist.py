@@ -20,6 +20,7 @@ arrive meanwhile start the next run when it ends, so a run is never restarted fo
 from __future__ import annotations
 
 import time
+from collections import defaultdict
 from typing import Any
 
 import numpy as np
@@ -27,8 +28,10 @@ from pydantic import ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app import crud
+from app.artifacts import ArtifactMissing, ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
+from app.core.errors import Conflict
 from app.crud.frames import frame_artifacts, sample_segments
 from app.crud.model_versions import (
     ChosenModel,
@@ -105,8 +108,26 @@ def _features(ctx: JobContext, data: dict[str, Any], chosen: ChosenModel, batch:
     refs = [(data["artifact"][int(r.frame_id)], int(r.sample_index)) for r in segs]
     scores = score_stored_samples(ctx.artifacts, refs, model, chosen.name, batch, features=True)
     stats = segment_stats(np.array([r.n_points for r in segs]), np.array([r.range for r in segs]),
-                          np.array([r.cz for r in segs]))
+                          np.array([r.cz for r in segs]), _shapes(ctx.artifacts, refs))
     return SampleFeatures(scores.features, scores.probs, stats), meta.classes
+
+
+def _shapes(artifacts: ArtifactStore, refs: list[tuple[str, int]]) -> np.ndarray:
+    """(len(refs), len(SHAPE_FEATURES)) the shape of each sample's segment, from its frame file."""
+    from pipeline.assist import SHAPE_FEATURES, segment_shapes
+
+    out = np.zeros((len(refs), len(SHAPE_FEATURES)), np.float32)
+    by_file: dict[str, list[int]] = defaultdict(list)
+    for pos, (artifact, _index) in enumerate(refs):
+        by_file[artifact].append(pos)
+    for artifact, positions in by_file.items():
+        try:
+            a = artifacts.read_arrays(artifact, ("points", "intensity", "segment", "sample_segment"))
+        except ArtifactMissing as exc:
+            raise Conflict(str(exc)) from None
+        ids = a["sample_segment"][[refs[p][1] for p in positions]]
+        out[positions] = segment_shapes(a["points"], a["intensity"], a["segment"], ids)
+    return out
 
 
 def _kept_group(data: dict[str, Any]) -> tuple[np.ndarray, list[Any]]:

@@ -1,6 +1,6 @@
 """Which model should run in the review loop: an offline replay on labelled real clips.
 
-    python -m research.experiments.assist_heads OUT CLIP... [--reviews 50]
+    python -m research.experiments.assist_heads OUT CLIP... [--reviews 50] [--heads forest,...] [--seeds 0,1,2]
 
 For each clip (a KITTI folder with labels/ and poses), the pipeline's tracks and samples are made
 once; an oracle operator then reviews, in the product's queue order (points x (1 - confidence),
@@ -10,7 +10,9 @@ does. Heads compared (all start from the shipped model):
 
 - `cnn`: the shipped CNN, never retrained;
 - `forest`: the product's head (`pipeline.assist`): a random forest on the CNN's embedding,
-  probabilities and segment statistics, fitted on the reviewed samples;
+  probabilities and segment statistics (size, range, height and shape), fitted on the reviewed
+  samples;
+- `forest_without_shape`: the same without the segments' shape (`pipeline.assist.segment_shapes`);
 - `forest_keeps_unseen`: the same, but the CNN keeps its probability for classes no review has
   shown yet;
 - `finetune`: the CNN itself fine-tuned on the reviewed samples (`pipeline.finetune`, the
@@ -19,7 +21,7 @@ does. Heads compared (all start from the shipped model):
 Reported at 10, 20, 30 and 50 reviews: the share of the clip's labelled non-ground points, in
 tracks, whose track's class (reviewed, else predicted) is their true class; and over the pending
 tracks the share of points right among the predictions at confidence >= 0.9 (what a bulk accept
-would take). Writes OUT/assist_heads.json.
+would take). Each head runs once per seed (the forest's); writes OUT/assist_heads.json.
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ def _frames(path: Path) -> tuple[list[Any], Any]:
 
 def process(path: Path) -> Clip:
     """The clip's tracks, samples and their features (the shipped model's view)."""
-    from pipeline.assist import SampleFeatures, segment_stats
+    from pipeline.assist import SampleFeatures, segment_shapes, segment_stats
     from pipeline.model import default_model_path, embed, load_checkpoint, predict
 
     frames, _ = _frames(path)
@@ -86,7 +88,9 @@ def process(path: Path) -> Clip:
     seg = [(fr, s) for fr in frames for s in fr.sample_segment]
     stats = segment_stats(np.array([fr.segments.n_points[s] for fr, s in seg]),
                           np.array([np.linalg.norm(fr.segments.centroid[s]) for fr, s in seg]),
-                          np.array([fr.segments.centroid[s][2] for fr, s in seg]))
+                          np.array([fr.segments.centroid[s][2] for fr, s in seg]),
+                          np.concatenate([segment_shapes(fr.scan.points, fr.scan.intensity, fr.segment, fr.sample_segment)
+                                          for fr in frames]))
     model, _ = load_checkpoint(default_model_path())
     feats = SampleFeatures(embed(model, samples), predict(model, samples), stats)
     order = np.lexsort((np.arange(len(sample_track)), sample_track))
@@ -96,17 +100,22 @@ def process(path: Path) -> Clip:
                 samples, pairs, ng)
 
 
-def _head_probs(head: str, clip: Clip, labelled: np.ndarray, labels: np.ndarray) -> np.ndarray:
+def _head_probs(head: str, clip: Clip, labelled: np.ndarray, labels: np.ndarray, seed: int) -> np.ndarray:
     """(N, K) class probabilities of the samples after a refit of `head` on the reviewed samples."""
-    from pipeline.assist import assist_probs
+    from pipeline.assist import SampleFeatures, assist_probs
 
     feats = clip.features
     if head == "cnn" or len(np.unique(labels)) < 2:
         return feats.probs
     if head == "forest":
-        return assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES)[:, :NUM_SAMPLE_CLASSES]
+        return assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES, seed=seed)[:, :NUM_SAMPLE_CLASSES]
+    if head == "forest_without_shape":  # constant columns: the forest never splits on them
+        stats = feats.stats.copy()
+        stats[:, 3:] = 0.0
+        plain = SampleFeatures(feats.embedding, feats.probs, stats)
+        return assist_probs(plain, labelled, labels, NUM_SAMPLE_CLASSES, seed=seed)[:, :NUM_SAMPLE_CLASSES]
     if head == "forest_keeps_unseen":
-        forest = assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES)[:, :NUM_SAMPLE_CLASSES]
+        forest = assist_probs(feats, labelled, labels, NUM_SAMPLE_CLASSES, seed=seed)[:, :NUM_SAMPLE_CLASSES]
         unseen = np.setdiff1d(np.arange(NUM_SAMPLE_CLASSES), labels)
         out = forest * (1.0 - feats.probs[:, unseen].sum(axis=1, keepdims=True))
         out[:, unseen] = feats.probs[:, unseen]
@@ -138,7 +147,7 @@ def _score(clip: Clip, decided: np.ndarray, probs: np.ndarray) -> dict[str, floa
             "bulk_right": round(float(right[bulk].sum()) / max(float(labelled[bulk].sum()), 1.0), 4)}
 
 
-def replay(clip: Clip, head: str, reviews: int) -> dict[str, Any]:
+def replay(clip: Clip, head: str, reviews: int, seed: int = 0) -> dict[str, Any]:
     """The oracle operator's replay with one head (module docstring)."""
     from pipeline.assist import track_means
 
@@ -154,13 +163,13 @@ def replay(clip: Clip, head: str, reviews: int) -> dict[str, Any]:
         if r % REFIT_EVERY == 0:
             labelled = np.flatnonzero((clip.sample_track >= 0) & (decided[clip.sample_track] >= 0)
                                       & (decided[clip.sample_track] < NUM_SAMPLE_CLASSES))
-            probs = _head_probs(head, clip, labelled, decided[clip.sample_track[labelled]])
+            probs = _head_probs(head, clip, labelled, decided[clip.sample_track[labelled]], seed)
         if r in CHECKPOINTS:
             out[str(r)] = _score(clip, np.where(decided == GROUND, NUM_SAMPLE_CLASSES, decided), probs)
     return {"checkpoints": out, "seconds": round(time.perf_counter() - t0, 1)}
 
 
-HEADS = ("cnn", "forest", "forest_keeps_unseen", "finetune")
+HEADS = ("cnn", "forest", "forest_without_shape", "forest_keeps_unseen", "finetune")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -168,11 +177,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("out", type=Path)
     ap.add_argument("clips", type=Path, nargs="+")
     ap.add_argument("--reviews", type=int, default=max(CHECKPOINTS))
+    ap.add_argument("--heads", default=",".join(HEADS), help="comma-separated, of: " + ", ".join(HEADS))
+    ap.add_argument("--seeds", default="0", help="comma-separated forest seeds")
     args = ap.parse_args(argv)
+    heads, seeds = args.heads.split(","), [int(s) for s in args.seeds.split(",")]
+    if unknown := set(heads) - set(HEADS):
+        ap.error(f"unknown heads {sorted(unknown)}")
     result: dict[str, Any] = {}
     for path in args.clips:
         clip = process(path)
-        result[clip.name] = {head: replay(clip, head, args.reviews) for head in HEADS}
+        result[clip.name] = {f"{head} seed {seed}": replay(clip, head, args.reviews, seed) for head in heads for seed in seeds}
         print(clip.name, json.dumps({h: r["checkpoints"] for h, r in result[clip.name].items()}))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "assist_heads.json").write_text(json.dumps(result, indent=1))

@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.assist import SampleFeatures, assist_probs, held_out_tracks, segment_stats, track_means
+from pipeline.assist import (
+    SHAPE_FEATURES,
+    SampleFeatures,
+    assist_probs,
+    held_out_tracks,
+    segment_shapes,
+    segment_stats,
+    track_means,
+)
 
 
 def _features(n_per: int = 40, seed: int = 0) -> tuple[SampleFeatures, np.ndarray]:
@@ -13,7 +21,8 @@ def _features(n_per: int = 40, seed: int = 0) -> tuple[SampleFeatures, np.ndarra
     truth = np.repeat([0, 1], n_per)
     emb = rng.normal(size=(2 * n_per, 8)).astype(np.float32) + truth[:, None] * 4.0
     probs = np.tile(np.array([0.1, 0.1, 0.6, 0.2], np.float32), (2 * n_per, 1))
-    stats = segment_stats(np.full(2 * n_per, 50), np.full(2 * n_per, 10.0), np.zeros(2 * n_per))
+    stats = segment_stats(np.full(2 * n_per, 50), np.full(2 * n_per, 10.0), np.zeros(2 * n_per),
+                          np.zeros((2 * n_per, len(SHAPE_FEATURES))))
     return SampleFeatures(emb, probs, stats), truth
 
 
@@ -62,3 +71,23 @@ def test_held_out_tracks_leave_whole_tracks_out():
     assert support >= 8 and precision > 0.9
     assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10], 4) is None  # one class only
 
+
+
+def test_segment_shapes_tell_a_wall_a_pole_and_a_bush_apart():
+    rng = np.random.default_rng(0)
+    wall = np.c_[np.zeros(300), rng.uniform(0, 3, 300), rng.uniform(0, 3, 300)]  # the x = 0 plane
+    pole = np.c_[rng.normal(0, 0.01, (200, 2)), rng.uniform(0, 3, 200)]
+    bush = rng.normal(0, 0.5, (400, 3))
+    noise = rng.uniform(-50, 50, (100, 3))  # no segment
+    points = np.vstack([wall, pole, bush, noise]).astype(np.float32)
+    segment = np.repeat([4, 7, 2, -1], [300, 200, 400, 100])
+    intensity = np.repeat(np.float32([0.2, 0.9, 0.4, 1.0]), [300, 200, 400, 100])
+    names = {n: i for i, n in enumerate(SHAPE_FEATURES)}
+    s = segment_shapes(points, intensity, segment, np.array([4, 7, 2, 9]))  # 9: no point
+    assert s.shape == (4, len(SHAPE_FEATURES)) and s.dtype == np.float32
+    wall_, pole_, bush_, none_ = s
+    assert wall_[names["planarity"]] > 0.7 and wall_[names["normal_z"]] < 0.05  # upright plane
+    assert pole_[names["linearity"]] > 0.95 and abs(pole_[names["z_extent"]] - 3.0) < 0.05
+    assert bush_[names["scattering"]] > 0.5 > wall_[names["scattering"]]
+    assert np.allclose(s[:3, names["intensity_mean"]], [0.2, 0.9, 0.4]) and np.allclose(s[:3, names["intensity_std"]], 0)
+    assert not none_.any()
