@@ -1,6 +1,8 @@
 """The Ground tab: the top view's lasso (issue 35). The operator picks a class, ticks *Draw* and
 clicks the ground in the 3D view; each click adds a vertex where the click ray meets the ground
-of the frame shown (annotator_ui.ground_regions.click_on_ground). *Close & label* stores the
+of the frame shown (annotator_ui.ground_regions.click_on_ground), or, with *Every frame's
+ground* ticked, the ground of all the sequence's frames seen from above (`ground_map`: a lawn
+or a sidewalk along the whole route in one view, one polygon for it). *Close & label* stores the
 polygon (world x, y) as a ground region of the sequence: the service then gives the ground points
 inside it that class in every frame. *Undo last region* deletes the sequence's newest region.
 
@@ -9,6 +11,9 @@ Scene (the shown frame's lidar frame, like every node of the tab):
   /ground/nodes    its vertices
   /ground/regions  the outlines of the stored regions, in their class colours, at the frame's
                    ground height
+  /ground/map      every frame's ground (world points under a frame node placed at the world's
+                   pose in the frame shown, so a frame step moves it without sending it again),
+                   in the stored regions' colours
 The stored regions also colour the frame's ground points (SceneView asks `paint`), so what the
 tab shows is what the exports write; the tab re-reads them after each of its edits and when the
 change feed says another tab or operator changed them.
@@ -25,7 +30,7 @@ import viser
 
 from annotator_ui.client import ApiClient, ApiError, FramePayload
 from annotator_ui.colours import fade
-from annotator_ui.geometry import polyline_segments, world_to_lidar
+from annotator_ui.geometry import matrix_wxyz, polyline_segments, world_to_lidar
 from annotator_ui.ground_regions import (
     GroundView,
     RegionClasses,
@@ -37,6 +42,7 @@ from annotator_ui.ground_regions import (
     to_world_xy,
 )
 
+MAP_GROUND = np.array([150, 140, 120], np.uint8)  # the map's ground that no region labels
 DRAFT = (255, 215, 0)
 CLOSING = (150, 150, 150)
 MAX_VERTICES = 1000  # the service's limit
@@ -57,11 +63,15 @@ class GroundPanel:
 
     def __init__(self, gui: viser.GuiApi, scene: viser.SceneApi, api: ApiClient,
                  notify: Callable[[str, str, str], None], view: Callable[[], GroundView | None],
-                 recolour: Callable[[], None]) -> None:
+                 recolour: Callable[[], None], load_map: Callable[[int], np.ndarray],
+                 look_down: Callable[[np.ndarray], None], later: Callable[[Callable[[], None]], None]) -> None:
         self.scene, self.api, self.notify, self.view, self.recolour = scene, api, notify, view, recolour
+        self.load_map, self.look_down, self.later = load_map, look_down, later
         gui.add_markdown("Tick the Draw box, click the ground around an area (a lawn, a sidewalk), then "
                          "close and label it: its ground points take the class in every frame.")
         self.gui_class = gui.add_dropdown("Region class", ("ground",), initial_value="ground")
+        self.gui_every = gui.add_checkbox("Every frame's ground", initial_value=False,
+                                          hint="Show the ground of all frames from above, and draw on it.")
         self.gui_draw = gui.add_checkbox("Draw", initial_value=False, hint="While ticked, a click adds a vertex.")
         self.gui_status = gui.add_markdown("")
         self.gui_close = gui.add_button("Close & label", color="green", icon=viser.Icon.LASSO_POLYGON, disabled=True)
@@ -76,10 +86,15 @@ class GroundPanel:
         self._refreshing = threading.Lock()
         self._drawing = threading.Lock()
         self._on_canvas: set[str] = set()  # scene nodes this panel drew (a frame step removes only those)
+        self.map_world: np.ndarray | None = None  # (M, 3) every frame's ground, world (ground_map)
+        self.map_sequence: int | None = None  # whose it is
+        self._map_frame: Any = None  # the /ground/map frame node
+        self._map_drawn: tuple[int, list[tuple[int, str, bytes]]] | None = None  # what its colours show
         self.gui_close.on_click(lambda _: self.close_and_label())
         self.gui_clear.on_click(lambda _: self.clear())
         self.gui_undo.on_click(lambda _: self.undo())
         self.gui_draw.on_update(lambda _: self._show_status())
+        self.gui_every.on_update(lambda _: self.later(self.show_every_frame))
 
     @property
     def drawing(self) -> bool:
@@ -92,7 +107,12 @@ class GroundPanel:
         if v is None:
             self.notify("No frame", "Show a frame before drawing on its ground.", "yellow")
             return None
-        hit = click_on_ground(v.points, v.ground, np.asarray(ray_origin), np.asarray(ray_direction))
+        points, ground = v.points, v.ground
+        world = self._map_of(v.sequence_id)
+        if world is not None:  # the clicks land on the ground of every frame
+            points = world_to_lidar(world, v.T_world_lidar)
+            ground = np.ones(len(points), bool)
+        hit = click_on_ground(points, ground, np.asarray(ray_origin), np.asarray(ray_direction))
         if hit is None:
             self.notify("Not on the ground", "The click does not come down on this frame's ground; click lower.", "yellow")
             return None
@@ -197,6 +217,62 @@ class GroundPanel:
         hint = "click the ground to add vertices" if self.drawing else "tick Draw to add vertices"
         self.gui_status.content = f"{n} vertices; {hint}." if n or self.drawing else ""
 
+    # ------------------------------------------------------------------ every frame's ground
+    def _map_of(self, sequence_id: int) -> np.ndarray | None:
+        """The map the clicks land on: shown, and of this sequence."""
+        with self._lock:
+            if self.gui_every.value and self.map_sequence == sequence_id:
+                return self.map_world
+        return None
+
+    def show_every_frame(self) -> None:
+        """Show or hide every frame's ground as the checkbox says; the first time for a sequence,
+        read its frames (the viewer's frame cache) and look down on the route."""
+        v = self.view()
+        if not self.gui_every.value or v is None:
+            self.draw()
+            return
+        if self.map_sequence != v.sequence_id:
+            self.gui_status.content = "Reading the ground of every frame..."
+            try:
+                world = self.load_map(v.sequence_id)
+            except ApiError as exc:
+                self.notify("Cannot show every frame's ground", exc.detail, "red")
+                return
+            with self._lock:
+                self.map_world, self.map_sequence, self._map_drawn = world, v.sequence_id, None
+        self.draw()
+        with self._lock:
+            world = self.map_world
+        if world is not None and len(world):
+            self.look_down(world_to_lidar(world, v.T_world_lidar))
+
+    def _draw_map(self, v: GroundView, regions: tuple[StoredRegion, ...], classes: RegionClasses | None) -> None:
+        """The map under a frame node at the world's pose in the frame shown; its points are sent
+        again only when the regions (their colours) changed."""
+        with self._lock:
+            world = self.map_world if self.map_sequence == v.sequence_id else None
+        if not self.gui_every.value or world is None or not len(world):
+            self._remove("/ground/map")
+            self._map_frame, self._map_drawn = None, None
+            return
+        T_lidar_world = np.linalg.inv(v.T_world_lidar)
+        pose = {"wxyz": tuple(matrix_wxyz(T_lidar_world[:3, :3])), "position": tuple(T_lidar_world[:3, 3])}
+        if self._map_frame is None:
+            self._on_canvas.add("/ground/map")
+            self._map_frame = self.scene.add_frame("/ground/map", show_axes=False, **pose)
+        else:
+            self._map_frame.wxyz, self._map_frame.position = pose["wxyz"], pose["position"]
+        key = (v.sequence_id, _keys(regions))
+        if self._map_drawn == key:
+            return
+        colours = np.broadcast_to(MAP_GROUND, (len(world), 3))
+        if classes is not None:
+            colours = paint_regions(colours, world[:, :2], np.ones(len(world), bool), regions, classes)
+        self.scene.add_point_cloud("/ground/map/points", world.astype(np.float32), np.ascontiguousarray(colours),
+                                   point_size=0.15, point_shading="flat", precision="float32")
+        self._map_drawn = key
+
     # ------------------------------------------------------------------ the scene
     def paint(self, colours: np.ndarray, payload: FramePayload, keep: np.ndarray,
               tracks: dict[int, dict[str, Any]] | None, frame_index: int) -> np.ndarray:
@@ -229,9 +305,11 @@ class GroundPanel:
             mine = v is not None and self.sequence_id == v.sequence_id
         self._show_status()
         if v is None or not mine:
-            for name in ("/ground/draft", "/ground/nodes", "/ground/regions"):
+            for name in ("/ground/draft", "/ground/nodes", "/ground/regions", "/ground/map"):
                 self._remove(name)
+            self._map_frame = self._map_drawn = None
             return
+        self._draw_map(v, regions, classes)
         if len(draft):
             pts = world_to_lidar(draft, v.T_world_lidar)
             self._on_canvas.update(("/ground/nodes", "/ground/draft"))

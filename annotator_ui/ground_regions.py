@@ -14,7 +14,7 @@ tracks, not classes.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,6 +28,7 @@ from pipeline.propagation import GroundRegion
 NEAR_GROUND_M = 2.0  # ground points within this distance (x, y) of the spot clicked set its height
 MIN_NEAR_GROUND = 5  # fewer ground points than this near the click: the frame's median height
 MAX_CLICK_RANGE_M = 200.0  # a click ray that meets the ground farther than this picks nothing
+MAP_CELL_M = 0.25  # the top view of every frame's ground keeps one point per cell of this side
 
 
 @dataclass(frozen=True)
@@ -177,6 +178,22 @@ def paint_regions(colours: np.ndarray, points_world_xy: np.ndarray, eligible: np
     out = colours.copy()
     out[hit] = new if shade is None else shade(new)
     return out
+
+
+def ground_map(frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], cell: float = MAP_CELL_M) -> np.ndarray:
+    """(M, 3) float64 world points: the ground estimate of every frame, one point per `cell` x
+    `cell` column of the top view (the first seen), so a route's ground fits one cloud. frames:
+    ((N, 3) lidar points, (N,) bool ground, (4, 4) T_world_lidar) each."""
+    parts = []
+    for points, ground, T in frames:
+        g = np.asarray(points, np.float64)[np.asarray(ground, bool)]
+        T = np.asarray(T, np.float64)
+        parts.append(g @ T[:3, :3].T + T[:3, 3])
+    world = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if not len(world):
+        return world
+    _, first = np.unique(np.floor(world[:, :2] / cell).astype(np.int64), axis=0, return_index=True)
+    return world[np.sort(first)]
 
 
 def to_world_xy(points: np.ndarray, T_world_lidar: np.ndarray) -> np.ndarray:

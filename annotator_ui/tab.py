@@ -24,7 +24,7 @@ from annotator_ui.client import ApiClient, ApiError, NothingToUndo, StaleEdit
 from annotator_ui.colours import legend_html
 from annotator_ui.geometry import pick_point, pose_matrix
 from annotator_ui.ground_panel import GroundPanel
-from annotator_ui.ground_regions import GroundView
+from annotator_ui.ground_regions import GroundView, ground_map
 from annotator_ui.panels import AnchorsPanel, JobsPanel, ProgressPanel, StitchesPanel
 from annotator_ui.playback import Playback
 from annotator_ui.prefetch import prefetch_next
@@ -95,7 +95,8 @@ class ClientTab:
             self.repair = RepairPanel(gui, self.client.scene, self.split, self.merge, self.frame_pose, self.track_centre,
                                       self.newest_model, self.notify, self.track_points)
         with tabs.add_tab("Ground", viser.Icon.LASSO_POLYGON):
-            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.ground_view, self._recolour)
+            self.ground = GroundPanel(gui, self.client.scene, self.api, self.notify, self.ground_view, self._recolour,
+                                      self._ground_map, self._look_down, self.later)
         self.scene.paint_ground = self.ground.paint
         with tabs.add_tab("Progress", viser.Icon.CHART_BAR):
             self.progress = ProgressPanel(gui, self.api, self.sequence_id)
@@ -164,6 +165,28 @@ class ClientTab:
         if s.frame_points is None or s.frame_ground is None or s.frame_sequence is None:
             return None
         return GroundView(s.frame_points, s.frame_ground, s.frame_pose, s.frame_sequence)
+
+    def _ground_map(self, sequence_id: int) -> np.ndarray:
+        """Every frame's ground of a sequence, world (ground_regions.ground_map), read through the
+        frame cache: the Ground tab's top view."""
+        frames = self.scene.cache.frames(self.api, sequence_id)
+
+        def each() -> Any:
+            for _index, f in sorted(frames.items()):
+                p = self.scene.cache.payload(self.api, int(f["id"]))
+                if p.ground is not None:
+                    yield p.points, p.ground, pose_matrix(f.get("pose"))
+
+        return ground_map(each())
+
+    def _look_down(self, points: np.ndarray) -> None:
+        """The camera straight above `points` (the frame shown's coordinates), all of them in view
+        (a 60-degree view; a hair off vertical, where the orbit keeps its up)."""
+        lo, hi = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
+        c = (lo + hi) / 2
+        height = max(float(hi[0] - lo[0]), float(hi[1] - lo[1]), 10.0) / (2 * np.tan(np.radians(30.0)))
+        self.client.camera.position = (c[0] - 0.01 * height, c[1], hi[2] + height)  # position first (see SceneView)
+        self.client.camera.look_at = tuple(c)
 
     @property
     def frame_points(self) -> np.ndarray | None:

@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 
 from annotator_ui.colours import fade
+from annotator_ui.geometry import world_to_lidar
 from annotator_ui.ground_regions import (
     RegionClasses,
     StoredRegion,
     click_on_ground,
+    ground_map,
     labelable,
     paint_regions,
     to_world_xy,
@@ -78,6 +80,21 @@ def test_ground_region_classes_put_ground_classes_first():
     classes = RegionClasses.from_label_set([{"name": "car", "colour": [1, 2, 3], "ground": False},
                                             {"name": "road", "colour": [4, 5, 6], "ground": True}])
     assert classes.names == ("road", "car") and classes.colours["road"].tolist() == [4, 5, 6]
+
+
+def test_ground_map_joins_every_frames_ground_in_the_world_one_point_per_cell():
+    xs, ys = np.meshgrid(np.arange(0, 10, 0.1), np.arange(0, 4, 0.1))
+    grid = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, -1.7)])
+    points = np.vstack([grid, [[3.0, 1.0, 0.5]]])  # and one point that is not ground
+    ground = np.r_[np.ones(len(grid), bool), False]
+    moved = np.eye(4)
+    moved[:3, 3] = [10.0, 0.0, 0.2]  # the second frame 10 m on, its sensor 0.2 m higher
+    world = ground_map([(points, ground, np.eye(4)), (points, ground, moved)], cell=0.5)
+    assert world[:, 0].min() < 0.5 and world[:, 0].max() >= 19.5  # both frames' ground
+    cells = np.floor(world[:, :2] / 0.5).astype(np.int64)
+    assert len(np.unique(cells, axis=0)) == len(world) == 40 * 8  # one point per 0.5 m cell of 20 x 4 m
+    assert np.allclose(world[world[:, 0] >= 10, 2], -1.5) and (world[:, 2] < 0).all()  # posed; no point above
+    assert ground_map([]).shape == (0, 3)
 
 
 # ---------------------------------------------------------------------------- in a connected tab
@@ -165,3 +182,44 @@ def test_ground_regions_of_another_operator_reach_the_tab_through_the_change_fee
     assert httpx.delete(f"{live_api.url}/api/v1/ground-regions/{r.json()['id']}", headers=admin).status_code == 200
     wait_until(lambda: tab.ground.regions == ())
     wait_until(lambda: np.array_equal(tab.scene._cloud_colours, before))
+
+
+def test_ground_every_frame_shows_the_route_from_above_and_takes_clicks_beyond_the_frame(lasso_tab, live_api):
+    from scipy.spatial import cKDTree
+
+    tab = lasso_tab
+    panel = tab.ground
+    wait_until(lambda: panel.sequence_id == live_api.sequence_id)
+    since = len(tab.headless.messages)
+    panel.gui_every.value = True
+    panel.show_every_frame()  # what ticking the box runs, in the background
+    tab.headless.wait_for(lambda m: m.type == "PointCloudMessage" and m.name == "/ground/map/points", since)
+    view = tab.ground_view()
+    world = panel.map_world
+    frame_xy = to_world_xy(view.points[view.ground], view.T_world_lidar)
+    far = cKDTree(frame_xy).query(world[:, :2])[0]
+    assert (far > 5.0).sum() > 100, "the map holds ground the frame shown does not reach"
+    assert panel.gui_every.value and len(world) == len(np.unique(np.floor(world[:, :2] / 0.25), axis=0))
+
+    # a clicked vertex sits on the map's ground, not on the frame's: a terrace 2 m up, beyond the
+    # frame's ground (the frame's height would put the vertex 1.6 m further along the ray)
+    centre = world[np.argmax(far)] + [0.0, 0.0, 2.0]
+    xs, ys = np.meshgrid(np.arange(-2, 2.01, 0.25), np.arange(-2, 2.01, 0.25))
+    terrace = centre + np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)])
+    panel.map_world = np.vstack([world, terrace])
+    panel.gui_draw.value = True
+    _click(tab, world_to_lidar(centre[None], view.T_world_lidar)[0])
+    assert len(panel.draft) == 1 and np.allclose(panel.draft[0], centre, atol=0.05)
+    for dx, dy in ((4, 0), (4, 4)):
+        _click(tab, world_to_lidar(centre[None] + [dx, dy, 0], view.T_world_lidar)[0])
+    assert len(panel.draft) == 3
+    since = len(tab.headless.messages)
+    region = panel.close_and_label()
+    assert region is not None
+    # the map is drawn again in the region's colours
+    tab.headless.wait_for(lambda m: m.type == "PointCloudMessage" and m.name == "/ground/map/points", since)
+
+    panel.gui_every.value = False
+    panel.show_every_frame()
+    tab.headless.wait_for(lambda m: m.type == "RemoveSceneNodeMessage" and m.name == "/ground/map", since)
+    assert panel._map_of(live_api.sequence_id) is None  # clicks land on the frame's ground again
