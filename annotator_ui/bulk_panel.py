@@ -26,6 +26,8 @@ def preview_text(p: dict[str, Any]) -> str:
     held = p.get("held_out_precision")
     check = (f"right on **{100 * held:.1f} %** of {p['held_out_tracks']} held-out reviewed tracks"
              if held is not None else "no held-out reviewed track to check it on yet")
+    if p.get("min_points"):
+        check += f" (tracks under {p['min_points']:,} points, smaller than any of those, are left out)"
     return (f"**{p['tracks']}** pending tracks ({p['points']:,} points) predicted **{p['class_name']}** at "
             f"{100 * p['min_confidence']:.0f} % or more (mean {100 * (p['confidence_mean'] or 0):.0f} %); "
             f"such predictions were {check}.")

@@ -142,13 +142,19 @@ def _kept_group(data: dict[str, Any]) -> tuple[np.ndarray, list[Any]]:
     return group, tracks
 
 
-def _held_out_record(held: Any, classes: tuple[str, ...]) -> dict[str, list[Any]] | None:
-    """The reviewed tracks' held-out predictions as JSON (crud.bulk_preview reads the precision
-    at any threshold from it); None with too few reviews to hold any out."""
+def _held_out_record(held: Any, classes: tuple[str, ...], points: list[int | None]) -> dict[str, list[Any]] | None:
+    """The reviewed tracks' held-out predictions as JSON, with each track's points
+    (crud.bulk_preview reads the precision and the size floor at any threshold from it); None
+    with too few reviews to hold any out."""
     if held is None:
         return None
     return {"truth": [classes[i] for i in held.truth], "predicted": [classes[i] for i in held.predicted],
-            "confidence": [round(float(c), 4) for c in held.confidence]}
+            "confidence": [round(float(c), 4) for c in held.confidence], "points": points}
+
+
+def _points(tracks: list[Any], positions: np.ndarray) -> list[int | None]:
+    """The points of the tracks at `positions` in `tracks` (None for -1: samples of no kept track)."""
+    return [int(tracks[j].n_points) if j >= 0 else None for j in positions]
 
 
 def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...]) -> int:
@@ -191,7 +197,8 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
-            "held_out": _held_out_record(held, tuple(classes)), "seconds": round(time.perf_counter() - t0, 2)}
+            "held_out": _held_out_record(held, tuple(classes), _points(tracks, np.unique(group[labelled]))),
+            "seconds": round(time.perf_counter() - t0, 2)}
 
 
 def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int, int]:

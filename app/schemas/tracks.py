@@ -62,6 +62,9 @@ class BulkPreview(BaseModel):
         "Of the reviewed tracks the model in the loop predicted as this class at this confidence with the track "
         "left out of its fit, the share that was right (None before any run or when none was)."))
     held_out_tracks: int = Field(description="How many reviewed tracks that share is over.")
+    min_points: int | None = Field(description=(
+        "Tracks with fewer points are left out: the smallest of those held-out reviewed tracks, below which the "
+        "share says nothing (None: no floor, before any run)."))
 
 
 class BulkActionPublic(_Public):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from sqlalchemy import select, update
 
 from app import crud
-from app.models import AnnotationEvent, Label, Track
+from app.models import AnnotationEvent, Job, Label, Track
 
 
 def _predict(db, seq, classes: dict[int, tuple[str, float]]) -> None:
@@ -40,6 +40,28 @@ def test_bulk_accept_labels_every_confident_prediction_of_the_class(client, fact
         assert crud.operation_count(s, seq) == 1  # one request, whatever the tracks
     stats = client.get("/api/v1/exports/stats", params={"sequence_id": seq}, headers=op.headers).json()
     assert stats["tracks_accepted_by_source"] == {"bulk": 2} and stats["bulk_actions"] == 1
+
+
+def test_bulk_accept_leaves_out_tracks_smaller_than_any_it_was_checked_on(client, factory, db):
+    seq = factory.ingested_sequence(n_objects=4)
+    t = sorted(factory.track_ids(seq), key=lambda i: factory.track(i).n_points)
+    sizes = [factory.track(i).n_points for i in t]
+    assert sizes[0] < sizes[1] < sizes[3], sizes
+    _predict(db, seq, {i: ("bush", 0.97) for i in t})
+    # the newest assist run held out reviewed tracks of sizes[1] and more (and a bigger car)
+    held = {"truth": ["bush", "bush", "car"], "predicted": ["bush", "bush", "car"], "confidence": [0.99, 0.98, 0.99],
+            "points": [sizes[1], sizes[3] + 100, 5]}
+    with db.write() as s:
+        s.add(Job(type="assist", status="succeeded", params={"sequence_id": seq}, result={"held_out": held}))
+        s.commit()
+    op = factory.user()
+    preview = client.get(f"/api/v1/sequences/{seq}/bulk-accept/preview",
+                         params={"class_name": "bush", "min_confidence": 0.95}, headers=op.headers).json()
+    assert preview["min_points"] == sizes[1] and preview["held_out_precision"] == 1.0 and preview["held_out_tracks"] == 2
+    assert preview["tracks"] == 3 and t[0] not in preview["largest_track_ids"]  # smaller than any it was checked on
+    r = _bulk(client, op, seq, conf=0.95, expected_tracks=3)
+    assert r.status_code == 200, r.text
+    assert factory.track(t[0]).status == "pending" and all(factory.track(i).label_source == "bulk" for i in t[1:])
 
 
 def test_bulk_accept_refuses_a_count_other_than_the_preview(client, factory, db):
