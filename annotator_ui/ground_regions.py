@@ -192,7 +192,9 @@ def ground_map(frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], cell
     world = np.concatenate(parts) if parts else np.zeros((0, 3))
     if not len(world):
         return world
-    _, first = np.unique(np.floor(world[:, :2] / cell).astype(np.int64), axis=0, return_index=True)
+    ij = np.floor(world[:, :2] / cell).astype(np.int64)
+    ij -= ij.min(axis=0)
+    _, first = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1], return_index=True)  # 1-D keys: fast
     return world[np.sort(first)]
 
 
