@@ -188,25 +188,34 @@ def _ready_sequences(session: Session, sequence_ids: list[int]) -> list[Sequence
     return [ready_sequence(session, sid) for sid in sequence_ids]
 
 
-def sample_chunks(
-    artifacts: ArtifactStore, refs: list[tuple[str, int]]
-) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """Stored samples frame file by frame file: for `refs` [(artifact, sample index)], yields
-    (positions (n,) into `refs`, samples (n, C, S, S) uint8) once per frame file, in the order the
-    files first appear. Every reader of stored samples goes through here."""
+def stored_arrays(
+    artifacts: ArtifactStore, refs: list[tuple[str, int]], names: tuple[str, ...]
+) -> Iterator[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]]:
+    """Frame file by frame file, for `refs` [(artifact, sample index)]: (positions (n,) into `refs`,
+    their sample indices (n,), the file's arrays `names`), once per file in the order the files
+    first appear. Every reader of stored samples and their frames goes through here."""
     by_file: dict[str, list[tuple[int, int]]] = defaultdict(list)
     for pos, (artifact, index) in enumerate(refs):
         by_file[artifact].append((pos, index))
     for artifact, items in by_file.items():
         try:
-            samples = artifacts.read_arrays(artifact, ("samples",))["samples"]
+            arrays = artifacts.read_arrays(artifact, names)
         except ArtifactMissing as exc:
             raise Conflict(str(exc)) from None
-        dst = np.array([d for d, _ in items], np.int64)
         src = np.array([i for _, i in items], np.int64)
-        if len(src) and src.max() >= len(samples):
-            raise Conflict(f"artifact {artifact} holds {len(samples)} samples, a segment points at {src.max()}")
-        yield dst, samples[src]
+        per_sample = next((arrays[k] for k in ("samples", "sample_segment") if k in arrays), None)
+        if per_sample is not None and len(src) and src.max() >= len(per_sample):
+            raise Conflict(f"artifact {artifact} holds {len(per_sample)} samples, a segment points at {src.max()}")
+        yield np.array([d for d, _ in items], np.int64), src, arrays
+
+
+def sample_chunks(
+    artifacts: ArtifactStore, refs: list[tuple[str, int]]
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Stored samples frame file by frame file: for `refs` [(artifact, sample index)], yields
+    (positions (n,) into `refs`, samples (n, C, S, S) uint8) once per frame file (`stored_arrays`)."""
+    for dst, src, arrays in stored_arrays(artifacts, refs, ("samples",)):
+        yield dst, arrays["samples"][src]
 
 
 def read_samples(

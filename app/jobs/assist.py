@@ -20,7 +20,6 @@ arrive meanwhile start the next run when it ends, so a run is never restarted fo
 from __future__ import annotations
 
 import time
-from collections import defaultdict
 from typing import Any
 
 import numpy as np
@@ -28,10 +27,9 @@ from pydantic import ConfigDict, Field
 from sqlalchemy.orm import Session
 
 from app import crud
-from app.artifacts import ArtifactMissing, ArtifactStore
+from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
-from app.core.errors import Conflict
 from app.crud.frames import frame_artifacts, sample_segments
 from app.crud.model_versions import (
     ChosenModel,
@@ -39,6 +37,7 @@ from app.crud.model_versions import (
     newest_model_trained_on,
     ready_sequence,
     score_stored_samples,
+    stored_arrays,
 )
 from app.crud.review import review_events_after
 from app.crud.statistics import segment_classes
@@ -117,16 +116,8 @@ def _shapes(artifacts: ArtifactStore, refs: list[tuple[str, int]]) -> np.ndarray
     from pipeline.assist import SHAPE_FEATURES, segment_shapes
 
     out = np.zeros((len(refs), len(SHAPE_FEATURES)), np.float32)
-    by_file: dict[str, list[int]] = defaultdict(list)
-    for pos, (artifact, _index) in enumerate(refs):
-        by_file[artifact].append(pos)
-    for artifact, positions in by_file.items():
-        try:
-            a = artifacts.read_arrays(artifact, ("points", "intensity", "segment", "sample_segment"))
-        except ArtifactMissing as exc:
-            raise Conflict(str(exc)) from None
-        ids = a["sample_segment"][[refs[p][1] for p in positions]]
-        out[positions] = segment_shapes(a["points"], a["intensity"], a["segment"], ids)
+    for dst, src, a in stored_arrays(artifacts, refs, ("points", "intensity", "segment", "sample_segment")):
+        out[dst] = segment_shapes(a["points"], a["intensity"], a["segment"], a["sample_segment"][src])
     return out
 
 
