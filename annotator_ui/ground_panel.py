@@ -90,6 +90,7 @@ class GroundPanel:
         self.map_sequence: int | None = None  # whose it is
         self._map_frame: Any = None  # the /ground/map frame node
         self._map_drawn: tuple[int, list[tuple[int, str, bytes]]] | None = None  # what its colours show
+        self._map_loading = False  # a read of another sequence's map is on its way
         self.gui_close.on_click(lambda _: self.close_and_label())
         self.gui_clear.on_click(lambda _: self.clear())
         self.gui_undo.on_click(lambda _: self.undo())
@@ -239,6 +240,8 @@ class GroundPanel:
             except ApiError as exc:
                 self.notify("Cannot show every frame's ground", exc.detail, "red")
                 return
+            finally:
+                self._map_loading = False
             with self._lock:
                 self.map_world, self.map_sequence, self._map_drawn = world, v.sequence_id, None
         self.draw()
@@ -252,6 +255,10 @@ class GroundPanel:
         again only when the regions (their colours) changed."""
         with self._lock:
             world = self.map_world if self.map_sequence == v.sequence_id else None
+            stale = self.gui_every.value and self.map_sequence != v.sequence_id and not self._map_loading
+            self._map_loading |= stale
+        if stale:  # a track of another sequence came with the box ticked: read its ground
+            self.later(self.show_every_frame)
         if not self.gui_every.value or world is None or not len(world):
             self._remove("/ground/map")
             self._map_frame, self._map_drawn = None, None
