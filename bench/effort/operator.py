@@ -157,6 +157,11 @@ class Operator:
         if track is None:
             self.counts.queue_empty = True
             return False
+        self.review(track)
+        return True
+
+    def review(self, track: dict[str, Any]) -> None:
+        """Look at `track` (TrackPublic) and decide it (module docstring)."""
         classes, world = self.look(self.show(track))
         labelled = classes != UNLABELLED
         if not labelled.any():
@@ -170,7 +175,6 @@ class Operator:
             else:
                 self._split(track, box, major)
         self.counts.reviews += 1
-        return True
 
     def _split_box(self, classes: np.ndarray, world: np.ndarray, major: int) -> tuple[np.ndarray, np.ndarray, int] | None:
         """(centre, size, class) of the world box that moves the most points of the largest

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from fastapi.testclient import TestClient
 
 from app.crud.model_versions import register_model_version
@@ -38,6 +39,7 @@ def setup(settings, db, factory, tmp_path):
 
     seq = factory.ingested_sequence(n_frames=5, n_objects=8)
     net, samples = ModelConfig(width=4, max_width=8, depth=2), SampleConfig(size=8)
+    torch.manual_seed(0)  # one model, so the predictions a bulk takes are the same every run
     ckpt = save_checkpoint(tmp_path / "m8.pt", get_model(net, samples), net, samples)
     with db.write() as s:
         register_model_version(s, name="m8", kind="train", path=ckpt, config={"params": {"sequence_ids": [seq]}})
@@ -53,11 +55,16 @@ def setup(settings, db, factory, tmp_path):
     client.close()
 
 
+def _settle(worker: Worker) -> None:
+    """Run every job the worker has due (the model in the loop after the newest reviews)."""
+    worker.schedule()
+    while worker.run_once():
+        pass
+
+
 def _work(op: Operator, worker: Worker, reviews: int) -> None:
     for _ in range(reviews):
-        worker.schedule()
-        while worker.run_once():
-            pass
+        _settle(worker)
         if not op.review_next():
             break
         if op.counts.reviews % op.policy.bulk_every == 0:
@@ -68,7 +75,18 @@ def test_effort_action_count_is_the_event_log_s(setup, db):
     from app import crud
 
     seq, op, worker = setup
-    _work(op, worker, 7)
+    # the queue offers the largest tracks first, and a bulk takes only tracks at least as large as
+    # the smallest reviewed one the model was checked on: the operator first opens the smallest
+    # tracks from the track list, so that pending tracks above that size remain
+    tracks = sorted(op.admin.get("/tracks", params={"sequence_id": seq, "limit": 100})["items"], key=lambda t: t["n_points"])
+    for t in tracks[:3]:
+        op.review(op.op.get(f"/tracks/{t['id']}"))
+        _settle(worker)
+    for _ in range(3):
+        op.review_next()
+        _settle(worker)
+    op.bulk_round()  # on the model of all six reviews
+    op.review_next()
     c = op.counts
     assert c.reviews >= 6 and c.bulk_accepts >= 1 and c.audits >= 1
     with db.read() as s:
