@@ -231,8 +231,8 @@ def run_predict(
     """Classify every valid segment of a sequence and write per-frame labels (the files of
     `pipeline.prediction_files`); returns the summary. checkpoint: None = the shipped default
     model (`pipeline.model.default_model_path`)."""
-    from pipeline.model import default_model_path
-    from pipeline.predict import InputCheck, SegmentClassifier, check_predict_label_set, model_sample_config
+    from pipeline.model import check_label_set, default_model_path
+    from pipeline.predict import InputCheck, SegmentClassifier, model_sample_config
     from pipeline.prediction_files import PredictionWriter, prediction_summary
 
     log = log or (lambda _m: None)
@@ -240,7 +240,7 @@ def run_predict(
     # 1. the model, the config its samples need, the sequence and the output folder
     clf = SegmentClassifier(default_model_path() if checkpoint is None else checkpoint, o.device)
     label_set = load_label_set(o.label_set)
-    check_predict_label_set(clf.meta, label_set, clf.path)
+    check_label_set(clf.meta, label_set, clf.path)  # predict writes the model's own set
     config = model_sample_config(config or PipelineConfig(), clf.meta.sample_config, o.size)
     out = Path(out)
     opened = open_sequence(seq, o.fmt, o.sensor if o.sensor != "auto" else config.sensor.name, o.poses, progress)

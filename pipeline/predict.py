@@ -29,10 +29,9 @@ from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.frames import FrameResult
 from pipeline.input_stats import input_warnings
-from pipeline.label_sets import LabelSet
-from pipeline.model import CheckpointMeta, check_label_set, load_checkpoint, predict
+from pipeline.model import load_checkpoint, predict
 
-__all__ = ["FramePrediction", "InputCheck", "SegmentClassifier", "TrackSmoother", "check_predict_label_set", "model_sample_config",
+__all__ = ["FramePrediction", "InputCheck", "SegmentClassifier", "TrackSmoother", "model_sample_config",
            "point_accuracy", "predict_frame_classes"]
 
 
@@ -48,12 +47,6 @@ def model_sample_config(config: PipelineConfig, checkpoint_samples: Any, explici
             f"{checkpoint_samples.size}x{checkpoint_samples.size} samples",
         )
     return config.override({"samples": checkpoint_samples.model_dump()})
-
-
-def check_predict_label_set(meta: CheckpointMeta, label_set: LabelSet, path: str | Path) -> None:
-    """LabelSetMismatch unless the model was trained on `label_set` (its outputs are the set's
-    classes that are not ground)."""
-    check_label_set(meta, label_set, path)
 
 
 class SegmentClassifier:

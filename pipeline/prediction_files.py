@@ -52,7 +52,7 @@ class PredictionWriter:
 
     def __init__(self, clf: SegmentClassifier, out: Path, smooth_tracks: bool, evaluate: bool,
                  label_set: LabelSet) -> None:
-        self.clf, self.out, self.label_set = clf, out, label_set  # the model's set (check_predict_label_set)
+        self.clf, self.out, self.label_set = clf, out, label_set  # the model's set (pipeline.model.check_label_set)
         self.to_index, self.to_semantickitti = label_set.to_index_table(), label_set.to_semantickitti_table()
         ground = label_set.ground_index
         self.ground_class = UNLABELLED if ground is None else ground

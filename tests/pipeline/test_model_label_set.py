@@ -9,7 +9,6 @@ from pipeline.config import ModelConfig, SampleConfig
 from pipeline.errors import LabelSetMismatch
 from pipeline.label_sets import preset
 from pipeline.model import check_label_set, get_model, load_checkpoint, save_checkpoint
-from pipeline.predict import check_predict_label_set
 
 SAMPLES = SampleConfig(size=16)
 
@@ -55,6 +54,6 @@ def test_model_label_set_same_name_other_classes_raises(tmp_path):
 def test_model_label_set_predict_takes_a_model_of_any_set_with_that_set(tmp_path):
     path = _checkpoint(tmp_path / "sk.pt", "semantickitti")
     _, meta = load_checkpoint(path)
-    check_predict_label_set(meta, preset("semantickitti"), path)
+    check_label_set(meta, preset("semantickitti"), path)
     with pytest.raises(LabelSetMismatch):
-        check_predict_label_set(meta, preset("nuscenes"), path)
+        check_label_set(meta, preset("nuscenes"), path)
