@@ -19,7 +19,7 @@ from sqlalchemy.orm import Session
 from app import crud
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound
 from app.crud import AuthUser
-from app.crud.label_sets import check_class, sequence_label_set
+from app.crud.label_sets import check_class, existing_label_set
 from app.models import AnchorEvent, AnchorProposal, Frame, Segment, Track, User, utcnow
 
 ANSWERS = ("confirm", "correct", "reject")
@@ -161,8 +161,7 @@ def answer_anchor(
     if p.status != "proposed":
         who = session.scalar(select(User.name).where(User.id == p.decided_by_id)) if p.decided_by_id else None
         raise Conflict(f"anchor proposal {anchor_id} is already {p.status}" + (f" by {who}" if who else ""))
-    label_set = sequence_label_set(session, p.sequence_id)
-    assert label_set is not None, p.sequence_id  # a proposal cascades away with its sequence
+    label_set = existing_label_set(session, p.sequence_id)  # a proposal cascades away with its sequence
     if answer == "confirm":
         cls = p.proposed_class
         if cls not in label_set.sample_class_names:

@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session
 from app.core.errors import Conflict, NotFound
 from app.crud.datasets import require_ready
 from app.crud.ground_regions import region_operations
-from app.crud.label_sets import check_class, sequence_label_set
+from app.crud.label_sets import check_class, existing_label_set, sequence_label_set
 from app.crud.review import REVIEW_FIELDS, refresh_labels, review_state, stored_state
 from app.crud.users import AuthUser
 from app.models import AnnotationEvent, BulkAction, Job, Track, utcnow
@@ -184,8 +184,7 @@ def undo_bulk(session: Session, bulk_id: int, user: AuthUser) -> BulkAction:
     session.flush()
     if undo_rows:
         session.execute(insert(AnnotationEvent), undo_rows)
-    label_set = sequence_label_set(session, bulk.sequence_id)
-    assert label_set is not None, bulk.sequence_id  # the bulk cascades away with its sequence
+    label_set = existing_label_set(session, bulk.sequence_id)  # the bulk cascades away with its sequence
     for _ev, track in rows:
         refresh_labels(session, track, user.id, label_set)
     bulk.undone_at, bulk.undone_by_id = now, user.id

@@ -46,6 +46,14 @@ def sequence_label_set(session: Session, sequence_id: int | None) -> LabelSet | 
     return None if row is None else resolve_label_set(row[0], row[1])
 
 
+def existing_label_set(session: Session, sequence_id: int) -> LabelSet:
+    """The label set of a sequence that exists (a row that references it, by foreign key, or one
+    a caller has checked)."""
+    label_set = sequence_label_set(session, sequence_id)
+    assert label_set is not None, sequence_id
+    return label_set
+
+
 def label_sets_in_use(session: Session) -> list[LabelSet]:
     """The distinct label sets of the registered sequences (JSON has no equality on PostgreSQL,
     so the rows are told apart here)."""

@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from app.core.errors import Conflict, Invalid, NotApplicable, NotFound, check_version
 from app.crud import leases
 from app.crud.datasets import require_ready
-from app.crud.label_sets import check_class, sequence_label_set
+from app.crud.label_sets import check_class, existing_label_set
 from app.crud.review_queue import queue_priority
 from app.crud.tracks import track_events
 from app.crud.users import AuthUser
@@ -116,9 +116,7 @@ def apply_action(
 
 
 def _label_set(session: Session, track: Track) -> LabelSet:
-    label_set = sequence_label_set(session, track.sequence_id)
-    assert label_set is not None, track.sequence_id  # a track's sequence exists (foreign key)
-    return label_set
+    return existing_label_set(session, track.sequence_id)
 
 
 def _track_for_review(

@@ -100,8 +100,7 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
 
     with ctx.db.read() as s:
         prepare_propose(s, params)
-        label_set = crud.sequence_label_set(s, params.sequence_id)
-        assert label_set is not None, params.sequence_id  # prepare_propose checked it
+        label_set = crud.existing_label_set(s, params.sequence_id)  # prepare_propose checked it
         chosen = choose_model(s, params.model_id)
         mv_id, mv_path = chosen.id, chosen.path
         rows = proposal_candidates(s, params.sequence_id)

@@ -168,8 +168,7 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     with ctx.db.read() as s:
         data = _read(s, params.sequence_id)
         chosen = base_model(s, params.sequence_id, params.model_id)
-        label_set = crud.sequence_label_set(s, params.sequence_id)
-    assert label_set is not None, params.sequence_id  # _read checked it is ready
+        label_set = crud.existing_label_set(s, params.sequence_id)  # _read checked it is ready
     ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
     features, cnn_classes = _features(ctx, data, chosen, 512)
     k = len(label_set.sample_class_names)

@@ -6,7 +6,9 @@ from datetime import UTC, datetime
 from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, model_validator
+
+from pipeline.label_sets.model import Name
 
 Role = Literal["operator", "reviewer", "admin"]
 TrackStatus = Literal["pending", "accepted", "discarded", "merged"]
@@ -14,7 +16,7 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SequenceStatus = Literal["registered", "ingesting", "ready", "failed"]
 # A class of the sequence's label set (pipeline/label_sets): the set differs per sequence, so the
 # schema checks the form of a class name and the route checks it against the set (422 naming both)
-ClassName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$")]
+ClassName = Name
 LabelSource = Literal["review", "bulk"]
 
 

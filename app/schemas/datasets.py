@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
@@ -14,9 +14,10 @@ from app.schemas.base import (
     _Request,
 )
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet
+from pipeline.label_sets.model import Name
 
 # ----------------------------------------------------------------------------- datasets
-LabelSetName = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[a-z0-9][a-z0-9_-]*$")]
+LabelSetName = Name  # the form of a label set's name, as pipeline.label_sets checks it
 IngestPoses = Literal["file", "icp"]
 POSES_HELP = "Poses for ingest: file (the sequence's own; none links no tracks) or icp (estimated by KISS-ICP)."
 

@@ -216,9 +216,10 @@ def restore_frames(session: Session, frames: list[dict[str, Any]]) -> None:
 
 def refresh_labels(session: Session, user: AuthUser, *tracks: Track) -> None:
     session.flush()
+    if not tracks:
+        return
+    label_set = crud.existing_label_set(session, tracks[0].sequence_id)  # a repair's tracks share their sequence
     for t in tracks:
-        label_set = crud.sequence_label_set(session, t.sequence_id)
-        assert label_set is not None, t.sequence_id  # a track's sequence exists (foreign key)
         crud.refresh_labels(session, t, user.id, label_set)
 
 
