@@ -23,7 +23,7 @@ import numpy as np
 from annotator_ui.client import ApiClient
 from annotator_ui.geometry import pick_point
 from pipeline.assist import NO_OBJECT
-from pipeline.propagation import GroundRegion
+from pipeline.propagation import GroundRegion, to_world
 
 NEAR_GROUND_M = 2.0  # ground points within this distance (x, y) of the spot clicked set its height
 MIN_NEAR_GROUND = 5  # fewer ground points than this near the click: the frame's median height
@@ -184,11 +184,7 @@ def ground_map(frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], cell
     """(M, 3) float64 world points: the ground estimate of every frame, one point per `cell` x
     `cell` column of the top view (the first seen), so a route's ground fits one cloud. frames:
     ((N, 3) lidar points, (N,) bool ground, (4, 4) T_world_lidar) each."""
-    parts = []
-    for points, ground, T in frames:
-        g = np.asarray(points, np.float64)[np.asarray(ground, bool)]
-        T = np.asarray(T, np.float64)
-        parts.append(g @ T[:3, :3].T + T[:3, 3])
+    parts = [to_world(np.asarray(points)[np.asarray(ground, bool)], T) for points, ground, T in frames]
     world = np.concatenate(parts) if parts else np.zeros((0, 3))
     if not len(world):
         return world
@@ -200,5 +196,4 @@ def ground_map(frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], cell
 
 def to_world_xy(points: np.ndarray, T_world_lidar: np.ndarray) -> np.ndarray:
     """(N, 3) lidar points -> (N, 2) float64 world x, y."""
-    T = np.asarray(T_world_lidar, np.float64)
-    return np.asarray(points, np.float64) @ T[:2, :3].T + T[:2, 3]
+    return to_world(points, T_world_lidar)[:, :2]

@@ -174,8 +174,7 @@ class ClientTab:
         def each() -> Any:
             for _index, f in sorted(frames.items()):
                 p = self.scene.cache.payload(self.api, int(f["id"]))
-                if p.ground is not None:
-                    yield p.points, p.ground, pose_matrix(f.get("pose"))
+                yield p.points, p.ground, pose_matrix(f.get("pose"))
 
         return ground_map(each())
 
