@@ -18,7 +18,6 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import ConfigDict, Field
 
-from app import crud
 from app.core.errors import Invalid
 from app.crud.anchors import answered_proposals, proposal_candidates, store_proposals
 from app.crud.model_versions import choose_model, ready_sequence, score_stored_samples
@@ -95,12 +94,13 @@ def _proposal_rows(ctx: JobContext, params: ProposeAnchorsParams, out: Any, clas
 
 
 def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]:
+    from app.crud.label_sets import label_set_of
+    from app.services.label_sets import check_model_label_set
     from pipeline.anchors import TRACK_STRATEGIES, class_counts, propose
     from pipeline.model import load_checkpoint
 
     with ctx.db.read() as s:
-        prepare_propose(s, params)
-        label_set = crud.existing_label_set(s, params.sequence_id)  # prepare_propose checked it
+        label_set = label_set_of(ready_sequence(s, params.sequence_id))
         chosen = choose_model(s, params.model_id)
         mv_id, mv_path = chosen.id, chosen.path
         rows = proposal_candidates(s, params.sequence_id)
@@ -109,6 +109,7 @@ def run_propose(ctx: JobContext, params: ProposeAnchorsParams) -> dict[str, Any]
         raise Invalid(f"sequence {params.sequence_id} has no samples on tracks to propose")
     ctx.progress(0.0, f"scoring {len(rows)} samples with {chosen.name}")
     model, meta = load_checkpoint(mv_path)
+    check_model_label_set(chosen.name, meta, mv_path, label_set)  # as prepare_propose does at queue time
     classes = tuple(meta.classes[: meta.model_config.num_classes])
     if meta.sample_config.channels != model.config.in_channels:  # pragma: no cover - load_checkpoint checks
         raise Invalid(f"{chosen.name}: inconsistent checkpoint")

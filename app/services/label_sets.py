@@ -33,13 +33,21 @@ def require_model_label_set(name: str, path: str, label_set: LabelSet) -> None:
     """Invalid (422) when the checkpoint at `path` was trained on another label set than
     `label_set` (the sequence's). A checkpoint that cannot be read is left to the job, which
     reports it as its failure."""
-    from pipeline.errors import DataError, LabelSetMismatch
-    from pipeline.model import check_label_set, load_checkpoint
+    from pipeline.errors import DataError
+    from pipeline.model import load_checkpoint
 
     try:
         _, meta = load_checkpoint(path, "cpu")
     except DataError:
         return
+    check_model_label_set(name, meta, path, label_set)
+
+
+def check_model_label_set(name: str, meta: Any, path: str, label_set: LabelSet) -> None:
+    """`require_model_label_set` for a checkpoint already loaded (`meta`: its CheckpointMeta)."""
+    from pipeline.errors import LabelSetMismatch
+    from pipeline.model import check_label_set
+
     try:
         check_label_set(meta, label_set, path)
     except LabelSetMismatch as exc:
