@@ -216,11 +216,8 @@ def restore_frames(session: Session, frames: list[dict[str, Any]]) -> None:
 
 def refresh_labels(session: Session, user: AuthUser, *tracks: Track) -> None:
     session.flush()
-    if not tracks:
-        return
-    label_set = crud.existing_label_set(session, tracks[0].sequence_id)  # a repair's tracks share their sequence
     for t in tracks:
-        crud.refresh_labels(session, t, user.id, label_set)
+        crud.refresh_labels(session, t, user.id, crud.existing_label_set(session, t.sequence_id))
 
 
 def update_by_id(session: Session, table: Any, rows: list[dict[str, Any]]) -> None:
