@@ -483,10 +483,10 @@ class BulkAction(Base):
 
 class GroundRegion(Base):
     """A polygon an operator drew on the top view of a sequence (world x, y) and a class of its
-    label set: the ground points of every frame inside it take that class in the exports
-    (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
+    label set: the ground points of every frame inside it take that class in the exports, or with
+    a height range every point inside the prism (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
     one is its undo: the row stays with `deleted_at` set, so that the operations a sequence took
-    can be counted (`crud.operation_count`). Migration 0014."""
+    can be counted (`crud.operation_count`). Migrations 0014, 0015 (the heights)."""
 
     __tablename__ = "ground_regions"
     __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)
@@ -495,7 +495,13 @@ class GroundRegion(Base):
     sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
     class_name: Mapped[str] = mapped_column(String(32))
     polygon: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y], ...] world metres, not closed
+    z_low: Mapped[float | None] = mapped_column(Float)  # world z (m): with z_high, every point between (0015)
+    z_high: Mapped[float | None] = mapped_column(Float)
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     deleted_at: Mapped[datetime | None] = mapped_column(DateTime)
     deleted_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
+
+    @property
+    def heights(self) -> tuple[float, float] | None:
+        return None if self.z_low is None or self.z_high is None else (self.z_low, self.z_high)

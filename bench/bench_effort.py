@@ -108,7 +108,7 @@ class Run:
             if op.counts.reviews % pol.bulk_every == 0:
                 op.bulk_round()
             if not ground_done and op.counts.reviews % pol.ground_every == 0:
-                ground_done = not op.ground_pass()
+                ground_done = not op.region_pass()
             if op.counts.actions >= marks[0]:
                 point = self.checkpoint()
                 print(f"  {point['actions']:4d} actions: non-ground right {point['non_ground_right']:.3f}, "

@@ -5,8 +5,10 @@ A point's class comes, in this order, from
 
 1. its track's decision (`reviewed`, or `bulk` for a bulk-accepted prediction) in the track's
    kept frames;
-2. an operator's ground region, for a ground point (the ground estimate's, or a point of a track
-   that is no object) inside the region's polygon on the top view, in any frame (`region`);
+2. an operator's region (`region`), in any frame: a polygon on the top view gives its class to the
+   ground points inside it (the ground estimate's, or points of a track that is no object) that
+   no decided track holds; one with a height range gives it to every point inside the prism,
+   a decided track's too (the operator painted them: a fence grown into a reviewed hedge);
 3. the nearest point so decided within `radius` in the world frame, in this frame or a nearby one
    (`propagated`): points of segments too small to be samples, points the range image did not
    give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
@@ -55,12 +57,14 @@ class Rules:
 
 @dataclass(frozen=True)
 class GroundRegion:
-    """A polygon an operator drew on the top view (world x, y; (K, 2), K >= 3) and its class: the
-    ground points inside it take the class in every frame. A later region is drawn over an
+    """A polygon an operator drew on the top view (world x, y; (K, 2), K >= 3) and its class.
+    Without `heights` the ground points inside it take the class in every frame; with heights
+    (world z low, high) every point inside the prism does. A later region is drawn over an
     earlier one where they overlap."""
 
     polygon: np.ndarray
     class_: int
+    heights: tuple[float, float] | None = None
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(N,) bool of (N, 2) world points; the bounding box first, so a frame far from the
@@ -69,6 +73,17 @@ class GroundRegion:
         near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
         out = np.zeros(len(xy), bool)
         out[near] = points_in_polygon(xy[near], self.polygon)
+        return out
+
+    def labels(self, world: np.ndarray, free_ground: np.ndarray) -> np.ndarray:
+        """(N,) bool the points of (N, 3) world points this region labels: inside its prism, or
+        without heights the `free_ground` points inside its polygon."""
+        if self.heights is None:
+            idx = np.flatnonzero(free_ground)
+        else:
+            idx = np.flatnonzero((world[:, 2] >= self.heights[0]) & (world[:, 2] <= self.heights[1]))
+        out = np.zeros(len(world), bool)
+        out[idx[self.contains(world[idx, :2])]] = True
         return out
 
 
@@ -172,17 +187,13 @@ def decided_labels(track: np.ndarray, decided: TrackClasses) -> PointLabels:
 
 
 def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion]) -> None:
-    """Step 2: the ground points that no decided track holds take the class of the last region
-    around them."""
-    free = np.asarray(ground, bool) & ~out.labelled
-    if not regions or not free.any():
+    """Step 2: each region, oldest first, gives its class to the points it labels
+    (`GroundRegion.labels`; ground points that no decided track holds, or its prism's)."""
+    if not regions:
         return
-    idx = np.flatnonzero(free)
-    xy = world[idx, :2]
+    free = np.asarray(ground, bool) & ~out.labelled
     for r in regions:
-        mask = np.zeros(len(free), bool)
-        mask[idx[r.contains(xy)]] = True
-        out.set(mask, r.class_, SOURCE["region"], 1.0)
+        out.set(r.labels(world, free), r.class_, SOURCE["region"], 1.0)
 
 
 def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestLabel, radius: float,
@@ -221,7 +232,7 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
     hit &= ~out.labelled
     out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
     if (~out.labelled).any() and out.labelled.any():
-        # regions speak for ground only: a wall beside a lawn is not lawn
+        # regions label what they hold and no more: a wall beside a lawn is not lawn
         spread = np.where(out.source == SOURCE["region"], NONE, out.class_).astype(np.uint8)
         near = NearestLabel(*thin(world, PointLabels(spread, out.source, out.confidence), rules.voxel))
         rest = ~out.labelled

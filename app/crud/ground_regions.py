@@ -1,6 +1,6 @@
 """Ground regions: polygons an operator draws on a sequence's top view, each with a class of the
-sequence's label set. The exports give the ground points inside them that class in every frame
-(`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it
+sequence's label set. The exports give the ground points inside them that class in every frame,
+or with a height range every point inside the prism (`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it
 (the row stays, marked deleted, for the count of operations)."""
 
 from __future__ import annotations
@@ -16,15 +16,18 @@ from app.models import GroundRegion, utcnow
 
 
 def create_region(session: Session, sequence_id: int, user: AuthUser, class_name: str,
-                  polygon: list[tuple[float, float]]) -> GroundRegion:
+                  polygon: list[tuple[float, float]], heights: tuple[float, float] | None = None) -> GroundRegion:
     """Store a region (NotFound for an unknown sequence, Invalid for a class outside its label
-    set or a polygon without area). Commits."""
+    set, a polygon without area or heights whose low is not below their high). Commits."""
     seq = get_sequence(session, sequence_id)
     check_class("class_name", class_name, label_set_of(seq), ground=True)
     if _area(polygon) <= 1e-6:
         raise Invalid("polygon: its vertices enclose no area")
+    if heights is not None and not heights[0] < heights[1]:
+        raise Invalid(f"heights: low {heights[0]} must be below high {heights[1]}")
+    low, high = (None, None) if heights is None else (float(heights[0]), float(heights[1]))
     row = GroundRegion(sequence_id=sequence_id, class_name=class_name, polygon=[[float(x), float(y)] for x, y in polygon],
-                       created_by_id=user.id)
+                       z_low=low, z_high=high, created_by_id=user.id)
     session.add(row)
     session.commit()
     return row

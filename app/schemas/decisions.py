@@ -148,19 +148,25 @@ class AuditPublic(_Public):
 # ----------------------------------------------------------------------------- ground regions
 class GroundRegionCreate(_Request):
     """A polygon on the top view (world x, y in metres, 3 to 1000 vertices, not closed) and the
-    class of the sequence's label set its ground points take."""
+    class of the sequence's label set its points take: its ground points, or with `heights` every
+    point between them."""
 
     class_name: str = Field(min_length=1, max_length=32)
     polygon: list[tuple[WorldCoordinate, WorldCoordinate]] = Field(min_length=3, max_length=1000)
+    heights: tuple[WorldCoordinate, WorldCoordinate] | None = Field(
+        default=None, description="World z low and high (m, low < high): every point inside the prism takes the "
+        "class, a decided track's too. Without it, the ground points that no decided track holds.")
 
 
 class GroundRegionPublic(_Public):
-    """A stored ground region: the ground points inside its polygon take `class_name` in every
-    frame of the sequence's exports; the newest region wins where regions overlap."""
+    """A stored region: the ground points inside its polygon (with `heights`, every point inside
+    the prism) take `class_name` in every frame of the sequence's exports; the newest region wins
+    where regions overlap."""
 
     id: int
     sequence_id: int
     class_name: str
     polygon: list[tuple[float, float]]
+    heights: tuple[float, float] | None
     created_by_id: int | None
     created_at: UtcDateTime

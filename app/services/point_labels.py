@@ -117,7 +117,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    regions = tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name))
+    regions = tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights)
                     for r in list_regions(session, sequence.id))
     return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, label_set, regions)
 

@@ -1,13 +1,16 @@
-"""The simulated operator's lasso on the top view: where to draw a ground region next.
+"""The simulated operator's lasso on the top view: where to draw a region next.
 
-The operator looks at the ground layer of every frame at once (the points the export labels as
-ground or by a region), knows the true class of each point it sees, and draws the polygon that
-would put the most of them right: around a connected area of grid cells whose points are mostly
-of one class, traced along its outline as a person traces a sidewalk's curb or a lawn's edge.
+The operator looks at every frame at once, knows the true class of each point it sees, and draws
+the polygon that would put the most of them right: around a connected area of grid cells whose
+points are mostly of one class, traced along its outline as a person traces a sidewalk's curb or
+a lawn's edge. `plan` draws over the ground layer (the points the export labels as ground or by a
+region; the region labels ground points); `plan_prism` over every point, with a height range
+(the region labels every point inside the prism: a hedge, a fence grown into it).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -20,6 +23,8 @@ CELL = 0.5  # m: the top view's grid the operator reads areas from
 MAX_VERTICES = 1000  # the API's limit
 CANDIDATES = 3  # outlines tried per class, largest estimated gain first
 UP = 8  # pixels per cell side when tracing an outline
+PRISM_VERTICES = 32  # a hedge or a fence traced in a few dozen clicks
+HEIGHT_PERCENTILES = (1.0, 99.0)  # of the class's points in the area: the prism's low and high
 
 
 @dataclass(frozen=True)
@@ -27,12 +32,13 @@ class Lasso:
     polygon: np.ndarray  # (K, 2) world x, y
     class_: int
     gain: int  # points it puts right minus points it puts wrong, among those seen
+    heights: tuple[float, float] | None = None  # world z low, high: every point between (None: ground points)
 
 
-def _outline(mask: np.ndarray, origin: np.ndarray) -> np.ndarray | None:
+def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTICES) -> np.ndarray | None:
     """The outer outline of a cell mask as a world polygon along the cells' outer edges (to
     1 / (2 UP) of a cell: the contour runs through the centres of the edge pixels of the mask
-    drawn UP times larger)."""
+    drawn UP times larger), simplified to at most `max_vertices`."""
     big = np.kron(mask, np.ones((UP, UP), np.uint8))
     contours, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
@@ -40,7 +46,7 @@ def _outline(mask: np.ndarray, origin: np.ndarray) -> np.ndarray | None:
     c = max(contours, key=cv2.contourArea)
     eps = 1.0
     poly = cv2.approxPolyDP(c, eps, True)
-    while len(poly) > MAX_VERTICES:
+    while len(poly) > max_vertices:
         eps *= 2
         poly = cv2.approxPolyDP(c, eps, True)
     if len(poly) < 3:
@@ -49,10 +55,40 @@ def _outline(mask: np.ndarray, origin: np.ndarray) -> np.ndarray | None:
     return origin + ((rc + 0.5) / UP - 1) * CELL  # the grid has a margin of one cell
 
 
-def _gain(xy: np.ndarray, true: np.ndarray, current: np.ndarray, polygon: np.ndarray, cls: int) -> int:
-    inside = points_in_polygon(xy, polygon)
+def _inside(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    lo, hi = polygon.min(0), polygon.max(0)
+    near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
+    out = np.zeros(len(xy), bool)
+    out[near] = points_in_polygon(xy[near], polygon)
+    return out
+
+
+def _gain(inside: np.ndarray, true: np.ndarray, current: np.ndarray, cls: int) -> int:
     t, c = true[inside], current[inside]
     return int(((t == cls) & (c != cls)).sum() - ((c == t) & (t != cls)).sum())
+
+
+def _areas(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, area: np.ndarray, n_classes: int
+           ) -> Iterator[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
+    """Per class of the wrong points, the connected areas of grid cells whose `area` points are
+    mostly of that class, largest first by the wrong points of that class they hold: (class,
+    that estimate, the cell mask, its grid origin, which points lie in its cells)."""
+    origin = xy.min(0)
+    ij = np.floor((xy - origin) / CELL).astype(np.int64) + 1  # a margin of one cell for the outline
+    h, w = ij.max(0) + 2
+    cell = ij[:, 0] * w + ij[:, 1]
+    counts = np.bincount(cell[area] * n_classes + true[area], minlength=h * w * n_classes).reshape(h * w, n_classes)
+    major = counts.argmax(1)
+    for cls in np.unique(true[wrong]):
+        mask = ((major == cls) & (counts.sum(1) > 0)).reshape(h, w).astype(np.uint8)
+        n, comp = cv2.connectedComponents(mask, connectivity=8)
+        comp_of_point = comp.ravel()[cell]
+        estimate = np.bincount(comp_of_point[wrong & (true == cls)], minlength=n)
+        estimate[0] = 0
+        for k in np.argsort(-estimate)[:CANDIDATES]:
+            if estimate[k] == 0:
+                break
+            yield int(cls), int(estimate[k]), (comp == k).astype(np.uint8), origin, comp_of_point == k
 
 
 def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) -> Lasso | None:
@@ -63,26 +99,41 @@ def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) 
     wrong = true != current
     if not wrong.any():
         return None
-    origin = xy.min(0)
-    ij = np.floor((xy - origin) / CELL).astype(np.int64) + 1  # a margin of one cell for the outline
-    h, w = ij.max(0) + 2
-    cell = ij[:, 0] * w + ij[:, 1]
-    counts = np.bincount(cell * n_classes + true, minlength=h * w * n_classes).reshape(h * w, n_classes)
-    major = counts.argmax(1)
     best: Lasso | None = None
-    for cls in np.unique(true[wrong]):
-        mask = ((major == cls) & (counts.sum(1) > 0)).reshape(h, w).astype(np.uint8)
-        n, comp = cv2.connectedComponents(mask, connectivity=8)
-        comp_of_point = comp.ravel()[cell]
-        estimate = np.bincount(comp_of_point[wrong & (true == cls)], minlength=n)
-        estimate[0] = 0
-        for k in np.argsort(-estimate)[:CANDIDATES]:
-            if estimate[k] == 0 or (best is not None and estimate[k] <= best.gain):
-                break
-            polygon = _outline((comp == k).astype(np.uint8), origin)
-            if polygon is None:
-                continue
-            gain = _gain(xy, true, current, polygon, int(cls))
-            if best is None or gain > best.gain:
-                best = Lasso(polygon, int(cls), gain)
+    for cls, estimate, mask, origin, _ in _areas(xy, true, wrong, np.ones(len(xy), bool), n_classes):
+        if best is not None and estimate <= best.gain:
+            continue
+        polygon = _outline(mask, origin)
+        if polygon is None:
+            continue
+        gain = _gain(_inside(xy, polygon), true, current, cls)
+        if best is None or gain > best.gain:
+            best = Lasso(polygon, cls, gain)
+    return best
+
+
+def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects: int, n_classes: int) -> Lasso | None:
+    """The best region with a height range over these seen points ((N, 3) world; true and
+    current class per point, UNLABELLED where unknown): around a connected area of cells whose
+    points that are not ground are mostly of one object class (`objects`: the first classes),
+    from the lowest to the highest of that class's points there (1st and 99th percentiles), as a
+    person lifts a prism over a hedge or a fence."""
+    known = true != UNLABELLED
+    world, true, current = world[known], true[known], current[known]
+    wrong = (true != current) & (true < objects)
+    if not wrong.any():
+        return None
+    xy, best = world[:, :2], None
+    for cls, estimate, mask, origin, in_area in _areas(xy, true, wrong, true < objects, n_classes):
+        if best is not None and estimate <= best.gain:
+            continue
+        polygon = _outline(mask, origin, PRISM_VERTICES)
+        if polygon is None:
+            continue
+        z = world[in_area & (true == cls), 2]
+        low, high = (float(v) for v in np.percentile(z, HEIGHT_PERCENTILES))
+        inside = _inside(xy, polygon) & (world[:, 2] >= low) & (world[:, 2] <= high)
+        gain = _gain(inside, true, current, cls)
+        if best is None or gain > best.gain:
+            best = Lasso(polygon, cls, gain, (low, high))
     return best

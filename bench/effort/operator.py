@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.effort.ground import plan
+from bench.effort.ground import Lasso, plan, plan_prism
 from bench.effort.score import exported_classes
 from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
@@ -54,6 +54,7 @@ class Policy:
     ground_every: int = 5  # reviews between two looks at the ground layer
     ground_per_frame: float = 1.0  # lassos at most, per frame of the sequence
     ground_min_gain: int = 500  # points a lasso must put right (net) to be drawn
+    prisms: bool = True  # lassos over every point with a height range, beside those over the ground layer
 
 
 @dataclass
@@ -65,6 +66,7 @@ class Counts:
     splits: int = 0
     discards: int = 0
     regions: int = 0
+    prisms: int = 0  # of the regions, those with a height range
     bulk_accepts: int = 0
     bulk_tracks: int = 0
     bulk_undos: int = 0
@@ -206,13 +208,15 @@ class Operator:
         self._decide(res["track"], major)
 
     # ------------------------------------------------------------------ the ground layer
-    def ground_layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Show every frame's ground layer (points the export labels as ground or by a region):
-        their world x, y, true class and current class."""
+    def layer(self, sources: tuple[str, ...] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Show every frame's points that the export labels from `sources` (None: all of them):
+        their world x, y, z, true class, current class and whether `ground` or a `region`
+        labelled them (the ground layer)."""
         export = self.op.export(self.sequence_id, include_ground=True)
-        layer_sources = [i for i, s in enumerate(export.summary.get("sources", [])) if s in ("ground", "region")]
+        names = export.summary.get("sources", [])
+        layer = [names.index(s) for s in ("ground", "region") if s in names]
         self.store.forget()
-        xy, true, current = [], [], []
+        world, true, current, ground = [], [], [], []
         for f in self.frames:
             if f.name not in export.labels or f.name not in self.input_rows:
                 continue
@@ -220,31 +224,54 @@ class Operator:
             src, words = export.sources[f.name], export.labels[f.name]
             if rows is not None:
                 src, words = src[rows], words[rows]
-            idx = np.flatnonzero(np.isin(src, layer_sources))
+            idx = np.arange(len(src)) if sources is None else np.flatnonzero(np.isin(src, [names.index(s) for s in sources]))
             self.store.show(f.name, idx)
             p = self._payload(f)["points"][idx].astype(np.float64)
             T = f.T_world_lidar
-            xy.append((p @ T[:3, :3].T + T[:3, 3])[:, :2])
+            world.append(p @ T[:3, :3].T + T[:3, 3])
             true.append(self.store.read(f.name, idx))
             current.append(exported_classes(words[idx], self.label_set))
-        if not xy:
-            return np.zeros((0, 2)), np.zeros(0, np.uint8), np.zeros(0, np.uint8)
-        return np.concatenate(xy), np.concatenate(true), np.concatenate(current)
+            ground.append(np.isin(src[idx], layer))
+        if not world:
+            return np.zeros((0, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, bool)
+        return tuple(np.concatenate(a) for a in (world, true, current, ground))  # type: ignore[return-value]
 
-    def ground_pass(self) -> bool:
-        """Draw the lasso that puts the most ground-layer points right (one action); False when
-        none is worth `ground_min_gain` points or the ground budget is spent."""
-        if self.counts.regions >= self.policy.ground_per_frame * len(self.frames):
-            return False
-        lasso = plan(*self.ground_layer(), len(self.label_set.point_classes))
+    def ground_layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every frame's ground layer (points the export labels as ground or by a region): their
+        world x, y, true class and current class."""
+        world, true, current, _ = self.layer(("ground", "region"))
+        return world[:, :2], true, current
+
+    def _best_region(self) -> Lasso | None:
+        """The best lasso over the ground layer and, with `prisms`, the best over every point."""
+        n = len(self.label_set.point_classes)
+        if not self.policy.prisms:
+            best = [plan(*self.ground_layer(), n)]
+        else:
+            world, true, current, ground = self.layer()
+            best = [plan(world[ground, :2], true[ground], current[ground], n),
+                    plan_prism(world, true, current, len(self.label_set.sample_classes), n)]
         self.store.forget()
-        if lasso is None or lasso.gain < self.policy.ground_min_gain:
-            return False
-        self._edit(f"/sequences/{self.sequence_id}/ground-regions",
-                   {"class_name": self.label_set.point_class_names[lasso.class_],
-                    "polygon": [[float(x), float(y)] for x, y in lasso.polygon]})
-        self.counts.regions += 1
-        return True
+        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None)
+
+    def region_pass(self) -> bool:
+        """Draw the regions that put the most seen points right (one action each), the best
+        first, while one is worth `ground_min_gain` points and the budget lasts; False when
+        none was."""
+        drawn = False
+        while self.counts.regions < self.policy.ground_per_frame * len(self.frames):
+            lasso = self._best_region()
+            if lasso is None or lasso.gain < self.policy.ground_min_gain:
+                break
+            body: dict[str, Any] = {"class_name": self.label_set.point_class_names[lasso.class_],
+                                    "polygon": [[float(x), float(y)] for x, y in lasso.polygon]}
+            if lasso.heights is not None:
+                body["heights"] = list(lasso.heights)
+            self._edit(f"/sequences/{self.sequence_id}/ground-regions", body)
+            self.counts.regions += 1
+            self.counts.prisms += lasso.heights is not None
+            drawn = True
+        return drawn
 
     # ------------------------------------------------------------------ bulk and audit
     def bulk_round(self) -> None:

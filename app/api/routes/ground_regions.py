@@ -1,6 +1,7 @@
 """Ground regions: the top view's lasso. An operator draws a polygon over a sequence's ground and
 gives it a class of the sequence's label set; the ground points inside it take that class in
-every frame (one action for a whole sidewalk or lawn). Deleting a region undoes it."""
+every frame (one action for a whole sidewalk or lawn), or with a height range every point inside
+the prism (a hedge, a fence, whatever tracks it fell into). Deleting a region undoes it."""
 
 from __future__ import annotations
 
@@ -23,9 +24,11 @@ def list_ground_regions(sequence_id: IdPath, _user: CurrentUser, session: Sessio
 @router.post("/sequences/{sequence_id}/ground-regions")
 def create_ground_region(sequence_id: IdPath, body: GroundRegionCreate, user: CurrentUser,
                          session: WriteSessionDep) -> GroundRegionPublic:
-    """Label the ground points inside `polygon`, in every frame, as `class_name` (422 for a class
-    outside the sequence's label set or a polygon without area)."""
-    return GroundRegionPublic.model_validate(crud.create_region(session, sequence_id, user, body.class_name, body.polygon))
+    """Label the ground points inside `polygon`, in every frame, as `class_name`, or with `heights`
+    every point inside the prism (422 for a class outside the sequence's label set, a polygon
+    without area or heights whose low is not below their high)."""
+    return GroundRegionPublic.model_validate(
+        crud.create_region(session, sequence_id, user, body.class_name, body.polygon, body.heights))
 
 
 @router.delete("/ground-regions/{region_id}")
