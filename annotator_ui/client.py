@@ -297,11 +297,15 @@ class ApiClient:
         """GroundRegionPublic of the sequence (id, class_name, polygon [[x, y], ...] world), oldest first."""
         return self._json("GET", f"/sequences/{sequence_id}/ground-regions")
 
-    def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]]) -> dict[str, Any]:
+    def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]],
+                             heights: tuple[float, float] | None = None) -> dict[str, Any]:
         """Label the ground points inside `polygon` (world x, y; 3..1000 vertices) as `class_name` in
-        every frame; 422 (ApiError) for a class outside the sequence's label set or no area."""
-        return self._json("POST", f"/sequences/{sequence_id}/ground-regions",
-                          json={"class_name": class_name, "polygon": polygon})
+        every frame, or with `heights` (world z low, high) every point inside the prism; 422
+        (ApiError) for a class outside the sequence's label set, no area or heights out of order."""
+        body: dict[str, Any] = {"class_name": class_name, "polygon": polygon}
+        if heights is not None:
+            body["heights"] = [float(heights[0]), float(heights[1])]
+        return self._json("POST", f"/sequences/{sequence_id}/ground-regions", json=body)
 
     def delete_ground_region(self, region_id: int) -> dict[str, Any]:
         """Undo a ground region (404 when it is gone already)."""

@@ -4,13 +4,16 @@ of the frame shown (annotator_ui.ground_regions.click_on_ground), or, with *Ever
 ground* ticked, the ground of all the sequence's frames seen from above (`ground_map`: a lawn
 or a sidewalk along the whole route in one view, one polygon for it). *Close & label* stores the
 polygon (world x, y) as a ground region of the sequence: the service then gives the ground points
-inside it that class in every frame. *Undo last region* deletes the sequence's newest region.
+inside it that class in every frame. With *Every point between heights* ticked it gives the class
+to every point inside the prism from *From* to *To* metres above the polygon's ground (the median
+height of its vertices), a reviewed track's points too: a hedge, or a fence grown into one, in one
+action. *Undo last region* deletes the sequence's newest region.
 
 Scene (the shown frame's lidar frame, like every node of the tab):
   /ground/draft    the polygon being drawn: its edges (yellow) and the closing edge (grey)
   /ground/nodes    its vertices
   /ground/regions  the outlines of the stored regions, in their class colours, at the frame's
-                   ground height
+                   ground height (a region with heights: at its low and high)
   /ground/map      every frame's ground (world points under a frame node placed at the world's
                    pose in the frame shown, so a frame step moves it without sending it again),
                    in the stored regions' colours
@@ -39,8 +42,8 @@ from annotator_ui.ground_regions import (
     ground_height,
     labelable,
     paint_regions,
-    to_world_xy,
 )
+from pipeline.propagation import to_world
 
 MAP_GROUND = np.array([150, 140, 120], np.uint8)  # the map's ground that no region labels
 DRAFT = (255, 215, 0)
@@ -53,9 +56,9 @@ def _segments(vertices: np.ndarray, closed: bool) -> np.ndarray:
     return polyline_segments(np.concatenate([vertices, vertices[:1]]) if closed else vertices)
 
 
-def _keys(regions: tuple[StoredRegion, ...]) -> list[tuple[int, str, bytes]]:
+def _keys(regions: tuple[StoredRegion, ...]) -> list[tuple[int, str, bytes, tuple[float, float] | None]]:
     """What tells two region lists apart: ids, and what a region labels with what."""
-    return [(r.id, r.class_name, r.polygon.tobytes()) for r in regions]
+    return [(r.id, r.class_name, r.polygon.tobytes(), r.heights) for r in regions]
 
 
 class GroundPanel:
@@ -73,6 +76,11 @@ class GroundPanel:
         self.gui_every = gui.add_checkbox("Every frame's ground", initial_value=False,
                                           hint="Show the ground of all frames from above, and draw on it.")
         self.gui_draw = gui.add_checkbox("Draw", initial_value=False, hint="While ticked, a click adds a vertex.")
+        self.gui_prism = gui.add_checkbox("Every point between heights", initial_value=False,
+                                          hint="Label every point inside the polygon from From to To above its "
+                                               "ground (reviewed tracks' too), not only its ground points.")
+        self.gui_low = gui.add_number("From (m above ground)", initial_value=0.2, step=0.1)
+        self.gui_high = gui.add_number("To (m above ground)", initial_value=3.0, step=0.1)
         self.gui_status = gui.add_markdown("")
         self.gui_close = gui.add_button("Close & label", color="green", icon=viser.Icon.LASSO_POLYGON, disabled=True)
         self.gui_clear = gui.add_button("Clear", icon=viser.Icon.ERASER, disabled=True)
@@ -140,17 +148,27 @@ class GroundPanel:
         if seq is None or len(polygon) < 3:
             self.notify("Not a polygon yet", "Click at least three points on the ground.", "yellow")
             return None
-        class_name = str(self.gui_class.value)
+        class_name, heights = str(self.gui_class.value), self.heights()
         try:
-            region = self.api.create_ground_region(seq, class_name, polygon)
+            region = self.api.create_ground_region(seq, class_name, polygon, heights)
         except ApiError as exc:
             self.notify("Region not stored", exc.detail, "red")
             return None
         with self._lock:
             self.draft = []
-        self.notify("Ground labelled", f"Region #{region['id']}: its ground points are {class_name} in every frame.", "green")
+        what = "its ground points" if heights is None else "every point between its heights"
+        self.notify("Region labelled", f"Region #{region['id']}: {what} are {class_name} in every frame.", "green")
         self.refresh()
         return region
+
+    def heights(self) -> tuple[float, float] | None:
+        """With *Every point between heights*: world z low, high (From and To above the median
+        height of the draft's vertices, which sit on the ground); None otherwise."""
+        with self._lock:
+            if not self.gui_prism.value or not self.draft:
+                return None
+            ground = float(np.median(np.array(self.draft)[:, 2]))
+        return ground + float(self.gui_low.value), ground + float(self.gui_high.value)
 
     def undo(self) -> dict[str, Any] | None:
         """Delete the newest region of the sequence (read now: another tab may have added one)."""
@@ -206,7 +224,9 @@ class GroundPanel:
         return changed
 
     def _show_list(self) -> None:
-        rows = [f"- #{r.id}: {r.class_name}, {len(r.polygon)} vertices" for r in self.regions[-8:]]
+        rows = [f"- #{r.id}: {r.class_name}, {len(r.polygon)} vertices"
+                + ("" if r.heights is None else f", every point at z {r.heights[0]:.1f} to {r.heights[1]:.1f} m")
+                for r in self.regions[-8:]]
         self.gui_regions.content = ("**Ground regions** (newest last; it wins where they overlap)  \n" + "\n".join(rows)
                                     if rows else "No ground region yet.")
         self.gui_undo.disabled = not self.regions
@@ -275,7 +295,7 @@ class GroundPanel:
             return
         colours = np.broadcast_to(MAP_GROUND, (len(world), 3))
         if classes is not None:
-            colours = paint_regions(colours, world[:, :2], np.ones(len(world), bool), regions, classes)
+            colours = paint_regions(colours, world, np.ones(len(world), bool), regions, classes)
         self.scene.add_point_cloud("/ground/map/points", world.astype(np.float32), np.ascontiguousarray(colours),
                                    point_size=0.15, point_shading="flat", precision="float32")
         self._map_drawn = key
@@ -285,8 +305,9 @@ class GroundPanel:
               tracks: dict[int, dict[str, Any]] | None, frame_index: int) -> np.ndarray:
         """(M, 3) colours of the background cloud (`keep` (M,) indices into the frame shown) with
         the points the stored regions label (ground_regions.labelable; `tracks`: the frame's
-        TrackPublic by id, None in the track mode) in their class colours, faded like the rest
-        of the background. `colours` itself when none is."""
+        TrackPublic by id, None in the track mode, where a region with heights colours only the
+        points of no track) in their class colours, faded like the rest of the background.
+        `colours` itself when none is."""
         v = self.view()
         with self._lock:
             regions, classes = self.regions, self.classes
@@ -294,8 +315,9 @@ class GroundPanel:
                 return colours
         assert payload.ground is not None
         eligible = labelable(payload.ground[keep], payload.track[keep], tracks, frame_index)
-        return paint_regions(colours, to_world_xy(payload.points[keep], v.T_world_lidar), eligible, regions, classes,
-                             lambda c: fade(c, np.zeros(len(c), bool)))
+        any_point = None if tracks is not None else payload.track[keep] == 0
+        return paint_regions(colours, to_world(payload.points[keep], v.T_world_lidar), eligible, regions, classes,
+                             lambda c: fade(c, np.zeros(len(c), bool)), any_point)
 
     def draw(self) -> None:
         """The draft polygon and the stored outlines, in the frame shown (call after a frame change,
@@ -347,11 +369,12 @@ class GroundPanel:
         world_z = float((v.T_world_lidar @ np.array([0.0, 0.0, z, 1.0]))[2])  # the frame's ground, in the world
         edges, colours = [], []
         for r in regions:
-            poly = world_to_lidar(np.column_stack([r.polygon, np.full(len(r.polygon), world_z)]), v.T_world_lidar)
-            e = _segments(poly, closed=True)
-            edges.append(e)
             rgb = classes.colours.get(r.class_name, np.array([128, 128, 128], np.uint8))
-            colours.append(np.broadcast_to(rgb, (len(e), 2, 3)))
+            for h in (world_z,) if r.heights is None else r.heights:
+                poly = world_to_lidar(np.column_stack([r.polygon, np.full(len(r.polygon), h)]), v.T_world_lidar)
+                e = _segments(poly, closed=True)
+                edges.append(e)
+                colours.append(np.broadcast_to(rgb, (len(e), 2, 3)))
         self._on_canvas.add("/ground/regions")
         self.scene.add_line_segments("/ground/regions", np.concatenate(edges), np.concatenate(colours).astype(np.uint8),
                                      thickness=2.0, thickness_units="screen")

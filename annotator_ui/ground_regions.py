@@ -5,7 +5,9 @@ The service's rule (app/services/point_labels.py, pipeline.propagation.region_la
 gives its class to the ground points inside its polygon (world x, y) in every frame, where
 "ground" is the frame's ground estimate plus the points of tracks that are no object (discarded,
 or predicted `no_object`) in their kept frames, and never to a point of a track decided with a
-class (accepted with a label) in its kept frames; the newest region wins where regions overlap.
+class (accepted with a label) in its kept frames; a region with heights gives it to every point
+inside its prism (world z between them), a decided track's too; the newest region wins where
+regions overlap.
 The viewer paints exactly those points, with the containment test the service uses
 (`pipeline.propagation.GroundRegion.contains`). In the *track* colour mode the viewer does not
 read the tracks' states, and the points of a track keep the track's hue there: that mode shows
@@ -65,16 +67,19 @@ class GroundView:
 
 @dataclass(frozen=True)
 class StoredRegion:
-    """A region as the service holds it: polygon (K, 2) float64 world x, y (not closed)."""
+    """A region as the service holds it: polygon (K, 2) float64 world x, y (not closed), heights
+    (world z low, high) or None for a region of ground points."""
 
     id: int
     class_name: str
     polygon: np.ndarray
+    heights: tuple[float, float] | None = None
 
     @classmethod
     def from_public(cls, body: Mapping[str, Any]) -> StoredRegion:
         polygon = np.asarray(body["polygon"], np.float64).reshape(-1, 2)
-        return cls(int(body["id"]), str(body["class_name"]), polygon)
+        h = body.get("heights")
+        return cls(int(body["id"]), str(body["class_name"]), polygon, None if h is None else (float(h[0]), float(h[1])))
 
 
 def ground_height(points: np.ndarray, ground: np.ndarray, xy: np.ndarray | None = None) -> float | None:
@@ -147,28 +152,29 @@ def labelable(ground: np.ndarray, track: np.ndarray, tracks: Mapping[int, Mappin
     return (ground | np.isin(track, no_object)) & ~np.isin(track, decided)
 
 
-def region_classes_of_points(points_world_xy: np.ndarray, eligible: np.ndarray,
-                             regions: Sequence[StoredRegion]) -> np.ndarray:
-    """(N,) int: per point the index into `regions` of the newest region that labels it, -1 = none."""
-    out = np.full(len(points_world_xy), -1, np.int64)
-    idx = np.flatnonzero(np.asarray(eligible, bool))
-    if not len(idx):
-        return out
-    xy = np.asarray(points_world_xy, np.float64)[idx]
+def region_classes_of_points(points_world: np.ndarray, eligible: np.ndarray, regions: Sequence[StoredRegion],
+                             any_eligible: np.ndarray | None = None) -> np.ndarray:
+    """(N,) int: per point ((N, 3) world) the index into `regions` of the newest region that
+    labels it, -1 = none. `eligible`: the points a region of ground points may label
+    (`labelable`); `any_eligible`: those a region with heights may (None: every point)."""
+    world = np.asarray(points_world, np.float64)
+    free = np.asarray(eligible, bool)
+    anywhere = np.ones(len(world), bool) if any_eligible is None else np.asarray(any_eligible, bool)
+    out = np.full(len(world), -1, np.int64)
     for k, r in enumerate(regions):  # oldest first: a newer region overwrites an older one
-        out[idx[GroundRegion(r.polygon, 0).contains(xy)]] = k
+        out[GroundRegion(r.polygon, 0, r.heights).labels(world, free) & (anywhere if r.heights else free)] = k
     return out
 
 
-def paint_regions(colours: np.ndarray, points_world_xy: np.ndarray, eligible: np.ndarray,
+def paint_regions(colours: np.ndarray, points_world: np.ndarray, eligible: np.ndarray,
                   regions: Sequence[StoredRegion], classes: RegionClasses,
-                  shade: Any = None) -> np.ndarray:
-    """(N, 3) uint8 colours with the points that regions label in their class colours (`shade`
-    maps (M, 3) colours to those the cloud shows, e.g. its fade). `colours` itself when no point
-    changes (the scene then sends nothing new)."""
+                  shade: Any = None, any_eligible: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) uint8 colours with the points ((N, 3) world) that regions label in their class
+    colours (`region_classes_of_points`; `shade` maps (M, 3) colours to those the cloud shows,
+    e.g. its fade). `colours` itself when no point changes (the scene then sends nothing new)."""
     if not regions:
         return colours
-    which = region_classes_of_points(points_world_xy, eligible, regions)
+    which = region_classes_of_points(points_world, eligible, regions, any_eligible)
     hit = which >= 0
     if not hit.any():
         return colours
@@ -192,8 +198,3 @@ def ground_map(frames: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], cell
     ij -= ij.min(axis=0)
     _, first = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1], return_index=True)  # 1-D keys: fast
     return world[np.sort(first)]
-
-
-def to_world_xy(points: np.ndarray, T_world_lidar: np.ndarray) -> np.ndarray:
-    """(N, 3) lidar points -> (N, 2) float64 world x, y."""
-    return to_world(points, T_world_lidar)[:, :2]

@@ -9,11 +9,12 @@ operator's reviews so far, and orders the review queue by what a review would co
    reads its view, and learns the sequence's own classes from the reviews.
 3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
 4. Per track, the mean probability of its kept samples gives its predicted class and confidence,
-   and its queue priority (`crud.queue_priority`); the reviewed tracks' held-out predictions give
-   the precision a bulk accept's preview shows (`result.held_out`).
+   and its queue priority (`crud.queue_priority`) from the points of its kept frames that no
+   operator's region labels (a review cannot change those); the reviewed tracks' held-out
+   predictions give the precision a bulk accept's preview shows (`result.held_out`).
 
 The worker queues it by itself (`schedule`): once when a sequence becomes ready, then each time
-`assist_every` more review events have come in. One runs at a time per sequence; reviews that
+`assist_every` more review events have come in, or a region was drawn or undone. One runs at a time per sequence; reviews that
 arrive meanwhile start the next run when it ends, so a run is never restarted for every action.
 """
 
@@ -31,6 +32,7 @@ from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
 from app.crud.frames import frame_artifacts, sample_segments
+from app.crud.ground_regions import region_operations
 from app.crud.model_versions import (
     ChosenModel,
     choose_model,
@@ -46,6 +48,7 @@ from app.jobs.context import JobContext
 from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
 from app.schemas import JsonModel
+from app.services.point_labels import frame_poses, region_points, stored_regions
 from app.services.repair import GEOMETRY_ACTIONS
 
 # the review actions that bring the model something new (bulk accepts are its own predictions)
@@ -58,6 +61,7 @@ class AssistParams(JsonModel):
     model_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description=(
         "The base CNN; None = the newest model trained on this sequence, else the shipped default."))
     after_event: int = Field(default=0, ge=0, le=2**62, description="The newest review event the run includes.")
+    regions: int = Field(default=0, ge=0, le=2**62, description="The region operations (drawn, undone) the run includes.")
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
 
 
@@ -80,7 +84,9 @@ def _read(session: Session, sequence_id: int) -> dict[str, Any]:
     segs = sample_segments(session, seq.id)
     tracks = track_ranges(session, seq.id)
     reviewed = segment_classes(session, seq.id, source="review")
-    return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed}
+    regions = stored_regions(session, seq.id, crud.label_set_of(seq))
+    return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed, "regions": regions,
+            "frames": frame_poses(session, seq.id) if regions else []}
 
 
 def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -148,14 +154,17 @@ def _points(tracks: list[Any], positions: np.ndarray) -> list[int | None]:
     return [int(tracks[j].n_points) if j >= 0 else None for j in positions]
 
 
-def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...]) -> int:
-    """Each track's predicted class (`classes`, NO_OBJECT last), its confidence and priority."""
+def _write(ctx: JobContext, tracks: list[Any], mean: np.ndarray, counts: np.ndarray, classes: tuple[str, ...],
+           in_regions: dict[int, int]) -> int:
+    """Each track's predicted class (`classes`, NO_OBJECT last), its confidence and priority
+    (`in_regions`: per track id, its points that regions label)."""
     rows = []
     for i, t in enumerate(tracks):
         has = counts[i] > 0
         conf = float(mean[i].max()) if has else None
+        free = max(int(t.n_points) - in_regions.get(int(t.id), 0), 0)
         rows.append({"id": int(t.id), "predicted_class": classes[int(mean[i].argmax())] if has else None,
-                     "predicted_confidence": conf, "priority": crud.queue_priority(int(t.n_points), conf)})
+                     "predicted_confidence": conf, "priority": crud.queue_priority(free, conf)})
     with ctx.db.write() as s:
         set_predictions(s, rows)
     return int((counts > 0).sum())
@@ -182,10 +191,11 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     predicted = 0
     if probs is not None:
         mean, counts = track_means(probs, group, len(tracks))
-        predicted = _write(ctx, tracks, mean, counts, classes)
+        in_regions = region_points(data["frames"], data["regions"], ctx.artifacts, tracks)
+        predicted = _write(ctx, tracks, mean, counts, classes, in_regions)
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
-            "after_event": params.after_event, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
+            "after_event": params.after_event, "regions": params.regions, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
             "held_out": _held_out_record(held, tuple(classes), _points(tracks, np.unique(group[labelled]))),
             "seconds": round(time.perf_counter() - t0, 2)}
@@ -197,23 +207,27 @@ def _review_events(session: Session, sequence_id: int, after: int) -> tuple[int,
     return n, max(newest, after)
 
 
-def _runs(session: Session) -> dict[int, tuple[bool, int]]:
-    """Per sequence: whether an assist run is queued or running, and the newest review event a
-    run has taken in (a failed run's too, so a failing run waits for more reviews before the next)."""
-    out: dict[int, tuple[bool, int]] = {}
+def _runs(session: Session) -> dict[int, tuple[bool, int, int]]:
+    """Per sequence: whether an assist run is queued or running, the newest review event and the
+    region operations a run has taken in (a failed run's too, so a failing run waits for more
+    reviews before the next)."""
+    out: dict[int, tuple[bool, int, int]] = {}
     for status, p in crud.job_runs(session, "assist"):
         seq = int(p.get("sequence_id", 0))
-        active, last = out.get(seq, (False, -1))
-        out[seq] = (active or status in ("queued", "running"), max(last, int(p.get("after_event", 0))))
+        active, last, regions = out.get(seq, (False, -1, 0))
+        out[seq] = (active or status in ("queued", "running"), max(last, int(p.get("after_event", 0))),
+                    max(regions, int(p.get("regions", 0))))
     return out
 
 
-def _due(session: Session, sequence_id: int, run: tuple[bool, int] | None, every: int) -> int | None:
-    """The newest review event id when the sequence needs an assist run now, else None."""
+def _due(session: Session, sequence_id: int, run: tuple[bool, int, int] | None, every: int) -> tuple[int, int] | None:
+    """(newest review event id, region operations) when the sequence needs an assist run now,
+    else None."""
     if run is not None and run[0]:
         return None  # one at a time: reviews arriving meanwhile are taken by the next run
     n, newest = _review_events(session, sequence_id, 0 if run is None else run[1])
-    return newest if run is None or n >= every else None
+    regions = region_operations(session, sequence_id)
+    return (newest, regions) if run is None or n >= every or regions != run[2] else None
 
 
 def schedule(db: Database, settings: Settings) -> list[int]:
@@ -229,10 +243,10 @@ def schedule(db: Database, settings: Settings) -> list[int]:
     if not due:
         return []
     with db.write() as s:
-        if any(_runs(s).get(q, (False, 0))[0] for q in due):
+        if any(_runs(s).get(q, (False, 0, 0))[0] for q in due):
             return []  # another worker queued one meanwhile; the next poll looks again
-        jobs = [crud.create_job(s, "assist", AssistParams(sequence_id=q, after_event=a).model_dump(), None,
-                                priority=ADMIN_PRIORITY) for q, a in due.items()]
+        jobs = [crud.create_job(s, "assist", AssistParams(sequence_id=q, after_event=a, regions=r).model_dump(), None,
+                                priority=ADMIN_PRIORITY) for q, (a, r) in due.items()]
         s.commit()
         return [j.id for j in jobs]
 

@@ -87,15 +87,46 @@ def _pose(pose: list[float] | None) -> np.ndarray | None:
     return None if pose is None else np.asarray(pose, np.float64).reshape(4, 4)
 
 
+def frame_poses(session: Session, sequence_id: int) -> list[tuple[int, str, str, np.ndarray | None]]:
+    """The sequence's frames in order: (index, name, artifact, T_world_lidar or None)."""
+    return [(int(i), str(n), str(a), _pose(p)) for i, n, a, p in session.execute(
+        select(Frame.index, Frame.name, Frame.artifact, Frame.pose).where(Frame.sequence_id == sequence_id)
+        .order_by(Frame.index)).all()]
+
+
+def stored_regions(session: Session, sequence_id: int, label_set: LabelSet) -> tuple[GroundRegion, ...]:
+    """The sequence's live regions, oldest first, with their classes' indices in `label_set`."""
+    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights)
+                 for r in list_regions(session, sequence_id))
+
+
+def region_points(frames: list[tuple[int, str, str, np.ndarray | None]], regions: tuple[GroundRegion, ...],
+                  artifacts: ArtifactStore, tracks: list[Any]) -> dict[int, int]:
+    """Per track id (`tracks`: rows with id, keep_start, keep_end), its points in its kept frames
+    that a region labels (the frame's ground estimate as the ground points): the points a review
+    of the track can no longer change."""
+    out: dict[int, int] = {}
+    if not regions:
+        return out
+    kept = {int(t.id): (int(t.keep_start), int(t.keep_end)) for t in tracks}
+    for index, _name, art, pose in frames:
+        a = artifacts.read_arrays(art, ("points", "track", "ground"))
+        labels = PointLabels.empty(len(a["track"]))
+        region_labels(labels, np.asarray(a["ground"], bool), to_world(a["points"], pose), regions)
+        ids, n = np.unique(np.asarray(a["track"], np.int64)[labels.labelled], return_counts=True)
+        for i, c in zip(ids.tolist(), n.tolist(), strict=True):
+            if i in kept and kept[i][0] <= index <= kept[i][1]:
+                out[i] = out.get(i, 0) + c
+    return out
+
+
 def point_label_plan(session: Session, sequence: Sequence, options: ExportOptions) -> PointLabelPlan:
     """Read the frames and the tracks whose classes the points take (see `ExportOptions`): the
     accepted tracks' decisions, and the pending tracks' predictions. The points of a track that
     is no object (discarded by an operator, or predicted `no_object`) are treated as ground: a
     decided point reaches them only within the ground radius, and they take the ground class
     when it is asked for."""
-    frames = [(int(i), str(n), str(a), _pose(p)) for i, n, a, p in session.execute(
-        select(Frame.index, Frame.name, Frame.artifact, Frame.pose).where(Frame.sequence_id == sequence.id)
-        .order_by(Frame.index)).all()]
+    frames = frame_poses(session, sequence.id)
     label_set = crud.label_set_of(sequence)
     index = {name: i for i, name in enumerate(label_set.point_class_names)}
     ground = label_set.ground_index
@@ -117,8 +148,7 @@ def point_label_plan(session: Session, sequence: Sequence, options: ExportOption
         elif r.status == "pending" and r.predicted_class is not None and not options.reviewed_only:
             predicted.append(TrackRow(int(r.id), int(r.key), index[r.predicted_class], SOURCE["predicted"],
                                       float(r.predicted_confidence or 0.0), int(r.keep_start), int(r.keep_end)))
-    regions = tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights)
-                    for r in list_regions(session, sequence.id))
+    regions = stored_regions(session, sequence.id, label_set)
     return PointLabelPlan(sequence.name, frames, decided, predicted, options, no_object, label_set, regions)
 
 

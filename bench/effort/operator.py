@@ -33,6 +33,7 @@ from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
 from pipeline.classes import UNLABELLED
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
+from pipeline.regions import points_in_polygon
 
 # the service's worker polls every WORKER_POLL_S (bench_effort sets it); the operator waits this
 # long without a model run in sight before it takes the next track
@@ -53,7 +54,7 @@ class Policy:
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
     ground_every: int = 5  # reviews between two looks at the ground layer
     ground_per_frame: float = 1.0  # lassos at most, per frame of the sequence
-    ground_min_gain: int = 500  # points a lasso must put right (net) to be drawn
+    region_share: float = 0.002  # of the seen points that are not ground: what a lasso must put right (net)
     prisms: bool = True  # lassos over every point with a height range, beside those over the ground layer
 
 
@@ -98,6 +99,7 @@ class Operator:
     input_rows: dict[str, np.ndarray | None] = field(default_factory=dict)  # per frame: the scan rows that are points
     counts: Counts = field(default_factory=Counts)
     _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
+    _prisms: list[Lasso] = field(default_factory=list)  # the regions with heights it drew
 
     # ------------------------------------------------------------------ looking
     def _payload(self, frame: FrameInfo) -> dict[str, np.ndarray]:
@@ -208,10 +210,9 @@ class Operator:
         self._decide(res["track"], major)
 
     # ------------------------------------------------------------------ the ground layer
-    def layer(self, sources: tuple[str, ...] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Show every frame's points that the export labels from `sources` (None: all of them):
-        their world x, y, z, true class, current class and whether `ground` or a `region`
-        labelled them (the ground layer)."""
+    def layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Show every frame's points from above: their world x, y, z, true class, current class
+        and whether `ground` or a `region` labelled them (the ground layer)."""
         export = self.op.export(self.sequence_id, include_ground=True)
         names = export.summary.get("sources", [])
         layer = [names.index(s) for s in ("ground", "region") if s in names]
@@ -224,7 +225,7 @@ class Operator:
             src, words = export.sources[f.name], export.labels[f.name]
             if rows is not None:
                 src, words = src[rows], words[rows]
-            idx = np.arange(len(src)) if sources is None else np.flatnonzero(np.isin(src, [names.index(s) for s in sources]))
+            idx = np.arange(len(src))
             self.store.show(f.name, idx)
             p = self._payload(f)["points"][idx].astype(np.float64)
             T = f.T_world_lidar
@@ -236,32 +237,27 @@ class Operator:
             return np.zeros((0, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, bool)
         return tuple(np.concatenate(a) for a in (world, true, current, ground))  # type: ignore[return-value]
 
-    def ground_layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every frame's ground layer (points the export labels as ground or by a region): their
-        world x, y, true class and current class."""
-        world, true, current, _ = self.layer(("ground", "region"))
-        return world[:, :2], true, current
-
-    def _best_region(self) -> Lasso | None:
-        """The best lasso over the ground layer and, with `prisms`, the best over every point."""
-        n = len(self.label_set.point_classes)
-        if not self.policy.prisms:
-            best = [plan(*self.ground_layer(), n)]
-        else:
-            world, true, current, ground = self.layer()
-            best = [plan(world[ground, :2], true[ground], current[ground], n),
-                    plan_prism(world, true, current, len(self.label_set.sample_classes), n)]
+    def _best_region(self) -> tuple[Lasso | None, int]:
+        """The best lasso over the ground layer (points the export labels as ground or by a
+        region) and, with `prisms`, the best over every point; and the gain one must reach."""
+        n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
+        world, true, current, ground = self.layer()
         self.store.forget()
-        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None)
+        for p in self._prisms:  # the points its own prisms label are no ground layer
+            ground &= ~((world[:, 2] >= p.heights[0]) & (world[:, 2] <= p.heights[1]) & points_in_polygon(world[:, :2], p.polygon))
+        best = [plan(world[ground, :2], true[ground], current[ground], n),
+                plan_prism(world, true, current, objects, n) if self.policy.prisms else None]
+        need = int(self.policy.region_share * int((true < objects).sum()))
+        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
 
     def region_pass(self) -> bool:
         """Draw the regions that put the most seen points right (one action each), the best
-        first, while one is worth `ground_min_gain` points and the budget lasts; False when
-        none was."""
+        first, while one puts `region_share` of the seen object points right and the budget
+        lasts; False when none did."""
         drawn = False
         while self.counts.regions < self.policy.ground_per_frame * len(self.frames):
-            lasso = self._best_region()
-            if lasso is None or lasso.gain < self.policy.ground_min_gain:
+            lasso, need = self._best_region()
+            if lasso is None or lasso.gain < need:
                 break
             body: dict[str, Any] = {"class_name": self.label_set.point_class_names[lasso.class_],
                                     "polygon": [[float(x), float(y)] for x, y in lasso.polygon]}
@@ -269,7 +265,9 @@ class Operator:
                 body["heights"] = list(lasso.heights)
             self._edit(f"/sequences/{self.sequence_id}/ground-regions", body)
             self.counts.regions += 1
-            self.counts.prisms += lasso.heights is not None
+            if lasso.heights is not None:
+                self.counts.prisms += 1
+                self._prisms.append(lasso)
             drawn = True
         return drawn
 

@@ -20,9 +20,9 @@ from annotator_ui.ground_regions import (
     ground_map,
     labelable,
     paint_regions,
-    to_world_xy,
 )
 from pipeline.classes import CLASS_COLOURS
+from pipeline.propagation import to_world
 from pipeline.regions import points_in_polygon
 from tests.annotator_ui.test_viewer import wait_until
 
@@ -65,7 +65,7 @@ def test_ground_labelable_follows_the_services_rule():
 
 
 def test_ground_paint_colours_eligible_points_inside_the_newest_region_only():
-    xy = np.array([[1.0, 1.0], [3.0, 1.0], [1.0, 1.0], [9.0, 9.0]])
+    xy = np.array([[1.0, 1.0, 0.0], [3.0, 1.0, 0.0], [1.0, 1.0, 0.0], [9.0, 9.0, 0.0]])
     eligible = np.array([True, True, False, True])
     colours = np.full((4, 3), 7, np.uint8)
     old = StoredRegion(1, "bush", _square(0, 0, 4, 2))
@@ -74,6 +74,23 @@ def test_ground_paint_colours_eligible_points_inside_the_newest_region_only():
     assert out[0].tolist() == list(CLASS_COLOURS["bush"]) and out[1].tolist() == list(CLASS_COLOURS["building"])
     assert out[2].tolist() == [7, 7, 7] and out[3].tolist() == [7, 7, 7]  # not ground / outside
     assert paint_regions(colours, xy, eligible, [StoredRegion(3, "bush", _square(20, 20, 21, 21))], CLASSES) is colours
+
+
+def test_region_with_heights_paints_every_point_of_its_prism_and_no_other():
+    # a hedge (z 0.5-2 m) over a fence post of a reviewed track and a road point, inside the polygon
+    world = np.array([[1.0, 1.0, 1.0], [1.5, 1.0, 1.8], [1.0, 1.5, -0.1], [1.0, 1.0, 2.5], [9.0, 9.0, 1.0]])
+    eligible = np.array([False, False, True, False, False])  # the ground rule: only the road point
+    hedge = StoredRegion(4, "bush", _square(0, 0, 4, 4), (0.5, 2.0))
+    colours = np.full((5, 3), 7, np.uint8)
+    out = paint_regions(colours, world, eligible, [hedge], CLASSES)
+    assert [tuple(c) for c in out] == [tuple(CLASS_COLOURS["bush"])] * 2 + [(7, 7, 7)] * 3  # between its heights only
+    # in the track mode a region with heights colours only points of no track
+    out = paint_regions(colours, world, eligible, [hedge], CLASSES, any_eligible=np.array([False, True, True, True, True]))
+    assert out[0].tolist() == [7, 7, 7] and out[1].tolist() == list(CLASS_COLOURS["bush"])
+    # a newer region of ground points over it takes the ground points only
+    road = StoredRegion(5, "ground", _square(0, 0, 4, 4))
+    out = paint_regions(colours, world, eligible, [hedge, road], CLASSES)
+    assert out[0].tolist() == list(CLASS_COLOURS["bush"]) and out[2].tolist() == list(CLASS_COLOURS["ground"])
 
 
 def test_ground_region_classes_put_ground_classes_first():
@@ -123,7 +140,7 @@ def _ground_patch(tab) -> np.ndarray:
 
 def _expected_inside(tab, polygon_world: np.ndarray) -> np.ndarray:
     view, keep = tab.ground_view(), tab.scene._cloud_keep
-    inside = points_in_polygon(to_world_xy(view.points[keep], view.T_world_lidar), polygon_world)
+    inside = points_in_polygon(to_world(view.points[keep], view.T_world_lidar)[:, :2], polygon_world)
     return inside & view.ground[keep] & (tab.scene.frame_tracks[keep] == 0)  # the track mode's rule
 
 
@@ -196,7 +213,7 @@ def test_ground_every_frame_shows_the_route_from_above_and_takes_clicks_beyond_t
     tab.headless.wait_for(lambda m: m.type == "PointCloudMessage" and m.name == "/ground/map/points", since)
     view = tab.ground_view()
     world = panel.map_world
-    frame_xy = to_world_xy(view.points[view.ground], view.T_world_lidar)
+    frame_xy = to_world(view.points[view.ground], view.T_world_lidar)[:, :2]
     far = cKDTree(frame_xy).query(world[:, :2])[0]
     alone = ground_map([(view.points, view.ground, view.T_world_lidar)])
     assert len(world) > len(alone) and far.max() > 1.0, "the map holds ground the frame shown does not reach"

@@ -26,3 +26,25 @@ def test_lasso_traces_a_wrongly_labelled_strip_beside_the_road():
     assert lasso.gain == int((inside & walk).sum() - (inside & (true == ROAD)).sum())
     # once the strip shows as sidewalk nothing is left to draw
     assert plan(xy, true, np.where(walk, WALK, current).astype(np.uint8), 2) is None
+
+
+def test_prism_lifts_over_a_hedge_its_ground_and_the_car_beside_it_left_out():
+    from bench.effort.ground import plan_prism
+
+    CAR, BUSH, GROUND = 0, 1, 2  # two object classes, then ground
+    rng = np.random.default_rng(1)
+    hedge = np.column_stack([rng.uniform(0, 20, 6000), rng.uniform(5, 7, 6000), rng.uniform(0.3, 2.0, 6000)])
+    car = np.column_stack([rng.uniform(2, 6, 2000), rng.uniform(1, 3, 2000), rng.uniform(0.2, 1.5, 2000)])
+    road = np.column_stack([rng.uniform(0, 20, 8000), rng.uniform(0, 8, 8000), rng.normal(0.0, 0.02, 8000)])
+    world = np.concatenate([hedge, car, road])
+    true = np.repeat(np.array([BUSH, CAR, GROUND], np.uint8), [6000, 2000, 8000])
+    current = true.copy()
+    current[:6000] = CAR  # the hedge shows as car; the car and the road are right
+    lasso = plan_prism(world, true, current, objects=2, n_classes=3)
+    assert lasso is not None and lasso.class_ == BUSH and lasso.heights is not None
+    low, high = lasso.heights
+    assert 0.25 <= low <= 0.35 and 1.95 <= high <= 2.0  # the hedge's own heights: the road stays below
+    inside = points_in_polygon(world[:, :2], lasso.polygon) & (world[:, 2] >= low) & (world[:, 2] <= high)
+    assert inside[:6000].mean() >= 0.93 and not inside[6000:].any()  # all but its 1st and 99th height percentiles
+    assert lasso.gain == int(inside[:6000].sum())
+    assert plan_prism(world, true, true, objects=2, n_classes=3) is None  # nothing wrong: nothing to draw

@@ -122,3 +122,21 @@ def test_ground_region_labels_the_ground_points_inside_it_and_nothing_else():
     out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
                         (GroundRegion(square, sidewalk), GroundRegion(strip, terrain), GroundRegion(far, CAR)))
     assert out.class_[[7, 8]].tolist() == [sidewalk, terrain]
+
+
+def test_region_with_heights_labels_every_point_of_its_prism_a_decided_one_s_too():
+    from pipeline.propagation import GroundRegion
+
+    track, ground, world, decided, predicted = _frame()
+    field = _field(world, track, decided)
+    square = np.array([[0.5, -1.0], [1.6, -1.0], [1.6, 1.0], [0.5, 1.0]])  # car point 1, loose 4, ground 7 and 8
+    hedge = GroundRegion(square, BUSH, (0.98, 1.5))  # ground point 7 (z 0.95) lies under it
+    out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS, (hedge,))
+    assert out.class_[[1, 4, 8]].tolist() == [BUSH] * 3 and (out.source[[1, 4, 8]] == SOURCE["region"]).all()
+    plain = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS)
+    rest = np.setdiff1d(np.arange(len(track)), [1, 4, 8])
+    assert np.array_equal(out.class_[rest], plain.class_[rest])  # the car's other point, the far ones, point 7
+    # a newer region of ground points is drawn over it where they overlap: the ground points only
+    out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
+                        (hedge, GroundRegion(square, 9)))
+    assert out.class_[[1, 4, 7, 8]].tolist() == [BUSH, BUSH, 9, 9]

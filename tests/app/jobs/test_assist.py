@@ -135,3 +135,36 @@ def test_assist_predictions_feed_bulk_accept(client, factory, db, settings, tiny
                     headers=op.headers)
     assert r.status_code == 200, r.text
     assert factory.track(ids[4]).label_source == "bulk"
+
+
+def test_a_region_reruns_assist_and_puts_the_tracks_it_labels_last_in_the_queue(client, factory, db, settings,
+                                                                                tiny_model):
+    """A review cannot change the points a region with heights labels, so the run after a region
+    was drawn counts only a track's other points in its priority; drawing or undoing one is due
+    at once, whatever the reviews."""
+    settings.assist_every = 100
+    seq = _sequence_with_model(factory, db, tiny_model)
+    ids = factory.track_ids(seq)
+    op = factory.user()
+    _label(client, op, factory, ids[:4], CLASSES[:4])
+    worker = Worker(settings, db=db)
+    assert len(worker.schedule()) == 1 and worker.run_once()
+    assert worker.schedule() == []  # the first run took the reviews in; no region yet
+    everywhere = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
+                    json={"class_name": "bush", "polygon": everywhere, "heights": [-1e4, 1e4]})
+    assert r.status_code == 200, r.text
+    assert len(worker.schedule()) == 1 and worker.run_once()
+    job = _assist_jobs(db)[-1]
+    assert job.status == "succeeded", job.error
+    assert job.result["regions"] == 1
+    with db.read() as s:
+        priorities = s.scalars(select(Track.priority).where(Track.sequence_id == seq, Track.status == "pending")).all()
+    assert priorities and all(p == 0 for p in priorities)  # every point of every track lies in the prism
+    assert worker.schedule() == []
+    assert client.delete(f"/api/v1/ground-regions/{r.json()['id']}", headers=op.headers).status_code == 200
+    assert len(worker.schedule()) == 1 and worker.run_once()  # undone: due again, and the priorities come back
+    with db.read() as s:
+        rows = s.execute(select(Track.priority, Track.n_points, Track.predicted_confidence)
+                         .where(Track.sequence_id == seq, Track.status == "pending")).all()
+    assert all(p == pytest.approx(crud.queue_priority(n, c)) for p, n, c in rows) and any(p > 0 for p, _, _ in rows)
