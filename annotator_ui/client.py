@@ -304,7 +304,7 @@ class ApiClient:
         (ApiError) for a class outside the sequence's label set, no area or heights out of order."""
         body: dict[str, Any] = {"class_name": class_name, "polygon": polygon}
         if heights is not None:
-            body["heights"] = [float(heights[0]), float(heights[1])]
+            body["z_min"], body["z_max"] = float(heights[0]), float(heights[1])
         return self._json("POST", f"/sequences/{sequence_id}/ground-regions", json=body)
 
     def delete_ground_region(self, region_id: int) -> dict[str, Any]:

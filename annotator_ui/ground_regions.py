@@ -78,8 +78,9 @@ class StoredRegion:
     @classmethod
     def from_public(cls, body: Mapping[str, Any]) -> StoredRegion:
         polygon = np.asarray(body["polygon"], np.float64).reshape(-1, 2)
-        h = body.get("heights")
-        return cls(int(body["id"]), str(body["class_name"]), polygon, None if h is None else (float(h[0]), float(h[1])))
+        low, high = body.get("z_min"), body.get("z_max")
+        heights = None if low is None or high is None else (float(low), float(high))
+        return cls(int(body["id"]), str(body["class_name"]), polygon, heights)
 
 
 def ground_height(points: np.ndarray, ground: np.ndarray, xy: np.ndarray | None = None) -> float | None:

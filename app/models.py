@@ -495,8 +495,8 @@ class GroundRegion(Base):
     sequence_id: Mapped[int] = mapped_column(ForeignKey("sequences.id", ondelete="CASCADE"))
     class_name: Mapped[str] = mapped_column(String(32))
     polygon: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y], ...] world metres, not closed
-    z_low: Mapped[float | None] = mapped_column(Float)  # world z (m): with z_high, every point between (0015)
-    z_high: Mapped[float | None] = mapped_column(Float)
+    z_min: Mapped[float | None] = mapped_column(Float)  # world z (m): with z_max, every point between (0015)
+    z_max: Mapped[float | None] = mapped_column(Float)
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     deleted_at: Mapped[datetime | None] = mapped_column(DateTime)
@@ -504,4 +504,4 @@ class GroundRegion(Base):
 
     @property
     def heights(self) -> tuple[float, float] | None:
-        return None if self.z_low is None or self.z_high is None else (self.z_low, self.z_high)
+        return None if self.z_min is None or self.z_max is None else (self.z_min, self.z_max)

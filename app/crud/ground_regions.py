@@ -18,16 +18,16 @@ from app.models import GroundRegion, utcnow
 def create_region(session: Session, sequence_id: int, user: AuthUser, class_name: str,
                   polygon: list[tuple[float, float]], heights: tuple[float, float] | None = None) -> GroundRegion:
     """Store a region (NotFound for an unknown sequence, Invalid for a class outside its label
-    set, a polygon without area or heights whose low is not below their high). Commits."""
+    set, a polygon without area or heights (z_min, z_max) out of order). Commits."""
     seq = get_sequence(session, sequence_id)
     check_class("class_name", class_name, label_set_of(seq), ground=True)
     if _area(polygon) <= 1e-6:
         raise Invalid("polygon: its vertices enclose no area")
     if heights is not None and not heights[0] < heights[1]:
-        raise Invalid(f"heights: low {heights[0]} must be below high {heights[1]}")
+        raise Invalid(f"z_min {heights[0]} must be below z_max {heights[1]}")
     low, high = (None, None) if heights is None else (float(heights[0]), float(heights[1]))
     row = GroundRegion(sequence_id=sequence_id, class_name=class_name, polygon=[[float(x), float(y)] for x, y in polygon],
-                       z_low=low, z_high=high, created_by_id=user.id)
+                       z_min=low, z_max=high, created_by_id=user.id)
     session.add(row)
     session.commit()
     return row

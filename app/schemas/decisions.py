@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from app.schemas.base import (
     ClassName,
@@ -148,25 +148,38 @@ class AuditPublic(_Public):
 # ----------------------------------------------------------------------------- ground regions
 class GroundRegionCreate(_Request):
     """A polygon on the top view (world x, y in metres, 3 to 1000 vertices, not closed) and the
-    class of the sequence's label set its points take: its ground points, or with `heights` every
-    point between them."""
+    class of the sequence's label set its points take: its ground points that no decided track
+    holds, or with `z_min` and `z_max` every point of the prism between them, a decided track's
+    too (the prism of a split's region)."""
 
     class_name: str = Field(min_length=1, max_length=32)
     polygon: list[tuple[WorldCoordinate, WorldCoordinate]] = Field(min_length=3, max_length=1000)
-    heights: tuple[WorldCoordinate, WorldCoordinate] | None = Field(
-        default=None, description="World z low and high (m, low < high): every point inside the prism takes the "
-        "class, a decided track's too. Without it, the ground points that no decided track holds.")
+    z_min: WorldCoordinate | None = Field(default=None, description="World z (m), with z_max: the prism's bottom.")
+    z_max: WorldCoordinate | None = Field(default=None, description="World z (m), with z_min: the prism's top.")
+
+    @model_validator(mode="after")
+    def _both_heights(self) -> GroundRegionCreate:
+        if (self.z_min is None) != (self.z_max is None):
+            raise ValueError("z_min and z_max: give both or neither")
+        if self.z_min is not None and self.z_max is not None and not self.z_min < self.z_max:
+            raise ValueError(f"z_min {self.z_min} must be below z_max {self.z_max}")
+        return self
+
+    @property
+    def heights(self) -> tuple[float, float] | None:
+        return None if self.z_min is None or self.z_max is None else (self.z_min, self.z_max)
 
 
 class GroundRegionPublic(_Public):
-    """A stored region: the ground points inside its polygon (with `heights`, every point inside
-    the prism) take `class_name` in every frame of the sequence's exports; the newest region wins
+    """A stored region: the ground points inside its polygon (with `z_min` and `z_max`, every
+    point inside the prism) take `class_name` in every frame of the sequence's exports; the newest region wins
     where regions overlap."""
 
     id: int
     sequence_id: int
     class_name: str
     polygon: list[tuple[float, float]]
-    heights: tuple[float, float] | None
+    z_min: float | None
+    z_max: float | None
     created_by_id: int | None
     created_at: UtcDateTime

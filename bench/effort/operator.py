@@ -262,7 +262,7 @@ class Operator:
             body: dict[str, Any] = {"class_name": self.label_set.point_class_names[lasso.class_],
                                     "polygon": [[float(x), float(y)] for x, y in lasso.polygon]}
             if lasso.heights is not None:
-                body["heights"] = list(lasso.heights)
+                body["z_min"], body["z_max"] = lasso.heights
             self._edit(f"/sequences/{self.sequence_id}/ground-regions", body)
             self.counts.regions += 1
             if lasso.heights is not None:

@@ -20,11 +20,11 @@ depends_on: str | Sequence[str] | None = None
 
 def upgrade() -> None:
     with op.batch_alter_table('ground_regions', schema=None) as batch_op:
-        batch_op.add_column(sa.Column('z_low', sa.Float(), nullable=True))
-        batch_op.add_column(sa.Column('z_high', sa.Float(), nullable=True))
+        batch_op.add_column(sa.Column('z_min', sa.Float(), nullable=True))
+        batch_op.add_column(sa.Column('z_max', sa.Float(), nullable=True))
 
 
 def downgrade() -> None:
     with op.batch_alter_table('ground_regions', schema=None) as batch_op:
-        batch_op.drop_column('z_high')
-        batch_op.drop_column('z_low')
+        batch_op.drop_column('z_max')
+        batch_op.drop_column('z_min')

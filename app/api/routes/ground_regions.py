@@ -24,9 +24,9 @@ def list_ground_regions(sequence_id: IdPath, _user: CurrentUser, session: Sessio
 @router.post("/sequences/{sequence_id}/ground-regions")
 def create_ground_region(sequence_id: IdPath, body: GroundRegionCreate, user: CurrentUser,
                          session: WriteSessionDep) -> GroundRegionPublic:
-    """Label the ground points inside `polygon`, in every frame, as `class_name`, or with `heights`
-    every point inside the prism (422 for a class outside the sequence's label set, a polygon
-    without area or heights whose low is not below their high)."""
+    """Label the ground points inside `polygon`, in every frame, as `class_name`, or with `z_min`
+    and `z_max` every point inside the prism (422 for a class outside the sequence's label set, a
+    polygon without area, or one of z_min and z_max alone or out of order)."""
     return GroundRegionPublic.model_validate(
         crud.create_region(session, sequence_id, user, body.class_name, body.polygon, body.heights))
 

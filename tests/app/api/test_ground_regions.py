@@ -22,7 +22,9 @@ def _labels(client, caller, seq):
 
 
 def _region(client, caller, seq, class_name, polygon, status=200, heights=None):
-    body = {"class_name": class_name, "polygon": polygon} | ({} if heights is None else {"heights": heights})
+    body = {"class_name": class_name, "polygon": polygon}
+    if heights is not None:
+        body["z_min"], body["z_max"] = heights
     r = client.post(f"/api/v1/sequences/{seq}/ground-regions", json=body, headers=caller.headers)
     assert r.status_code == status, r.text
     return r.json()
@@ -66,6 +68,9 @@ def test_ground_region_refuses_a_class_outside_the_label_set_and_a_flat_polygon(
     _region(client, op, 9999, "car", EVERYWHERE, 404)
     assert "below" in _region(client, op, seq, "car", EVERYWHERE, 422, heights=[1.0, 1.0])["detail"][0]["msg"]
     _region(client, op, seq, "car", EVERYWHERE, 422, heights=[0.0, "inf"])
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
+                    json={"class_name": "car", "polygon": EVERYWHERE, "z_min": 0.0})
+    assert r.status_code == 422 and "both" in r.text
     assert client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json() == []
 
 
@@ -80,11 +85,11 @@ def test_region_with_heights_labels_every_point_between_them_a_reviewed_track_s_
     car = SEMANTICKITTI_WRITE_ID["car"]
     assert any((b == car).any() for b in before)
     region = _region(client, op, seq, "building", EVERYWHERE, heights=[-1e4, 1e4])
-    assert region["heights"] == [-1e4, 1e4]
+    assert (region["z_min"], region["z_max"]) == (-1e4, 1e4)
     assert all(set(a.tolist()) == {SEMANTICKITTI_WRITE_ID["building"]} for a in _labels(client, op, seq))
     # a prism that holds no point's height changes nothing; deleting the first one undoes it
     _region(client, op, seq, "bush", EVERYWHERE, heights=[1e3, 1e4])
     assert client.delete(f"/api/v1/ground-regions/{region['id']}", headers=op.headers).status_code == 200
     assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
     listed = client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json()
-    assert [r["heights"] for r in listed] == [[1e3, 1e4]]
+    assert [(r["z_min"], r["z_max"]) for r in listed] == [(1e3, 1e4)]

@@ -152,7 +152,7 @@ def test_a_region_reruns_assist_and_puts_the_tracks_it_labels_last_in_the_queue(
     assert worker.schedule() == []  # the first run took the reviews in; no region yet
     everywhere = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
     r = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
-                    json={"class_name": "bush", "polygon": everywhere, "heights": [-1e4, 1e4]})
+                    json={"class_name": "bush", "polygon": everywhere, "z_min": -1e4, "z_max": 1e4})
     assert r.status_code == 200, r.text
     assert len(worker.schedule()) == 1 and worker.run_once()
     job = _assist_jobs(db)[-1]
