@@ -52,10 +52,10 @@ class Policy:
     audit_per_bulk: int = 5
     wait_for_model: bool = True
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
-    ground_every: int = 5  # reviews between two looks at the ground layer
-    ground_per_frame: float = 1.0  # lassos at most, per frame of the sequence
+    ground_every: int = 5  # reviews between two looks at every frame from above
+    ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
+    prisms_per_frame: float = 1.0  # regions with heights at most, per frame of the sequence
     region_share: float = 0.002  # of the seen points that are not ground: what a lasso must put right (net)
-    prisms: bool = True  # lassos over every point with a height range, beside those over the ground layer
 
 
 @dataclass
@@ -241,12 +241,14 @@ class Operator:
         """The best lasso over the ground layer (points the export labels as ground or by a
         region) and, with `prisms`, the best over every point; and the gain one must reach."""
         n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
+        pol, frames = self.policy, len(self.frames)
         world, true, current, ground = self.layer()
         self.store.forget()
         for p in self._prisms:  # the points its own prisms label are no ground layer
             ground &= ~((world[:, 2] >= p.heights[0]) & (world[:, 2] <= p.heights[1]) & points_in_polygon(world[:, :2], p.polygon))
-        best = [plan(world[ground, :2], true[ground], current[ground], n),
-                plan_prism(world, true, current, objects, n) if self.policy.prisms else None]
+        lassos = self.counts.regions - self.counts.prisms
+        best = [plan(world[ground, :2], true[ground], current[ground], n) if lassos < pol.ground_per_frame * frames else None,
+                plan_prism(world, true, current, objects, n) if self.counts.prisms < pol.prisms_per_frame * frames else None]
         need = int(self.policy.region_share * int((true < objects).sum()))
         return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
 
@@ -255,7 +257,7 @@ class Operator:
         first, while one puts `region_share` of the seen object points right and the budget
         lasts; False when none did."""
         drawn = False
-        while self.counts.regions < self.policy.ground_per_frame * len(self.frames):
+        while True:
             lasso, need = self._best_region()
             if lasso is None or lasso.gain < need:
                 break
