@@ -129,12 +129,12 @@ def _click(tab, target: np.ndarray) -> None:
     tab._on_click(SimpleNamespace(ray_origin=tuple(origin), ray_direction=tuple(target - origin)))
 
 
-def _ground_patch(tab) -> np.ndarray:
-    """(4, 3) lidar corners of a square around the frame's densest ground, on that ground."""
+def _ground_patch(tab, half: float = 3.0) -> np.ndarray:
+    """(4, 3) lidar corners of a square (2 half wide) around the frame's densest ground, on that ground."""
     view = tab.ground_view()
     g = view.points[view.ground]
     centre = np.median(g[np.linalg.norm(g[:, :2], axis=1) < 15], axis=0)
-    corners = centre[None, :2] + np.array([[-3, -3], [3, -3], [3, 3], [-3, 3]], np.float64)
+    corners = centre[None, :2] + half * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], np.float64)
     return np.column_stack([corners, np.full(4, np.median(g[:, 2]))])
 
 
@@ -180,6 +180,33 @@ def test_ground_lasso_draws_labels_colours_and_undoes(lasso_tab, live_api):
     assert gone is not None and gone["id"] == region["id"] and panel.regions == ()
     wait_until(lambda: np.array_equal(scene._cloud_colours, before))
     assert panel.undo() is None  # nothing left to undo
+
+
+def test_region_between_heights_stores_them_above_its_ground_and_paints_its_prism(lasso_tab, live_api):
+    tab = lasso_tab
+    panel, scene = tab.ground, tab.scene
+    wait_until(lambda: panel.sequence_id == live_api.sequence_id)
+    before = scene._cloud_colours.copy()
+    panel.gui_draw.value = True
+    for c in _ground_patch(tab, half=15.0):
+        _click(tab, c)
+    assert len(panel.draft) == 4
+    ground_z = float(np.median(np.array(panel.draft)[:, 2]))
+    panel.gui_prism.value, panel.gui_low.value, panel.gui_high.value = True, 0.3, 2.5
+    panel.gui_class.value = "bush"
+    region = panel.close_and_label()
+    assert region is not None
+    assert region["z_min"] == pytest.approx(ground_z + 0.3) and region["z_max"] == pytest.approx(ground_z + 2.5)
+    view, keep = tab.ground_view(), scene._cloud_keep
+    world = to_world(view.points[keep], view.T_world_lidar)
+    inside = (points_in_polygon(world[:, :2], np.array(region["polygon"])) & (world[:, 2] >= region["z_min"])
+              & (world[:, 2] <= region["z_max"]) & (scene.frame_tracks[keep] == 0))  # the track mode: no track's points
+    assert (inside & ~view.ground[keep]).sum() >= 10, "the prism holds points that are not ground"
+    wait_until(lambda: not np.array_equal(scene._cloud_colours, before))
+    bush = fade(np.array([CLASS_COLOURS["bush"]], np.uint8), np.zeros(1, bool))[0]
+    assert (scene._cloud_colours[inside] == bush).all()
+    assert np.array_equal(scene._cloud_colours[~inside], before[~inside])
+    assert "between" in panel.gui_regions.content or "z " in panel.gui_regions.content
 
 
 def test_ground_regions_of_another_operator_reach_the_tab_through_the_change_feed(lasso_tab, live_api):
