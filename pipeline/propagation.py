@@ -75,11 +75,11 @@ class GroundRegion:
         out[near] = points_in_polygon(xy[near], self.polygon)
         return out
 
-    def labels(self, world: np.ndarray, free_ground: np.ndarray) -> np.ndarray:
+    def labels(self, world: np.ndarray, free_ground: np.ndarray | None) -> np.ndarray:
         """(N,) bool the points of (N, 3) world points this region labels: inside its prism, or
-        without heights the `free_ground` points inside its polygon."""
+        without heights the `free_ground` points inside its polygon (None: no point is free)."""
         if self.heights is None:
-            idx = np.flatnonzero(free_ground)
+            idx = np.flatnonzero(free_ground) if free_ground is not None else np.zeros(0, np.int64)
         else:
             idx = np.flatnonzero((world[:, 2] >= self.heights[0]) & (world[:, 2] <= self.heights[1]))
         out = np.zeros(len(world), bool)

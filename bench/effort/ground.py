@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from pipeline.classes import UNLABELLED
-from pipeline.regions import points_in_polygon
+from pipeline.propagation import GroundRegion
 
 CELL = 0.5  # m: the top view's grid the operator reads areas from
 MAX_VERTICES = 1000  # the API's limit
@@ -53,14 +53,6 @@ def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTI
         return None
     rc = poly[:, 0, ::-1].astype(np.float64)  # (row, col) = (x, y) pixels
     return origin + ((rc + 0.5) / UP - 1) * CELL  # the grid has a margin of one cell
-
-
-def _inside(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    lo, hi = polygon.min(0), polygon.max(0)
-    near = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1))
-    out = np.zeros(len(xy), bool)
-    out[near] = points_in_polygon(xy[near], polygon)
-    return out
 
 
 def _gain(inside: np.ndarray, true: np.ndarray, current: np.ndarray, cls: int) -> int:
@@ -106,7 +98,7 @@ def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) 
         polygon = _outline(mask, origin)
         if polygon is None:
             continue
-        gain = _gain(_inside(xy, polygon), true, current, cls)
+        gain = _gain(GroundRegion(polygon, cls).contains(xy), true, current, cls)
         if best is None or gain > best.gain:
             best = Lasso(polygon, cls, gain)
     return best
@@ -132,8 +124,7 @@ def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects
             continue
         z = world[in_area & (true == cls), 2]
         low, high = (float(v) for v in np.percentile(z, HEIGHT_PERCENTILES))
-        inside = _inside(xy, polygon) & (world[:, 2] >= low) & (world[:, 2] <= high)
-        gain = _gain(inside, true, current, cls)
+        gain = _gain(GroundRegion(polygon, cls, (low, high)).labels(world, None), true, current, cls)
         if best is None or gain > best.gain:
             best = Lasso(polygon, cls, gain, (low, high))
     return best

@@ -33,7 +33,7 @@ from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
 from pipeline.classes import UNLABELLED
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
-from pipeline.regions import points_in_polygon
+from pipeline.propagation import GroundRegion
 
 # the service's worker polls every WORKER_POLL_S (bench_effort sets it); the operator waits this
 # long without a model run in sight before it takes the next track
@@ -245,7 +245,7 @@ class Operator:
         world, true, current, ground = self.layer()
         self.store.forget()
         for p in self._prisms:  # the points its own prisms label are no ground layer
-            ground &= ~((world[:, 2] >= p.heights[0]) & (world[:, 2] <= p.heights[1]) & points_in_polygon(world[:, :2], p.polygon))
+            ground &= ~GroundRegion(p.polygon, p.class_, p.heights).labels(world, None)
         lassos = self.counts.regions - self.counts.prisms
         best = [plan(world[ground, :2], true[ground], current[ground], n) if lassos < pol.ground_per_frame * frames else None,
                 plan_prism(world, true, current, objects, n) if self.counts.prisms < pol.prisms_per_frame * frames else None]
