@@ -71,7 +71,8 @@ class GroundPanel:
         self.scene, self.api, self.notify, self.view, self.recolour = scene, api, notify, view, recolour
         self.load_map, self.look_down, self.later = load_map, look_down, later
         gui.add_markdown("Tick the Draw box, click the ground around an area (a lawn, a sidewalk), then "
-                         "close and label it: its ground points take the class in every frame.")
+                         "close and label it: its ground points take the class in every frame. With *Every "
+                         "point between heights*, every point from From to To above it does (a hedge, a fence).")
         self.gui_class = gui.add_dropdown("Region class", ("ground",), initial_value="ground")
         self.gui_every = gui.add_checkbox("Every frame's ground", initial_value=False,
                                           hint="Show the ground of all frames from above, and draw on it.")
