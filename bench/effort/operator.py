@@ -54,7 +54,7 @@ class Policy:
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
     ground_every: int = 5  # reviews between two looks at every frame from above
     ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
-    prisms_per_frame: float = 1.0  # regions with heights at most, per frame of the sequence
+    prisms_per_frame: float = 2.0  # regions with heights at most, per frame of the sequence
     region_share: float = 0.002  # of the seen points that are not ground: what a lasso must put right (net)
 
 
