@@ -48,3 +48,21 @@ def test_prism_lifts_over_a_hedge_its_ground_and_the_car_beside_it_left_out():
     assert inside[:6000].mean() >= 0.93 and not inside[6000:].any()  # all but its 1st and 99th height percentiles
     assert lasso.gain == int(inside[:6000].sum())
     assert plan_prism(world, true, true, objects=2, n_classes=3) is None  # nothing wrong: nothing to draw
+
+
+def test_replay_paints_a_wrong_hedge_unless_a_decided_track_holds_it():
+    from bench.effort.replay_regions import replay
+    from pipeline.label_sets import preset
+
+    ls = preset("paper")
+    car, bush, ground = ls.index("car"), ls.index("bush"), ls.ground_index
+    rng = np.random.default_rng(2)
+    hedge = np.column_stack([rng.uniform(0, 20, 4000), rng.uniform(5, 7, 4000), rng.uniform(0.3, 2.0, 4000)])
+    road = np.column_stack([rng.uniform(0, 20, 4000), rng.uniform(0, 8, 4000), rng.normal(0.0, 0.02, 4000)])
+    state = {"world": np.concatenate([hedge, road]), "true": np.repeat(np.array([bush, ground], np.uint8), 4000),
+             "current": np.repeat(np.array([car, ground], np.uint8), 4000), "decided": np.zeros(8000, bool)}
+    rows = replay(state, ls, regions=3, min_gain=200, undecided_only=False)
+    assert rows[0]["non_ground_right"] == 0.0 and rows[-1]["non_ground_right"] >= 0.93
+    assert all(r["ground_right"] == 1.0 for r in rows)  # the prism stays above the road
+    state["decided"][:4000] = True  # a reviewed track holds the hedge
+    assert len(replay(state, ls, regions=3, min_gain=200, undecided_only=True)) == 1  # nothing to draw

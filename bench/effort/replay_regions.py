@@ -1,0 +1,97 @@
+"""What more prisms would put right on a state the operator benchmark exported, without the service.
+
+    python -m bench.effort.replay_regions SEQ OUT [--frames A-B] [--regions 15] [--undecided-only]
+
+SEQ: the clip's KITTI folder (with labels/ and poses); OUT: a `bench_effort` output folder (its
+`export/` holds the final export with its sources). The planner of the simulated operator
+(`bench.effort.ground.plan_prism`) draws prisms one after another over every point of the
+labelled frames, each applied with the service's rule (`pipeline.propagation.GroundRegion`),
+while one puts at least `--min-gain` points right; `--undecided-only` lets them label only the
+points no reviewed or bulk-accepted track holds. Prints the non-ground and ground points right
+after each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bench.effort.ground import plan_prism
+from bench.effort.score import exported_classes, is_ground
+from bench.effort.truth import SequenceTruth
+from pipeline.classes import UNLABELLED
+from pipeline.io.registry import open_reader
+from pipeline.label_sets import LabelSet, preset
+from pipeline.propagation import GroundRegion, to_world
+
+
+def load(seq: Path, out: Path, frames: tuple[int, int] | None, label_set: str) -> dict[str, np.ndarray]:
+    """Every labelled frame's stored points: world, true class, exported class, whether decided."""
+    ls = preset(label_set)
+    truth, source = SequenceTruth(seq, ls), open_reader(seq)
+    names = json.loads((out / "export" / "summary.json").read_text())["sources"]
+    decided = [names.index("reviewed"), names.index("bulk")]
+    parts: dict[str, list[np.ndarray]] = {"world": [], "true": [], "current": [], "decided": []}
+    first, last = frames or (0, len(source) - 1)
+    for i in range(first, last + 1):
+        name = source.frame_name(i)
+        if name not in truth.labelled:
+            continue
+        ft, rows = truth.labelled[name], truth.labelled[name].input_rows
+        words = np.fromfile(out / "export" / "labels" / f"{name}.label", np.uint32)
+        src = np.fromfile(out / "export" / "sources" / f"{name}.source", np.uint8)
+        if rows is not None:
+            words, src = words[rows], src[rows]
+        parts["world"].append(to_world(source.frame(i).points[:, :3], source.poses[i]))
+        parts["true"].append(ft.classes)
+        parts["current"].append(exported_classes(words, ls))
+        parts["decided"].append(np.isin(src, decided))
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def replay(state: dict[str, np.ndarray], ls: LabelSet, regions: int, min_gain: int,
+           undecided_only: bool) -> list[dict[str, float]]:
+    """Draw up to `regions` prisms greedily; the scores after each (the first row: none)."""
+    world, true, current = state["world"], state["true"], state["current"].copy()
+    objects, n_classes = len(ls.sample_classes), len(ls.point_classes)
+    free = ~state["decided"] if undecided_only else np.ones(len(true), bool)
+    g = is_ground(true, ls)
+    ng = ~g & (true != UNLABELLED)
+    rows = [_score(current, true, ng, g, 0)]
+    for _ in range(regions):
+        seen = np.flatnonzero(free)
+        lasso = plan_prism(world[seen], true[seen], current[seen], objects, n_classes)
+        if lasso is None or lasso.gain < min_gain:
+            break
+        inside = GroundRegion(lasso.polygon, lasso.class_, lasso.heights).labels(world, None) & free
+        current[inside] = lasso.class_
+        rows.append(_score(current, true, ng, g, lasso.gain))
+    return rows
+
+
+def _score(current: np.ndarray, true: np.ndarray, ng: np.ndarray, g: np.ndarray, gain: int) -> dict[str, float]:
+    return {"gain": gain, "non_ground_right": round(float((current[ng] == true[ng]).mean()), 4),
+            "ground_right": round(float((current[g] == true[g]).mean()), 4)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("seq", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--frames", help="A-B: the clip's frames (as bench_effort's --frames)")
+    ap.add_argument("--regions", type=int, default=15)
+    ap.add_argument("--min-gain", type=int, default=200)
+    ap.add_argument("--undecided-only", action="store_true")
+    ap.add_argument("--label-set", default="paper")
+    a = ap.parse_args()
+    frames = tuple(int(x) for x in a.frames.split("-")) if a.frames else None
+    state = load(a.seq, a.out, frames, a.label_set)  # type: ignore[arg-type]
+    for k, row in enumerate(replay(state, preset(a.label_set), a.regions, a.min_gain, a.undecided_only)):
+        print(json.dumps({"prisms": k, **row}))
+
+
+if __name__ == "__main__":
+    main()
