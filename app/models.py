@@ -484,9 +484,10 @@ class BulkAction(Base):
 class GroundRegion(Base):
     """A polygon an operator drew on the top view of a sequence (world x, y) and a class of its
     label set: the ground points of every frame inside it take that class in the exports, or with
-    a height range every point inside the prism (`pipeline.propagation.GroundRegion`). Later regions are drawn over earlier ones. Deleting
-    one is its undo: the row stays with `deleted_at` set, so that the operations a sequence took
-    can be counted (`crud.operation_count`). Migrations 0014, 0015 (the heights)."""
+    a height range every point inside the prism (`pipeline.propagation.GroundRegion`). Later
+    regions are drawn over earlier ones. Deleting one is its undo: the row stays with
+    `deleted_at` set, so that the operations a sequence took can be counted
+    (`crud.operation_count`). Migrations 0014, 0015 (the heights)."""
 
     __tablename__ = "ground_regions"
     __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)

@@ -1,7 +1,8 @@
 """Ground regions: polygons an operator draws on a sequence's top view, each with a class of the
 sequence's label set. The exports give the ground points inside them that class in every frame,
-or with a height range every point inside the prism (`pipeline.propagation`); the newest region wins where regions overlap; deleting one undoes it
-(the row stays, marked deleted, for the count of operations)."""
+or with a height range every point inside the prism (`pipeline.propagation`); the newest region
+wins where regions overlap; deleting one undoes it (the row stays, marked deleted, for the count
+of operations)."""
 
 from __future__ import annotations
 

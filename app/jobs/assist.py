@@ -14,8 +14,9 @@ operator's reviews so far, and orders the review queue by what a review would co
    predictions give the precision a bulk accept's preview shows (`result.held_out`).
 
 The worker queues it by itself (`schedule`): once when a sequence becomes ready, then each time
-`assist_every` more review events have come in, or a region was drawn or undone. One runs at a time per sequence; reviews that
-arrive meanwhile start the next run when it ends, so a run is never restarted for every action.
+`assist_every` more review events have come in or a region was drawn or undone. One runs at a
+time per sequence; reviews that arrive meanwhile start the next run when it ends, so a run is
+never restarted for every action.
 """
 
 from __future__ import annotations
@@ -61,7 +62,8 @@ class AssistParams(JsonModel):
     model_id: int | None = Field(default=None, ge=1, le=2**31 - 1, description=(
         "The base CNN; None = the newest model trained on this sequence, else the shipped default."))
     after_event: int = Field(default=0, ge=0, le=2**62, description="The newest review event the run includes.")
-    regions: int = Field(default=0, ge=0, le=2**62, description="The region operations (drawn, undone) the run includes.")
+    regions: int = Field(default=0, ge=0, le=2**62,
+                         description="The region operations (drawn, undone) the run includes.")
     seed: int = Field(default=0, ge=0, le=2**31 - 1)
 
 
@@ -195,7 +197,8 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
         predicted = _write(ctx, tracks, mean, counts, classes, in_regions)
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
-            "after_event": params.after_event, "regions": params.regions, "samples": len(data["segs"]), "reviewed_samples": int(len(labelled)),
+            "after_event": params.after_event, "regions": params.regions, "samples": len(data["segs"]),
+            "reviewed_samples": int(len(labelled)),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
             "held_out": _held_out_record(held, tuple(classes), _points(tracks, np.unique(group[labelled]))),
             "seconds": round(time.perf_counter() - t0, 2)}

@@ -172,8 +172,8 @@ class GroundRegionCreate(_Request):
 
 class GroundRegionPublic(_Public):
     """A stored region: the ground points inside its polygon (with `z_min` and `z_max`, every
-    point inside the prism) take `class_name` in every frame of the sequence's exports; the newest region wins
-    where regions overlap."""
+    point inside the prism) take `class_name` in every frame of the sequence's exports; the
+    newest region wins where regions overlap."""
 
     id: int
     sequence_id: int

@@ -238,17 +238,20 @@ class Operator:
         return tuple(np.concatenate(a) for a in (world, true, current, ground))  # type: ignore[return-value]
 
     def _best_region(self) -> tuple[Lasso | None, int]:
-        """The best lasso over the ground layer (points the export labels as ground or by a
-        region) and, with `prisms`, the best over every point; and the gain one must reach."""
+        """The best of a lasso over the ground layer (points the export labels as ground or by a
+        region) and a prism over every point, each while its budget lasts; and the gain one must
+        reach."""
         n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
         pol, frames = self.policy, len(self.frames)
         world, true, current, ground = self.layer()
         self.store.forget()
         for p in self._prisms:  # the points its own prisms label are no ground layer
             ground &= ~GroundRegion(p.polygon, p.class_, p.heights).labels(world, None)
-        lassos = self.counts.regions - self.counts.prisms
-        best = [plan(world[ground, :2], true[ground], current[ground], n) if lassos < pol.ground_per_frame * frames else None,
-                plan_prism(world, true, current, objects, n) if self.counts.prisms < pol.prisms_per_frame * frames else None]
+        best = []
+        if self.counts.regions - self.counts.prisms < pol.ground_per_frame * frames:
+            best.append(plan(world[ground, :2], true[ground], current[ground], n))
+        if self.counts.prisms < pol.prisms_per_frame * frames:
+            best.append(plan_prism(world, true, current, objects, n))
         need = int(self.policy.region_share * int((true < objects).sum()))
         return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
 
