@@ -108,15 +108,22 @@ class Run:
             if op.counts.reviews % pol.bulk_every == 0:
                 op.bulk_round()
             if not ground_done and op.counts.reviews % pol.ground_every == 0:
-                ground_done = not op.region_pass()
-            if op.counts.actions >= marks[0]:
-                point = self.checkpoint()
-                print(f"  {point['actions']:4d} actions: non-ground right {point['non_ground_right']:.3f}, "
-                      f"ground right {point['ground_right']}", file=sys.stderr)
-                while marks and marks[0] <= op.counts.actions:
-                    marks.pop(0)
+                ground_done = not op.region_pass(budget, lambda: self._mark(marks))
+            self._mark(marks)
         if self.curve[-1]["actions"] != op.counts.actions:
             self.checkpoint()
+
+    def _mark(self, marks: list[int]) -> None:
+        """A checkpoint when the actions reached the next mark (regions drawn in a row are
+        scored as they come, like reviews)."""
+        actions = self.operator.counts.actions
+        if not marks or actions < marks[0]:
+            return
+        point = self.checkpoint()
+        print(f"  {point['actions']:4d} actions: non-ground right {point['non_ground_right']:.3f}, "
+              f"ground right {point['ground_right']}", file=sys.stderr)
+        while marks and marks[0] <= actions:
+            marks.pop(0)
 
     def variants(self) -> list[dict[str, Any]]:
         """The final state exported with other propagation radii: how far labels should travel."""

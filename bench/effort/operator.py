@@ -22,6 +22,7 @@ an audit; actions = edits + audits.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -255,12 +256,12 @@ class Operator:
         need = int(self.policy.region_share * int((true < objects).sum()))
         return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
 
-    def region_pass(self) -> bool:
+    def region_pass(self, budget: int | None = None, after_each: Callable[[], None] | None = None) -> bool:
         """Draw the regions that put the most seen points right (one action each), the best
-        first, while one puts `region_share` of the seen object points right and the budget
-        lasts; False when none did."""
+        first, while one puts `region_share` of the seen object points right and the budgets
+        last (`budget`: the actions; `after_each`: called after each); False when none did."""
         drawn = False
-        while True:
+        while budget is None or self.counts.actions < budget:
             lasso, need = self._best_region()
             if lasso is None or lasso.gain < need:
                 break
@@ -274,6 +275,8 @@ class Operator:
                 self.counts.prisms += 1
                 self._prisms.append(lasso)
             drawn = True
+            if after_each is not None:
+                after_each()
         return drawn
 
     # ------------------------------------------------------------------ bulk and audit
