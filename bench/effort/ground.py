@@ -24,7 +24,8 @@ MAX_VERTICES = 1000  # the API's limit
 CANDIDATES = 3  # outlines tried per class, largest estimated gain first
 UP = 8  # pixels per cell side when tracing an outline
 PRISM_VERTICES = 32  # a hedge or a fence traced in a few dozen clicks
-HEIGHT_PERCENTILES = (1.0, 99.0)  # of the class's points in the area: the prism's low and high
+BOTTOMS = (1.0, 5.0, 10.0, 25.0)  # percentiles of the class's heights in the area a prism's bottom is tried at
+TOP_PERCENTILE = 99.0  # of the same heights: its top
 
 
 @dataclass(frozen=True)
@@ -108,8 +109,10 @@ def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects
     """The best region with a height range over these seen points ((N, 3) world; true and
     current class per point, UNLABELLED where unknown): around a connected area of cells whose
     points that are not ground are mostly of one object class (`objects`: the first classes),
-    from the lowest to the highest of that class's points there (1st and 99th percentiles), as a
-    person lifts a prism over a hedge or a fence."""
+    up to the highest of that class's points there (99th percentile), from the bottom of the
+    `BOTTOMS` percentiles of their heights that keeps the most ground out, as a person lifts a
+    prism over a hedge or a fence above the lawn it stands on. A ground point inside counts
+    against it whatever its class now: the prism takes it from the ground layer's lassos."""
     known = true != UNLABELLED
     world, true, current = world[known], true[known], current[known]
     wrong = (true != current) & (true < objects)
@@ -123,8 +126,11 @@ def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects
         if polygon is None:
             continue
         z = world[in_area & (true == cls), 2]
-        low, high = (float(v) for v in np.percentile(z, HEIGHT_PERCENTILES))
-        gain = _gain(GroundRegion(polygon, cls, (low, high)).labels(world, None), true, current, cls)
-        if best is None or gain > best.gain:
-            best = Lasso(polygon, cls, gain, (low, high))
+        high = float(np.percentile(z, TOP_PERCENTILE))
+        for low in (float(v) for v in np.percentile(z, BOTTOMS)):
+            inside = GroundRegion(polygon, cls, (low, high)).labels(world, None)
+            ground = inside & (true >= objects)
+            gain = _gain(inside & ~ground, true, current, cls) - int(ground.sum())
+            if best is None or gain > best.gain:
+                best = Lasso(polygon, cls, gain, (low, high))
     return best
