@@ -66,3 +66,22 @@ def test_replay_paints_a_wrong_hedge_unless_a_decided_track_holds_it():
     assert all(r["ground_right"] == 1.0 for r in rows)  # the prism stays above the road
     state["decided"][:4000] = True  # a reviewed track holds the hedge
     assert len(replay(state, ls, regions=3, min_gain=200, undecided_only=True)) == 1  # nothing to draw
+
+
+def test_prism_over_low_bushes_keeps_the_lawn_under_them_out():
+    """Bushes 0.1-1.2 m on a lawn of terrain (a ground class) shown wrongly as road: the prism's
+    bottom rises above the lawn, which a lasso labels better."""
+    from bench.effort.ground import plan_prism
+
+    CAR, BUSH, ROAD, TERRAIN = 0, 1, 2, 3  # two object classes, then two ground classes
+    rng = np.random.default_rng(3)
+    bush = np.column_stack([rng.uniform(0, 10, 5000), rng.uniform(0, 4, 5000), rng.uniform(0.1, 1.2, 5000)])
+    lawn = np.column_stack([rng.uniform(0, 10, 5000), rng.uniform(0, 4, 5000), rng.uniform(0.0, 0.25, 5000)])
+    world = np.concatenate([bush, lawn])
+    true = np.repeat(np.array([BUSH, TERRAIN], np.uint8), 5000)
+    current = np.repeat(np.array([CAR, ROAD], np.uint8), 5000)  # both wrong
+    lasso = plan_prism(world, true, current, objects=2, n_classes=4)
+    assert lasso is not None and lasso.class_ == BUSH
+    inside = points_in_polygon(world[:, :2], lasso.polygon) & (world[:, 2] >= lasso.heights[0]) & (world[:, 2] <= lasso.heights[1])
+    assert inside[5000:].sum() <= 0.1 * inside[:5000].sum()  # little of the lawn under it
+    assert lasso.gain == int(inside[:5000].sum() - inside[5000:].sum())
