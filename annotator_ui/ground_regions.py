@@ -8,8 +8,8 @@ or predicted `no_object`) in their kept frames, and never to a point of a track 
 class (accepted with a label) in its kept frames; a region with heights gives it to every point
 inside its prism (world z between them), a decided track's too; the newest region wins where
 regions overlap.
-The viewer paints exactly those points, with the containment test the service uses
-(`pipeline.propagation.GroundRegion.contains`). In the *track* colour mode the viewer does not
+The viewer paints exactly those points, with the rule the service uses
+(`pipeline.propagation.GroundRegion.labels`). In the *track* colour mode the viewer does not
 read the tracks' states, and the points of a track keep the track's hue there: that mode shows
 tracks, not classes.
 """
@@ -163,7 +163,8 @@ def region_classes_of_points(points_world: np.ndarray, eligible: np.ndarray, reg
     anywhere = np.ones(len(world), bool) if any_eligible is None else np.asarray(any_eligible, bool)
     out = np.full(len(world), -1, np.int64)
     for k, r in enumerate(regions):  # oldest first: a newer region overwrites an older one
-        out[GroundRegion(r.polygon, 0, r.heights).labels(world, free) & (anywhere if r.heights else free)] = k
+        mine = GroundRegion(r.polygon, 0, r.heights).labels(world, free)
+        out[mine & anywhere if r.heights is not None else mine] = k
     return out
 
 

@@ -80,15 +80,16 @@ def base_model(session: Session, sequence_id: int, model_id: int | None) -> Chos
 
 
 def _read(session: Session, sequence_id: int) -> dict[str, Any]:
-    """The sequence's samples (frame order), tracks and reviewed labels."""
+    """The sequence's samples (frame order), tracks, reviewed labels, label set and regions."""
     seq = ready_sequence(session, sequence_id)
     artifact = frame_artifacts(session, seq.id)
     segs = sample_segments(session, seq.id)
     tracks = track_ranges(session, seq.id)
     reviewed = segment_classes(session, seq.id, source="review")
-    regions = stored_regions(session, seq.id, crud.label_set_of(seq))
-    return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed, "regions": regions,
-            "frames": frame_poses(session, seq.id) if regions else []}
+    label_set = crud.label_set_of(seq)
+    regions = stored_regions(session, seq.id, label_set)
+    return {"artifact": artifact, "segs": segs, "tracks": tracks, "reviewed": reviewed, "label_set": label_set,
+            "regions": regions, "frames": frame_poses(session, seq.id) if regions else []}
 
 
 def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -179,7 +180,7 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     with ctx.db.read() as s:
         data = _read(s, params.sequence_id)
         chosen = base_model(s, params.sequence_id, params.model_id)
-        label_set = crud.existing_label_set(s, params.sequence_id)  # _read checked it is ready
+    label_set = data["label_set"]
     ctx.progress(0.05, f"scoring {len(data['segs'])} samples with {chosen.name}")
     features, cnn_classes = _features(ctx, data, chosen, 512)
     k = len(label_set.sample_class_names)
