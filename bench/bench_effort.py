@@ -101,6 +101,7 @@ class Run:
         self.checkpoint()
         marks.pop(0)
         op, pol = self.operator, self.operator.policy
+        op.on_action = lambda: self._mark(marks)
         ground_done = False
         while op.counts.actions < budget and marks:
             if not op.review_next():
@@ -108,14 +109,13 @@ class Run:
             if op.counts.reviews % pol.bulk_every == 0:
                 op.bulk_round()
             if not ground_done and op.counts.reviews % pol.ground_every == 0:
-                ground_done = not op.region_pass(budget, lambda: self._mark(marks))
-            self._mark(marks)
+                ground_done = not op.region_pass(budget)
         if self.curve[-1]["actions"] != op.counts.actions:
             self.checkpoint()
 
     def _mark(self, marks: list[int]) -> None:
-        """A checkpoint when the actions reached the next mark (regions drawn in a row are
-        scored as they come, like reviews)."""
+        """A checkpoint when the actions reached the next mark (after every action: the split and
+        the labels of a review, a bulk accept and its audits are scored as they come)."""
         actions = self.operator.counts.actions
         if not marks or actions < marks[0]:
             return

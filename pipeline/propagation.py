@@ -13,6 +13,9 @@ A point's class comes, in this order, from
    (`propagated`): points of segments too small to be samples, points the range image did not
    give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
    ground estimate took reaches only `ground_radius`, so a road beside a reviewed wall stays road;
+   then, for points that are not ground, the nearest point of its own frame that a region without
+   heights gave an object class, within `region_radius` (`propagated`): the ground estimate took
+   the low leaves of a bush the operator lassoed, and the rest of the bush stands just above them;
 4. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
    far within `far_radius` (`ground_radius` for a point the ground estimate took; `predicted`, or
    `propagated` when that point's class was decided);
@@ -47,11 +50,16 @@ class Rules:
     and 0.3 m on each; 0.2 m into ground points gains about as much non-ground as it costs
     ground against 0.1 m and keeps ground above 94 % on each; a far radius of 10 m labelled more
     non-ground points right than 5 m, 2 m and none on each (20 m: the same), and touches no
-    ground point."""
+    ground point. region_radius: from the points that a region without heights gave an object
+    class to points of the same frame that are not ground and that no decided point reached (m);
+    0.3 m labelled more non-ground points right than none on each clip, and more than 0.5 m and
+    1 m in the mean. From the points of a region with heights it labelled fewer on one clip: an
+    operator leaves out of a prism what is not its class (docs/effort.md)."""
 
     radius: float = 1.0
     ground_radius: float = 0.2
     far_radius: float = 10.0
+    region_radius: float = 0.3
     voxel: float = 0.05
 
 
@@ -60,11 +68,12 @@ class GroundRegion:
     """A polygon an operator drew on the top view (world x, y; (K, 2), K >= 3) and its class.
     Without `heights` the ground points inside it take the class in every frame; with heights
     (world z low, high) every point inside the prism does. A later region is drawn over an
-    earlier one where they overlap."""
+    earlier one where they overlap. object_: whether the class is an object class (not ground)."""
 
     polygon: np.ndarray
     class_: int
     heights: tuple[float, float] | None = None
+    object_: bool = False
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(N,) bool of (N, 2) world points; the bounding box first, so a frame far from the
@@ -186,14 +195,31 @@ def decided_labels(track: np.ndarray, decided: TrackClasses) -> PointLabels:
     return out
 
 
-def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion]) -> None:
+def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion]) -> np.ndarray:
     """Step 2: each region, oldest first, gives its class to the points it labels
-    (`GroundRegion.labels`; ground points that no decided track holds, or its prism's)."""
+    (`GroundRegion.labels`; ground points that no decided track holds, or its prism's). Returns
+    (N,) bool the points that a region without heights gave an object class."""
+    spreads = np.zeros(len(world), bool)
     if not regions:
-        return
+        return spreads
     free = np.asarray(ground, bool) & ~out.labelled
     for r in regions:
-        out.set(r.labels(world, free), r.class_, SOURCE["region"], 1.0)
+        mask = r.labels(world, free)
+        out.set(mask, r.class_, SOURCE["region"], 1.0)
+        spreads[mask] = r.object_ and r.heights is None
+    return spreads
+
+
+def _spread_regions(out: PointLabels, want: np.ndarray, world: np.ndarray, spreads: np.ndarray, rules: Rules) -> np.ndarray:
+    """Step 3's second part: the points of `want` take the class of the nearest point of `spreads`
+    within `rules.region_radius`. Returns (N,) bool the points it labelled."""
+    if rules.region_radius <= 0 or not spreads.any() or not want.any():
+        return np.zeros(len(want), bool)
+    labels = PointLabels(np.where(spreads, out.class_, NONE).astype(np.uint8), out.source, out.confidence)
+    near = NearestLabel(*thin(world, labels, rules.voxel))
+    before = out.labelled.copy()
+    _take(out, want, world, near, rules.region_radius, SOURCE["propagated"])
+    return out.labelled & ~before
 
 
 def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestLabel, radius: float,
@@ -224,16 +250,18 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
     track = np.asarray(track, np.int64)
     ground = np.asarray(ground, bool)
     out = decided_labels(track, decided)
-    region_labels(out, ground, world, regions)
+    spreads = region_labels(out, ground, world, regions)
     if field is not None:
         _take(out, ~out.labelled & ~ground, world, field, rules.radius, SOURCE["propagated"])
         _take(out, ~out.labelled & ground, world, field, rules.ground_radius, SOURCE["propagated"])
+    by_region = (out.source == SOURCE["region"]) | _spread_regions(out, ~out.labelled & ~ground, world, spreads, rules)
     hit, row = predicted.lookup(track)
     hit &= ~out.labelled
     out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
     if (~out.labelled).any() and out.labelled.any():
-        # regions label what they hold and no more: a wall beside a lawn is not lawn
-        spread = np.where(out.source == SOURCE["region"], NONE, out.class_).astype(np.uint8)
+        # regions label what they hold and, just above a lassoed object, its points; no more:
+        # a wall beside a lawn is not lawn
+        spread = np.where(by_region, NONE, out.class_).astype(np.uint8)
         near = NearestLabel(*thin(world, PointLabels(spread, out.source, out.confidence), rules.voxel))
         rest = ~out.labelled
         _take(out, rest & ~ground, world, near, max(rules.radius, rules.far_radius))

@@ -96,7 +96,9 @@ def frame_poses(session: Session, sequence_id: int) -> list[tuple[int, str, str,
 
 def stored_regions(session: Session, sequence_id: int, label_set: LabelSet) -> tuple[GroundRegion, ...]:
     """The sequence's live regions, oldest first, with their classes' indices in `label_set`."""
-    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights)
+    objects = len(label_set.sample_classes)
+    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights,
+                              label_set.index(r.class_name) < objects)
                  for r in list_regions(session, sequence_id))
 
 
@@ -259,5 +261,5 @@ class LabelSummary:
                            "input_rows_that_are_no_point": self.no_point},
             "options": {"include_ground": options.include_ground, "reviewed_only": options.reviewed_only,
                         "radius": options.rules.radius, "ground_radius": options.rules.ground_radius,
-                        "far_radius": options.rules.far_radius},
+                        "far_radius": options.rules.far_radius, "region_radius": options.rules.region_radius},
         }

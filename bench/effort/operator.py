@@ -99,6 +99,7 @@ class Operator:
     label_set: LabelSet = field(default_factory=lambda: preset(DEFAULT_LABEL_SET))
     input_rows: dict[str, np.ndarray | None] = field(default_factory=dict)  # per frame: the scan rows that are points
     counts: Counts = field(default_factory=Counts)
+    on_action: Callable[[], None] | None = None  # called after every action (the benchmark's checkpoints)
     _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
     _prisms: list[Lasso] = field(default_factory=list)  # the regions with heights it drew
 
@@ -138,7 +139,12 @@ class Operator:
         self.counts.edits += 1
         if path.endswith("/split"):
             self._payloads.clear()  # the split rewrote its frames
+        self._acted()
         return out
+
+    def _acted(self) -> None:
+        if self.on_action is not None:
+            self.on_action()
 
     def _is_object(self, cls: int | None) -> bool:
         """Whether `cls` is one of the label set's sample classes (not ground, not unlabelled)."""
@@ -256,10 +262,10 @@ class Operator:
         need = int(self.policy.region_share * int((true < objects).sum()))
         return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
 
-    def region_pass(self, budget: int | None = None, after_each: Callable[[], None] | None = None) -> bool:
+    def region_pass(self, budget: int | None = None) -> bool:
         """Draw the regions that put the most seen points right (one action each), the best
         first, while one puts `region_share` of the seen object points right and the budgets
-        last (`budget`: the actions; `after_each`: called after each); False when none did."""
+        last (`budget`: the actions); False when none did."""
         drawn = False
         while budget is None or self.counts.actions < budget:
             lasso, need = self._best_region()
@@ -275,8 +281,6 @@ class Operator:
                 self.counts.prisms += 1
                 self._prisms.append(lasso)
             drawn = True
-            if after_each is not None:
-                after_each()
         return drawn
 
     # ------------------------------------------------------------------ bulk and audit
@@ -321,4 +325,5 @@ class Operator:
                 self.reviewer.post(f"/audits/{a['id']}/correct", {"label": names[major]})
                 self.counts.audit_corrections += 1
             self.counts.audits += 1
+            self._acted()
         return self.counts.audit_corrections - before

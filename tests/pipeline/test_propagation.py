@@ -140,3 +140,29 @@ def test_region_with_heights_labels_every_point_of_its_prism_a_decided_one_s_too
     out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
                         (hedge, GroundRegion(square, 9)))
     assert out.class_[[1, 4, 7, 8]].tolist() == [BUSH, BUSH, 9, 9]
+
+
+def test_a_lassoed_object_reaches_the_points_just_above_it_and_a_prism_or_a_ground_class_does_not():
+    from pipeline.propagation import GroundRegion
+
+    other = 6
+    world = np.array([[10.0, 0, 1.0], [12.0, 0, 1.0], [10.2, 0, 0.8], [10.25, 0, 1.4]])
+    track = np.array([2, 2, 0, 0])  # track 2 predicted bush; a ground point (low leaves); a loose point
+    ground = np.array([False, False, True, False])
+    predicted = TrackClasses.of([(2, BUSH, SOURCE["predicted"], 0.8)])
+    none = TrackClasses.of([])
+    lasso = np.array([[10.1, -0.5], [10.3, -0.5], [10.3, 0.5], [10.1, 0.5]])
+    rules = Rules(far_radius=5.0)
+
+    def resolve(*regions, rules=rules):
+        return resolve_frame(track, ground, world, none, predicted, None, rules, GROUND_CLASS, regions)
+
+    out = resolve(GroundRegion(lasso, other, None, True))
+    assert out.class_.tolist() == [other, BUSH, other, BUSH]  # 0.22 m from the lassoed point; 1.8 m; the lasso's; the loose
+    assert out.source.tolist() == [SOURCE["propagated"], SOURCE["predicted"], SOURCE["region"], SOURCE["predicted"]]
+    # the loose point (0.6 m from the lassoed one) takes its frame's nearest label that no region gave
+    for plain in (resolve(GroundRegion(lasso, other, None, False)),  # a ground class
+                  resolve(GroundRegion(lasso, other, (0.7, 0.9), True)),  # a prism
+                  resolve(GroundRegion(lasso, other, None, True), rules=Rules(far_radius=5.0, region_radius=0.0))):
+        assert plain.class_[[0, 1, 3]].tolist() == [BUSH, BUSH, BUSH]
+        assert plain.source[0] == SOURCE["predicted"]

@@ -79,11 +79,16 @@ def export_semantickitti(
     = Rules.ground_radius,
     far_radius: Annotated[float, Query(ge=0.0, le=20.0, description="Metres, within a frame, to points that are not "
                                        "ground and that nothing reached within `radius`.")] = Rules.far_radius,
+    region_radius: Annotated[float, Query(ge=0.0, le=5.0, description="Metres, within a frame, from the points that a "
+                                          "region without heights gave an object class to points that are not ground "
+                                          "and that no decided point reached.")] = Rules.region_radius,
     with_sources: bool = False,
 ) -> StreamingResponse:
     """Per-frame SemanticKITTI `.label` files as a streamed tar, a class for every point that any
     source reaches: its track's reviewed or bulk-accepted class, else the nearest decided point
-    within `radius` (in the world frame, this or nearby frames), else its track's predicted class
+    within `radius` (in the world frame, this or nearby frames), else (points that are not ground)
+    the nearest point of its frame that a region without heights gave an object class (within
+    `region_radius`), else its track's predicted class
     or its frame's nearest labelled point (within `far_radius`); instance = track key (chunked
     with `chunk_map.json` past 65,535). `include_ground` writes the ground class on the remaining
     ground points; `reviewed_only` keeps the reviewed tracks' points alone. `summary.json` counts
@@ -91,7 +96,8 @@ def export_semantickitti(
     `with_sources` adds each point's source (`sources/<frame>.source`, uint8 per row: its index in
     `summary.sources`)."""
     seq = crud.get_sequence(session, sequence_id)
-    rules = Rules(radius=radius, ground_radius=ground_radius, far_radius=far_radius)
+    rules = Rules(radius=radius, ground_radius=ground_radius, far_radius=far_radius,
+                  region_radius=region_radius)
     options = ExportOptions(include_ground, reviewed_only, rules)
     plan = point_label_plan(session, seq, options)
     session.close()
