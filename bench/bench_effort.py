@@ -24,7 +24,7 @@ import sys
 import tempfile
 import time
 from contextlib import nullcontext
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ CLIPS = {"kitti_seq00": (0, 9), "kitti_seq01": None, "kitti_seq02": None}
 RADII = (0.3, 0.5, 1.0)  # the final state is also exported with these (radius, ground radius, far radius)
 GROUND_RADII = (0.1, 0.2, 0.3)
 FAR_RADII = (0.0, 2.0, 5.0, 10.0, 20.0)  # at the default radius and ground radius
+REGION_RADII = (0.0, 0.3, 0.5, 1.0)  # a lasso's reach, at the other defaults
 
 
 def checkpoints(budget: int) -> list[int]:
@@ -127,16 +128,16 @@ class Run:
 
     def variants(self) -> list[dict[str, Any]]:
         """The final state exported with other propagation radii: how far labels should travel."""
-        default = Rules()
-        grid = [(r, g, default.far_radius) for r in RADII for g in GROUND_RADII]
-        grid += [(default.radius, default.ground_radius, f) for f in FAR_RADII if f != default.far_radius]
+        d = Rules()
+        grid = [replace(d, radius=r, ground_radius=g) for r in RADII for g in GROUND_RADII]
+        grid += [replace(d, far_radius=f) for f in FAR_RADII if f != d.far_radius]
+        grid += [replace(d, region_radius=r) for r in REGION_RADII if r != d.region_radius]
         rows = []
-        for radius, ground_radius, far_radius in grid:
-            export = self.admin.export(self.sequence_id, include_ground=True, radius=radius, ground_radius=ground_radius,
-                                       far_radius=far_radius)
-            s = score_export(export, self.truth)
-            rows.append({"radius": radius, "ground_radius": ground_radius, "far_radius": far_radius,
-                         "non_ground_right": s["non_ground_right"], "ground_right": s["ground_right"]})
+        for rules in grid:
+            radii = {"radius": rules.radius, "ground_radius": rules.ground_radius, "far_radius": rules.far_radius,
+                     "region_radius": rules.region_radius}
+            s = score_export(self.admin.export(self.sequence_id, include_ground=True, **radii), self.truth)
+            rows.append({**radii, "non_ground_right": s["non_ground_right"], "ground_right": s["ground_right"]})
         return rows
 
     def assist_seconds(self) -> list[float]:
