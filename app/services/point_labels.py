@@ -96,10 +96,9 @@ def frame_poses(session: Session, sequence_id: int) -> list[tuple[int, str, str,
 
 def stored_regions(session: Session, sequence_id: int, label_set: LabelSet) -> tuple[GroundRegion, ...]:
     """The sequence's live regions, oldest first, with their classes' indices in `label_set`."""
+    rows = [(r, label_set.index(r.class_name)) for r in list_regions(session, sequence_id)]
     objects = len(label_set.sample_classes)
-    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), label_set.index(r.class_name), r.heights,
-                              label_set.index(r.class_name) < objects)
-                 for r in list_regions(session, sequence_id))
+    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), c, r.heights, c < objects) for r, c in rows)
 
 
 def region_points(frames: list[tuple[int, str, str, np.ndarray | None]], regions: tuple[GroundRegion, ...],

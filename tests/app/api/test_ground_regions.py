@@ -13,8 +13,8 @@ from pipeline.classes import SEMANTICKITTI_WRITE_ID
 EVERYWHERE = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
 
 
-def _labels(client, caller, seq):
-    r = client.get(f"/api/v1/exports/semantickitti/{seq}", params={"include_ground": True}, headers=caller.headers)
+def _labels(client, caller, seq, **params):
+    r = client.get(f"/api/v1/exports/semantickitti/{seq}", params={"include_ground": True, **params}, headers=caller.headers)
     assert r.status_code == 200, r.text
     tar = tarfile.open(fileobj=io.BytesIO(r.content))
     return [np.frombuffer(tar.extractfile(n).read(), np.uint32) & 0xFFFF
@@ -56,6 +56,22 @@ def test_ground_region_relabels_the_ground_of_every_frame_until_deleted(client, 
     # two drawn and two undone: four label-changing operations
     stats = client.get("/api/v1/exports/stats", params={"sequence_id": seq}, headers=op.headers).json()
     assert stats["operations"] == 4
+
+
+def test_a_lasso_of_an_object_class_reaches_points_that_are_not_ground_and_one_of_a_ground_class_does_not(client, factory):
+    seq = factory.ingested_sequence(n_frames=2, n_objects=2)
+    op = factory.user()
+    far = {"region_radius": 5.0}  # the synthetic objects stand farther than the default 0.3 m from the ground points
+    before = _labels(client, op, seq, **far)
+    not_ground = [f != SEMANTICKITTI_WRITE_ID["ground"] for f in before]
+    bush = _region(client, op, seq, "bush", EVERYWHERE)
+    reached = [(a != b) & n for a, b, n in zip(_labels(client, op, seq, **far), before, not_ground, strict=True)]
+    assert sum(r.sum() for r in reached) > 0
+    assert all(set(a[r].tolist()) <= {SEMANTICKITTI_WRITE_ID["bush"]} for a, r in zip(_labels(client, op, seq, **far), reached, strict=True))
+    assert all(np.array_equal(a[n], b[n]) for a, b, n in zip(_labels(client, op, seq, region_radius=0.0), before, not_ground, strict=True))
+    client.delete(f"/api/v1/ground-regions/{bush['id']}", headers=op.headers)
+    _region(client, op, seq, "ground", EVERYWHERE)
+    assert all(np.array_equal(a[n], b[n]) for a, b, n in zip(_labels(client, op, seq, **far), before, not_ground, strict=True))
 
 
 def test_ground_region_refuses_a_class_outside_the_label_set_and_a_flat_polygon(client, factory):
