@@ -211,22 +211,17 @@ def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regio
     return spreads
 
 
-def _spread_regions(out: PointLabels, want: np.ndarray, world: np.ndarray, spreads: np.ndarray, rules: Rules) -> np.ndarray:
-    """Step 3's second part: the points of `want` take the class of the nearest point of `spreads`
-    within `rules.region_radius`. Returns (N,) bool the points it labelled."""
-    if rules.region_radius <= 0 or not spreads.any() or not want.any():
-        return np.zeros(len(want), bool)
-    labels = PointLabels(np.where(spreads, out.class_, NONE).astype(np.uint8), out.source, out.confidence)
-    near = NearestLabel(*thin(world, labels, rules.voxel))
-    before = out.labelled.copy()
-    _take(out, want, world, near, rules.region_radius, SOURCE["propagated"])
-    return out.labelled & ~before
+def _nearest(world: np.ndarray, out: PointLabels, keep: np.ndarray, voxel: float) -> NearestLabel:
+    """The labelled points of `keep`, thinned to one per voxel, searched by distance."""
+    return NearestLabel(*thin(world, PointLabels(np.where(keep, out.class_, NONE).astype(np.uint8), out.source,
+                                                 out.confidence), voxel))
 
 
 def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestLabel, radius: float,
-          source: np.ndarray | int | None = None) -> None:
+          source: np.ndarray | int | None = None) -> np.ndarray:
     """Give the points of `want` the label of their nearest point in `near` within `radius`;
-    their source is `source`, or else `propagated` from a decided point and `predicted` otherwise."""
+    their source is `source`, or else `propagated` from a decided point and `predicted` otherwise.
+    Returns (N,) bool the points it labelled."""
     idx = np.flatnonzero(want)
     found, nn = near.query(points[idx], radius)
     idx, nn = idx[found], nn[found]
@@ -235,6 +230,7 @@ def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestL
     mask = np.zeros(len(want), bool)
     mask[idx] = True
     out.set(mask, near.labels.class_[nn], source, near.labels.confidence[nn])
+    return mask
 
 
 def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, decided: TrackClasses,
@@ -255,15 +251,17 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
     if field is not None:
         _take(out, ~out.labelled & ~ground, world, field, rules.radius, SOURCE["propagated"])
         _take(out, ~out.labelled & ground, world, field, rules.ground_radius, SOURCE["propagated"])
-    by_region = (out.source == SOURCE["region"]) | _spread_regions(out, ~out.labelled & ~ground, world, spreads, rules)
+    by_region = out.source == SOURCE["region"]
+    if rules.region_radius > 0 and spreads.any():  # step 3's second part: a lassoed object's reach
+        by_region |= _take(out, ~out.labelled & ~ground, world, _nearest(world, out, spreads, rules.voxel),
+                           rules.region_radius, SOURCE["propagated"])
     hit, row = predicted.lookup(track)
     hit &= ~out.labelled
     out.set(hit, predicted.class_[row[hit]], SOURCE["predicted"], predicted.confidence[row[hit]])
     if (~out.labelled).any() and out.labelled.any():
         # regions label what they hold and, just above a lassoed object, its points; no more:
         # a wall beside a lawn is not lawn
-        spread = np.where(by_region, NONE, out.class_).astype(np.uint8)
-        near = NearestLabel(*thin(world, PointLabels(spread, out.source, out.confidence), rules.voxel))
+        near = _nearest(world, out, ~by_region, rules.voxel)
         rest = ~out.labelled
         _take(out, rest & ~ground, world, near, max(rules.radius, rules.far_radius))
         _take(out, rest & ground, world, near, rules.ground_radius)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.bench_effort import _frames
 from bench.effort.ground import plan_prism
 from bench.effort.score import exported_classes, is_ground
 from bench.effort.truth import SequenceTruth
@@ -81,14 +82,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("seq", type=Path)
     ap.add_argument("out", type=Path)
-    ap.add_argument("--frames", help="A-B: the clip's frames (as bench_effort's --frames)")
+    ap.add_argument("--frames", type=_frames, default=None, help="A-B: the clip's frames (as bench_effort's --frames)")
     ap.add_argument("--regions", type=int, default=15)
     ap.add_argument("--min-gain", type=int, default=200)
     ap.add_argument("--undecided-only", action="store_true")
     ap.add_argument("--label-set", default="paper")
     a = ap.parse_args()
-    frames = tuple(int(x) for x in a.frames.split("-")) if a.frames else None
-    state = load(a.seq, a.out, frames, a.label_set)  # type: ignore[arg-type]
+    state = load(a.seq, a.out, a.frames, a.label_set)
     for k, row in enumerate(replay(state, preset(a.label_set), a.regions, a.min_gain, a.undecided_only)):
         print(json.dumps({"prisms": k, **row}))
 
