@@ -20,7 +20,7 @@ labelled ones by where the class came from (`review` or `bulk`).
 from __future__ import annotations
 
 import hashlib
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import and_, func, select
 from sqlalchemy.orm import Session
@@ -47,7 +47,8 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
     regions = regions_digest(session, sequence_id)
     if since is None:
         return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, regions=regions)
-    since = since.replace(tzinfo=None)  # the columns hold naive UTC
+    if since.tzinfo is not None:  # the cursor says UTC; the columns hold naive UTC
+        since = since.astimezone(UTC).replace(tzinfo=None)
     rows = session.execute(
         select(Track.id, Track.version, Track.status, Track.n_points)
         .where(Track.sequence_id == sequence_id, Track.updated_at >= since)

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-
 from pydantic import BaseModel, Field
+
+from app.schemas.base import UtcDateTime
 
 
 class TrackVersion(BaseModel):
@@ -21,7 +21,7 @@ class FrameVersion(BaseModel):
 
 
 class SequenceChanges(BaseModel):
-    cursor: datetime  # pass back as `since`
+    cursor: UtcDateTime  # pass back as `since` (RFC 3339, UTC)
     tracks: list[TrackVersion]
     frames: list[FrameVersion]
     truncated: bool  # more than MAX_TRACKS tracks changed: drop every cache of the sequence

@@ -46,6 +46,22 @@ def test_changes_frame_etag_changes_with_a_split_and_answers_304_when_unchanged(
     assert r.status_code == 200 and r.headers["etag"] != etag
 
 
+def test_the_cursor_is_utc_with_its_offset_and_a_since_in_another_zone_means_the_same_moment(client, factory):
+    from datetime import datetime, timedelta, timezone
+
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    tid = factory.track_ids(seq)[0]
+    cursor = _get(client, op, f"/sequences/{seq}/changes").json()["cursor"]
+    moment = datetime.fromisoformat(cursor.replace("Z", "+00:00"))
+    assert moment.utcoffset() == timedelta(0)  # RFC 3339 date-time: a naive one breaks the schema
+    _post(client, op, f"/tracks/{tid}/split", {"version": 1, "region": HALF})
+    east = moment.astimezone(timezone(timedelta(hours=2))).isoformat()
+    assert tid in {t["id"] for t in _get(client, op, f"/sequences/{seq}/changes", since=east).json()["tracks"]}
+    later = (moment + timedelta(hours=1)).astimezone(timezone(timedelta(hours=2))).isoformat()
+    assert _get(client, op, f"/sequences/{seq}/changes", since=later).json()["tracks"] == []
+
+
 def test_changes_feed_lists_the_split_tracks_and_their_frames_new_etags(client, factory):
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     op = factory.user()
