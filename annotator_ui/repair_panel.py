@@ -107,9 +107,12 @@ class RepairPanel:
         self._moved()
 
     def _draw_box(self) -> None:
-        if self.gizmo is not None:
-            self.scene.add_box("/cut/box", color=BOX_COLOUR, dimensions=tuple(self.gui_size.value), wireframe=True)
-            self.preview()
+        # under the gizmo's lock: `place` (another thread: a newly shown track) re-adds "/cut",
+        # which removes its child box while this one is being made
+        with self._gizmo_lock:
+            if self.gizmo is not None:
+                self.scene.add_box("/cut/box", color=BOX_COLOUR, dimensions=tuple(self.gui_size.value), wireframe=True)
+                self.preview()
 
     def _moved(self) -> None:
         with self._gizmo_lock:
