@@ -181,25 +181,31 @@ class HeldOutTracks:
 
 
 def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.ndarray, group: np.ndarray, k: int,
-                    cnn_speaks: bool = True, seed: int = 0) -> HeldOutTracks | None:
+                    cnn_speaks: bool = True, seed: int = 0,
+                    always: tuple[np.ndarray, np.ndarray] | None = None) -> HeldOutTracks | None:
     """Cross-validated track predictions of the reviewed tracks (`group`: the track of each
     labelled sample) over k classes and NO_OBJECT, as `assist_probs`: FOLDS folds of whole
-    tracks. None with fewer than two classes or tracks than folds."""
+    tracks; `always` (indices, labels): samples every fold also learns from and none holds out.
+    None with fewer than two classes or tracks than folds."""
     labelled, labels, group = (np.asarray(a, np.int64) for a in (labelled, labels, group))
     tracks, inverse = np.unique(group, return_inverse=True)
     if len(np.unique(labels)) < 2 or len(tracks) < FOLDS:
         return None
     fold = np.random.default_rng(seed).permutation(len(tracks)) % FOLDS
-    x = features.matrix()[labelled]
+    x_all = features.matrix()
+    x = x_all[labelled]
+    extra = (np.zeros(0, np.int64), np.zeros(0, np.int64)) if always is None else tuple(
+        np.asarray(a, np.int64) for a in always)
     n = k + 1
     base = _cnn(features, n, cnn_speaks)[labelled]
     probs = np.zeros_like(base)
     for f in range(FOLDS):
         out = fold[inverse] == f
-        if len(np.unique(labels[~out])) < 2:
+        y = np.concatenate([labels[~out], extra[1]])
+        if len(np.unique(y)) < 2:
             probs[out] = base[out]
             continue
-        probs[out] = _full(_fit(x[~out], labels[~out], seed), x[out], n)
+        probs[out] = _full(_fit(np.concatenate([x[~out], x_all[extra[0]]]), y, seed), x[out], n)
     mean, counts = track_means(probs, inverse, len(tracks))
     truth = np.zeros(len(tracks), np.int64)
     truth[inverse] = labels

@@ -3,15 +3,19 @@ operator's reviews so far, and orders the review queue by what a review would co
 
 1. Read the sequence's samples, their segments' size, range and height, and the classes of the
    samples of tracks an operator reviewed (bulk-accepted classes are the model's own guesses and
-   are not trained on); the samples of discarded tracks are `no_object`.
+   are not trained on); the samples of discarded tracks are `no_object`; a sample whose segment
+   lies (`REGION_SHARE` of its points) in an operator's regions of one object class has that
+   class: a prism drawn over a hedge labels the tracks in it as surely as reviews would.
 2. Score every sample with the base CNN: the newest model trained on this sequence, else the
    shipped default model (its embedding and class probabilities), of any label set: the head
    reads its view, and learns the sequence's own classes from the reviews.
-3. Refit the head (`pipeline.assist`) on the reviewed samples and classify every sample.
+3. Refit the head (`pipeline.assist`) on those samples and classify every sample.
 4. Per track, the mean probability of its kept samples gives its predicted class and confidence,
    and its queue priority (`crud.queue_priority`) from the points of its kept frames that no
    operator's region labels (a review cannot change those); the reviewed tracks' held-out
-   predictions give the precision a bulk accept's preview shows (`result.held_out`).
+   predictions give the precision a bulk accept's preview shows (`result.held_out`; the samples
+   regions label are learnt in every fold, never held out: a bulk takes tracks no operator has
+   looked at, and the regions' tracks are the easy ones).
 
 The worker queues it by itself (`schedule`): once when a sequence becomes ready, then each time
 `assist_every` more review events have come in or a region was drawn or undone. One runs at a
@@ -49,11 +53,12 @@ from app.jobs.context import JobContext
 from app.jobs.policy import ADMIN_PRIORITY
 from app.jobs.registry import JobType, register
 from app.schemas import JsonModel
-from app.services.point_labels import frame_poses, region_points, stored_regions
+from app.services.point_labels import RegionCover, frame_poses, region_cover, stored_regions
 from app.services.repair import GEOMETRY_ACTIONS
 
 # the review actions that bring the model something new (bulk accepts are its own predictions)
 REVIEW_ACTIONS = (*crud.REVIEW_ACTIONS, *GEOMETRY_ACTIONS)  # what an operator did by hand
+REGION_SHARE = 0.9  # of a segment's points in regions of one object class: the head learns it as that class
 
 
 class AssistParams(JsonModel):
@@ -92,9 +97,9 @@ def _read(session: Session, sequence_id: int) -> dict[str, Any]:
             "regions": regions, "frames": frame_poses(session, seq.id) if regions else []}
 
 
-def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """(indices, classes) of the samples the head learns from: the reviewed ones with their
-    class, those of discarded tracks (in their kept range) as class k, NO_OBJECT."""
+def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> np.ndarray:
+    """Per sample the class the head learns it as, -1 for none: the reviewed ones their class,
+    those of discarded tracks (in their kept range) k, NO_OBJECT."""
     reviewed = data["reviewed"]
     discarded = np.array([t.status == "discarded" for t in data["tracks"]] + [False])
     cls = np.full(len(data["segs"]), -1, np.int64)
@@ -103,8 +108,15 @@ def _training_labels(data: dict[str, Any], group: np.ndarray, k: int) -> tuple[n
             cls[j] = reviewed[int(r.id)]
         elif discarded[group[j]]:
             cls[j] = k
-    labelled = np.flatnonzero(cls >= 0)
-    return labelled, cls[labelled]
+    return cls
+
+
+def _region_labels(cover: RegionCover, group: np.ndarray, k: int) -> np.ndarray:
+    """Per sample the object class (0..k-1) regions give `REGION_SHARE` of its segment's points
+    when it is in a kept range, else -1."""
+    counts = cover.sample_classes[:, :k]
+    share = counts.max(1) >= REGION_SHARE * np.maximum(cover.sample_points, 1)
+    return np.where(share & (cover.sample_points > 0) & (group >= 0), counts.argmax(1), -1)
 
 
 def _features(ctx: JobContext, data: dict[str, Any], chosen: ChosenModel, batch: int) -> Any:
@@ -186,20 +198,25 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     k = len(label_set.sample_class_names)
     speaks = tuple(cnn_classes) == label_set.sample_class_names
     classes = (*label_set.sample_class_names, NO_OBJECT)
-    ctx.progress(0.6, "fitting the head on the reviews")
+    ctx.progress(0.6, "fitting the head on the reviews and regions")
     group, tracks = _kept_group(data)
-    labelled, labels = _training_labels(data, group, k)
-    probs = assist_probs(features, labelled, labels, k, speaks, params.seed)
-    held = held_out_tracks(features, labelled, labels, group[labelled], k, speaks, params.seed)
+    cover = region_cover(data["frames"], data["regions"], ctx.artifacts, tracks, data["segs"],
+                         len(label_set.point_classes))
+    reviewed = _training_labels(data, group, k)
+    taught = np.where(reviewed >= 0, reviewed, _region_labels(cover, group, k))
+    labelled, labels = np.flatnonzero(reviewed >= 0), reviewed[reviewed >= 0]
+    probs = assist_probs(features, np.flatnonzero(taught >= 0), taught[taught >= 0], k, speaks, params.seed)
+    regions = np.flatnonzero((taught >= 0) & (reviewed < 0))
+    held = held_out_tracks(features, labelled, labels, group[labelled], k, speaks, params.seed,
+                           always=(regions, taught[regions]))
     predicted = 0
     if probs is not None:
         mean, counts = track_means(probs, group, len(tracks))
-        in_regions = region_points(data["frames"], data["regions"], ctx.artifacts, tracks)
-        predicted = _write(ctx, tracks, mean, counts, classes, in_regions)
+        predicted = _write(ctx, tracks, mean, counts, classes, cover.track_points)
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "regions": params.regions, "samples": len(data["segs"]),
-            "reviewed_samples": int(len(labelled)),
+            "reviewed_samples": int(len(labelled)), "region_samples": len(regions),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
             "held_out": _held_out_record(held, tuple(classes), _points(tracks, np.unique(group[labelled]))),
             "seconds": round(time.perf_counter() - t0, 2)}

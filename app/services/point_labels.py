@@ -101,24 +101,57 @@ def stored_regions(session: Session, sequence_id: int, label_set: LabelSet) -> t
     return tuple(GroundRegion(np.asarray(r.polygon, np.float64), c, r.heights, c < objects) for r, c in rows)
 
 
-def region_points(frames: list[tuple[int, str, str, np.ndarray | None]], regions: tuple[GroundRegion, ...],
-                  artifacts: ArtifactStore, tracks: list[Any]) -> dict[int, int]:
-    """Per track id (`tracks`: rows with id, keep_start, keep_end), its points in its kept frames
-    that a region labels (the frame's ground estimate as the ground points): the points a review
-    of the track can no longer change."""
-    out: dict[int, int] = {}
+@dataclass(frozen=True)
+class RegionCover:
+    """What the operators' regions label of a sequence's tracks and samples.
+
+    track_points: per track id, its points in its kept frames that a region labels (what a
+    review of the track can no longer change); sample_points (S,): the points of each sample's
+    segment; sample_classes (S, C): how many of them regions give each point class."""
+
+    track_points: dict[int, int]
+    sample_points: np.ndarray
+    sample_classes: np.ndarray
+
+
+def region_cover(frames: list[tuple[int, str, str, np.ndarray | None]], regions: tuple[GroundRegion, ...],
+                 artifacts: ArtifactStore, tracks: list[Any], samples: list[Any], n_classes: int) -> RegionCover:
+    """`RegionCover` of `tracks` (rows with id, keep_start, keep_end) and `samples` (rows with
+    frame_index, sample_index), the frame's ground estimate as its ground points."""
+    cover = RegionCover({}, np.zeros(len(samples), np.int64), np.zeros((len(samples), n_classes), np.int64))
     if not regions:
-        return out
+        return cover
     kept = {int(t.id): (int(t.keep_start), int(t.keep_end)) for t in tracks}
+    in_frame: dict[int, list[tuple[int, int]]] = {}
+    for j, r in enumerate(samples):
+        in_frame.setdefault(int(r.frame_index), []).append((j, int(r.sample_index)))
     for index, _name, art, pose in frames:
-        a = artifacts.read_arrays(art, ("points", "track", "ground"))
+        a = artifacts.read_arrays(art, ("points", "track", "ground", "segment", "sample_segment"))
         labels = PointLabels.empty(len(a["track"]))
         region_labels(labels, np.asarray(a["ground"], bool), to_world(a["points"], pose), regions)
         ids, n = np.unique(np.asarray(a["track"], np.int64)[labels.labelled], return_counts=True)
         for i, c in zip(ids.tolist(), n.tolist(), strict=True):
             if i in kept and kept[i][0] <= index <= kept[i][1]:
-                out[i] = out.get(i, 0) + c
-    return out
+                cover.track_points[i] = cover.track_points.get(i, 0) + c
+        if index in in_frame:
+            _segment_classes(cover, in_frame[index], labels, np.asarray(a["segment"], np.int64),
+                             np.asarray(a["sample_segment"], np.int64))
+    return cover
+
+
+def _segment_classes(cover: RegionCover, rows: list[tuple[int, int]], labels: PointLabels, segment: np.ndarray,
+                     sample_segment: np.ndarray) -> None:
+    """Fill `cover`'s rows of one frame's samples ((position, sample index) pairs)."""
+    c = cover.sample_classes.shape[1]
+    m = int(max(segment.max(initial=-1), sample_segment.max(initial=-1))) + 1
+    has = segment >= 0
+    total = np.bincount(segment[has], minlength=m)
+    lab = has & labels.labelled & (labels.class_ < c)
+    per = np.bincount(segment[lab] * c + labels.class_[lab], minlength=m * c).reshape(m, c)
+    pos, si = (np.array(v, np.int64) for v in zip(*rows, strict=True))
+    seg = sample_segment[si]
+    cover.sample_points[pos] = total[seg]
+    cover.sample_classes[pos] = per[seg]
 
 
 def point_label_plan(session: Session, sequence: Sequence, options: ExportOptions) -> PointLabelPlan:

@@ -168,3 +168,28 @@ def test_a_region_reruns_assist_and_puts_the_tracks_it_labels_last_in_the_queue(
         rows = s.execute(select(Track.priority, Track.n_points, Track.predicted_confidence)
                          .where(Track.sequence_id == seq, Track.status == "pending")).all()
     assert all(p == pytest.approx(crud.queue_priority(n, c)) for p, n, c in rows) and any(p > 0 for p, _, _ in rows)
+
+
+def test_the_head_learns_the_class_of_the_tracks_a_prism_labels(client, factory, db, settings, tiny_model):
+    """A prism drawn over tracks nobody reviewed teaches the head its class, as reviews of them
+    would: no review said "cyclist", yet the tracks inside the prism are predicted so, and the
+    bulk preview's held-out tracks are still the reviewed ones alone."""
+    settings.assist_every = 100
+    seq = _sequence_with_model(factory, db, tiny_model)
+    ids = factory.track_ids(seq)
+    op = factory.user()
+    _label(client, op, factory, ids[:5], CLASSES[:5])
+    everywhere = [[-1e5, -1e5], [1e5, -1e5], [1e5, 1e5], [-1e5, 1e5]]
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
+                    json={"class_name": "cyclist", "polygon": everywhere, "z_min": -1e4, "z_max": 1e4})
+    assert r.status_code == 200, r.text
+    worker = Worker(settings, db=db)
+    assert len(worker.schedule()) == 1 and worker.run_once()
+    job = _assist_jobs(db)[-1]
+    assert job.status == "succeeded", job.error
+    assert job.result["region_samples"] > 0 and job.result["reviewed_classes"] == ["bush", "car"]
+    assert len(job.result["held_out"]["truth"]) == 5
+    with db.read() as s:
+        pending = s.scalars(select(Track.predicted_class).where(Track.sequence_id == seq,
+                                                                Track.status == "pending")).all()
+    assert pending and all(c == "cyclist" for c in pending)
