@@ -72,6 +72,18 @@ def test_held_out_tracks_leave_whole_tracks_out():
     assert held_out_tracks(feats, np.arange(10), truth[:10], group[:10], 4) is None  # one class only
 
 
+def test_held_out_tracks_learn_the_always_samples_in_every_fold_and_never_hold_them_out():
+    """Reviews of class 0 only plus samples of class 1 from regions: each fold learns class 1 from
+    the region samples, and only the reviewed tracks are scored."""
+    feats, truth = _features()
+    group = np.arange(80) // 4
+    reviewed, regions = np.arange(40), np.arange(40, 80)  # class 0's tracks reviewed; class 1 from regions
+    held = held_out_tracks(feats, np.r_[reviewed, 40, 41, 42, 43], np.r_[truth[reviewed], 1, 1, 1, 1],
+                           np.r_[group[reviewed], 10, 10, 10, 10], 4, always=(regions[4:], truth[regions[4:]]))
+    assert held is not None and len(held.truth) == 11  # 10 reviewed tracks of class 0 and one of class 1
+    assert held.predicted[-1] == 1  # held out, it is still known from the regions' samples
+
+
 
 def test_segment_shapes_tell_a_wall_a_pole_and_a_bush_apart():
     rng = np.random.default_rng(0)
