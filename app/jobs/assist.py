@@ -15,7 +15,7 @@ operator's reviews so far, and orders the review queue by what a review would co
    operator's region labels (a review cannot change those); the reviewed tracks' held-out
    predictions give the precision a bulk accept's preview shows (`result.held_out`; the samples
    regions label are learnt in every fold, never held out: a bulk takes tracks no operator has
-   looked at, and the regions' tracks are the easy ones).
+   looked at, and the check measures it on tracks an operator reviewed).
 
 The worker queues it by itself (`schedule`): once when a sequence becomes ready, then each time
 `assist_every` more review events have come in or a region was drawn or undone. One runs at a
