@@ -192,20 +192,19 @@ def held_out_tracks(features: SampleFeatures, labelled: np.ndarray, labels: np.n
     if len(np.unique(labels)) < 2 or len(tracks) < FOLDS:
         return None
     fold = np.random.default_rng(seed).permutation(len(tracks)) % FOLDS
+    always_at, always_y = (np.zeros(0, np.int64),) * 2 if always is None else (np.asarray(a, np.int64) for a in always)
     x_all = features.matrix()
-    x = x_all[labelled]
-    extra = (np.zeros(0, np.int64), np.zeros(0, np.int64)) if always is None else tuple(
-        np.asarray(a, np.int64) for a in always)
+    x, x_always = x_all[labelled], x_all[always_at]
     n = k + 1
     base = _cnn(features, n, cnn_speaks)[labelled]
     probs = np.zeros_like(base)
     for f in range(FOLDS):
         out = fold[inverse] == f
-        y = np.concatenate([labels[~out], extra[1]])
+        y = np.concatenate([labels[~out], always_y])
         if len(np.unique(y)) < 2:
             probs[out] = base[out]
             continue
-        probs[out] = _full(_fit(np.concatenate([x[~out], x_all[extra[0]]]), y, seed), x[out], n)
+        probs[out] = _full(_fit(np.concatenate([x[~out], x_always]), y, seed), x[out], n)
     mean, counts = track_means(probs, inverse, len(tracks))
     truth = np.zeros(len(tracks), np.int64)
     truth[inverse] = labels

@@ -206,9 +206,9 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     taught = np.where(reviewed >= 0, reviewed, _region_labels(cover, group, k))
     labelled, labels = np.flatnonzero(reviewed >= 0), reviewed[reviewed >= 0]
     probs = assist_probs(features, np.flatnonzero(taught >= 0), taught[taught >= 0], k, speaks, params.seed)
-    regions = np.flatnonzero((taught >= 0) & (reviewed < 0))
+    from_regions = np.flatnonzero((taught >= 0) & (reviewed < 0))
     held = held_out_tracks(features, labelled, labels, group[labelled], k, speaks, params.seed,
-                           always=(regions, taught[regions]))
+                           always=(from_regions, taught[from_regions]))
     predicted = 0
     if probs is not None:
         mean, counts = track_means(probs, group, len(tracks))
@@ -216,7 +216,7 @@ def run_assist(ctx: JobContext, params: AssistParams) -> dict[str, Any]:
     ctx.progress(1.0, f"{predicted} tracks predicted from {len(np.unique(group[labelled]))} reviewed tracks")
     return {"sequence_id": params.sequence_id, "model_id": chosen.id, "model_path": chosen.path,
             "after_event": params.after_event, "regions": params.regions, "samples": len(data["segs"]),
-            "reviewed_samples": int(len(labelled)), "region_samples": len(regions),
+            "reviewed_samples": int(len(labelled)), "region_samples": len(from_regions),
             "reviewed_classes": sorted({classes[i] for i in labels}), "tracks_predicted": predicted,
             "held_out": _held_out_record(held, tuple(classes), _points(tracks, np.unique(group[labelled]))),
             "seconds": round(time.perf_counter() - t0, 2)}
