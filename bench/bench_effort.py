@@ -103,14 +103,13 @@ class Run:
         marks.pop(0)
         op, pol = self.operator, self.operator.policy
         op.on_action = lambda: self._mark(marks)
-        ground_done = False
         while op.counts.actions < budget and marks:
             if not op.review_next():
                 break
             if op.counts.reviews % pol.bulk_every == 0:
                 op.bulk_round()
-            if not ground_done and op.counts.reviews % pol.ground_every == 0:
-                ground_done = not op.region_pass(budget)
+            if op.counts.reviews % pol.ground_every == 0:
+                op.region_pass(budget)
         if self.curve[-1]["actions"] != op.counts.actions:
             self.checkpoint()
 

@@ -24,6 +24,7 @@ MAX_VERTICES = 1000  # the API's limit
 CANDIDATES = 3  # outlines tried per class, largest estimated gain first
 UP = 8  # pixels per cell side when tracing an outline
 PRISM_VERTICES = 32  # a hedge or a fence traced in a few dozen clicks
+PRISM_CELLS = (CELL, 0.35)  # m: the grids a prism's area is read from
 BOTTOMS = (1.0, 5.0, 10.0, 25.0)  # percentiles of the class's heights in the area a prism's bottom is tried at
 TOP_PERCENTILE = 99.0  # of the same heights: its top
 
@@ -36,7 +37,7 @@ class Lasso:
     heights: tuple[float, float] | None = None  # world z low, high: every point between (None: ground points)
 
 
-def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTICES) -> np.ndarray | None:
+def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTICES, cell: float = CELL) -> np.ndarray | None:
     """The outer outline of a cell mask as a world polygon along the cells' outer edges (to
     1 / (2 UP) of a cell: the contour runs through the centres of the edge pixels of the mask
     drawn UP times larger), simplified to at most `max_vertices`."""
@@ -53,7 +54,7 @@ def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTI
     if len(poly) < 3:
         return None
     rc = poly[:, 0, ::-1].astype(np.float64)  # (row, col) = (x, y) pixels
-    return origin + ((rc + 0.5) / UP - 1) * CELL  # the grid has a margin of one cell
+    return origin + ((rc + 0.5) / UP - 1) * cell  # the grid has a margin of one cell
 
 
 def _gain(inside: np.ndarray, true: np.ndarray, current: np.ndarray, cls: int) -> int:
@@ -61,13 +62,13 @@ def _gain(inside: np.ndarray, true: np.ndarray, current: np.ndarray, cls: int) -
     return int(((t == cls) & (c != cls)).sum() - ((c == t) & (t != cls)).sum())
 
 
-def _areas(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, area: np.ndarray, n_classes: int
-           ) -> Iterator[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
+def _areas(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, area: np.ndarray, n_classes: int,
+           cell_size: float = CELL) -> Iterator[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]]:
     """Per class of the wrong points, the connected areas of grid cells whose `area` points are
     mostly of that class, largest first by the wrong points of that class they hold: (class,
     that estimate, the cell mask, its grid origin, which points lie in its cells)."""
     origin = xy.min(0)
-    ij = np.floor((xy - origin) / CELL).astype(np.int64) + 1  # a margin of one cell for the outline
+    ij = np.floor((xy - origin) / cell_size).astype(np.int64) + 1  # a margin of one cell for the outline
     h, w = ij.max(0) + 2
     cell = ij[:, 0] * w + ij[:, 1]
     counts = np.bincount(cell[area] * n_classes + true[area], minlength=h * w * n_classes).reshape(h * w, n_classes)
@@ -108,29 +109,37 @@ def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) 
 def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects: int, n_classes: int) -> Lasso | None:
     """The best region with a height range over these seen points ((N, 3) world; true and
     current class per point, UNLABELLED where unknown): around a connected area of cells whose
-    points that are not ground are mostly of one object class (`objects`: the first classes),
-    up to the highest of that class's points there (99th percentile), from the bottom of the
-    `BOTTOMS` percentiles of their heights that keeps the most ground out, as a person lifts a
-    prism over a hedge or a fence above the lawn it stands on. A ground point inside counts
-    against it whatever its class now: the prism takes it from the ground layer's lassos."""
+    points that are not ground are mostly of one object class (`objects`: the first classes), on
+    a grid of each of `PRISM_CELLS` (a person zooms in to trace a fence along a hedge), up to the
+    highest of that class's points there (99th percentile), from the bottom of the `BOTTOMS`
+    percentiles of their heights that keeps the most ground out, as a person lifts a prism over a
+    hedge or a fence above the lawn it stands on. A ground point inside counts against it
+    whatever its class now: the prism takes it from the ground layer's lassos."""
     known = true != UNLABELLED
     world, true, current = world[known], true[known], current[known]
     wrong = (true != current) & (true < objects)
     if not wrong.any():
         return None
-    xy, best = world[:, :2], None
-    for cls, estimate, mask, origin, in_area in _areas(xy, true, wrong, true < objects, n_classes):
-        if best is not None and estimate <= best.gain:
-            continue
-        polygon = _outline(mask, origin, PRISM_VERTICES)
-        if polygon is None:
-            continue
-        z = world[in_area & (true == cls), 2]
-        high = float(np.percentile(z, TOP_PERCENTILE))
-        for low in (float(v) for v in np.percentile(z, BOTTOMS)):
-            inside = GroundRegion(polygon, cls, (low, high)).labels(world, None)
-            ground = inside & (true >= objects)
-            gain = _gain(inside & ~ground, true, current, cls) - int(ground.sum())
-            if best is None or gain > best.gain:
-                best = Lasso(polygon, cls, gain, (low, high))
+    best: Lasso | None = None
+    for cell in PRISM_CELLS:
+        for cls, estimate, mask, origin, in_area in _areas(world[:, :2], true, wrong, true < objects, n_classes, cell):
+            if best is not None and estimate <= best.gain:
+                continue
+            polygon = _outline(mask, origin, PRISM_VERTICES, cell)
+            if polygon is not None:
+                best = _lift(world, true, current, objects, Lasso(polygon, cls, 0), in_area, best)
+    return best
+
+
+def _lift(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects: int, lasso: Lasso,
+          in_area: np.ndarray, best: Lasso | None) -> Lasso | None:
+    """`lasso`'s polygon with the height range (`plan_prism`) that puts the most right, if that beats `best`."""
+    z = world[in_area & (true == lasso.class_), 2]
+    high = float(np.percentile(z, TOP_PERCENTILE))
+    for low in (float(v) for v in np.percentile(z, BOTTOMS)):
+        inside = GroundRegion(lasso.polygon, lasso.class_, (low, high)).labels(world, None)
+        ground = inside & (true >= objects)
+        gain = _gain(inside & ~ground, true, current, lasso.class_) - int(ground.sum())
+        if best is None or gain > best.gain:
+            best = Lasso(lasso.polygon, lasso.class_, gain, (low, high))
     return best

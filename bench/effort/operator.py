@@ -56,7 +56,9 @@ class Policy:
     ground_every: int = 5  # reviews between two looks at every frame from above
     ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
     prisms_per_frame: float = 2.0  # regions with heights at most, per frame of the sequence
-    region_share: float = 0.002  # of the seen points that are not ground: what a lasso must put right (net)
+    # what a region must put right (net) before the operator has seen what its reviews do, as a
+    # share of the seen points that are not ground; afterwards: what a review put right on average
+    region_share: float = 0.002
 
 
 @dataclass
@@ -102,6 +104,8 @@ class Operator:
     on_action: Callable[[], None] | None = None  # called after every action (the benchmark's checkpoints)
     _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
     _prisms: list[Lasso] = field(default_factory=list)  # the regions with heights it drew
+    _since: tuple[int, int] | None = None  # (actions, seen points right) when its last look from above ended
+    _right: int = 0  # seen points right at its latest look
 
     # ------------------------------------------------------------------ looking
     def _payload(self, frame: FrameInfo) -> dict[str, np.ndarray]:
@@ -251,6 +255,7 @@ class Operator:
         n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
         pol, frames = self.policy, len(self.frames)
         world, true, current, ground = self.layer()
+        self._right = int(((true == current) & (true != UNLABELLED)).sum())
         self.store.forget()
         for p in self._prisms:  # the points its own prisms label are no ground layer
             ground &= ~GroundRegion(p.polygon, p.class_, p.heights).labels(world, None)
@@ -259,13 +264,21 @@ class Operator:
             best.append(plan(world[ground, :2], true[ground], current[ground], n))
         if self.counts.prisms < pol.prisms_per_frame * frames:
             best.append(plan_prism(world, true, current, objects, n))
-        need = int(self.policy.region_share * int((true < objects).sum()))
-        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), need
+        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), self._need(int((true < objects).sum()))
+
+    def _need(self, seen_objects: int) -> int:
+        """The points a region must put right (net), at least one: what an action put right on
+        average since the operator last looked from above (a region is drawn when it is worth more
+        than the next review), or `region_share` of the seen object points at its first look."""
+        if self._since is None or self.counts.actions == self._since[0]:
+            return max(int(self.policy.region_share * seen_objects), 1)
+        actions, right = self._since
+        return max((self._right - right) // (self.counts.actions - actions), 1)
 
     def region_pass(self, budget: int | None = None) -> bool:
         """Draw the regions that put the most seen points right (one action each), the best
-        first, while one puts `region_share` of the seen object points right and the budgets
-        last (`budget`: the actions); False when none did."""
+        first, while one puts more right than a review would (`_need`) and the budgets last
+        (`budget`: the actions); False when none did."""
         drawn = False
         while budget is None or self.counts.actions < budget:
             lasso, need = self._best_region()
@@ -281,6 +294,7 @@ class Operator:
                 self.counts.prisms += 1
                 self._prisms.append(lasso)
             drawn = True
+        self._since = (self.counts.actions, self._right)
         return drawn
 
     # ------------------------------------------------------------------ bulk and audit

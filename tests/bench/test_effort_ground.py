@@ -85,3 +85,36 @@ def test_prism_over_low_bushes_keeps_the_lawn_under_them_out():
     inside = points_in_polygon(world[:, :2], lasso.polygon) & (world[:, 2] >= lasso.heights[0]) & (world[:, 2] <= lasso.heights[1])
     assert inside[5000:].sum() <= 0.1 * inside[:5000].sum()  # little of the lawn under it
     assert lasso.gain == int(inside[:5000].sum() - inside[5000:].sum())
+
+
+def test_prism_traces_a_fence_along_a_hedge_on_the_finer_grid():
+    """A fence 0.25 m behind a hedge shows as the hedge's bush: no 0.5 m cell is mostly fence,
+    some 0.35 m cells are, so the prism that labels it is traced on those."""
+    from bench.effort.ground import plan_prism
+
+    BUSH, FENCE = 1, 2  # of car, bush, fence (objects), then ground
+    rng = np.random.default_rng(4)
+    hedge = np.column_stack([rng.uniform(0, 20, 6000), rng.uniform(5.0, 6.2, 6000), rng.uniform(0.3, 1.8, 6000)])
+    fence = np.column_stack([rng.uniform(0, 20, 1200), rng.uniform(6.35, 6.45, 1200), rng.uniform(0.3, 1.2, 1200)])
+    world = np.concatenate([hedge, fence])
+    true = np.repeat(np.array([BUSH, FENCE], np.uint8), [6000, 1200])
+    current = np.full(len(true), BUSH, np.uint8)  # the fence shows as bush
+    lasso = plan_prism(world, true, current, objects=3, n_classes=4)
+    assert lasso is not None and lasso.class_ == FENCE
+    inside = points_in_polygon(world[:, :2], lasso.polygon)
+    assert inside[6000:].mean() >= 0.85 and inside[:6000].sum() <= 0.15 * inside[6000:].sum()
+    assert lasso.gain >= 900  # on the 0.5 m grid alone: 233, the hedge's edge taken with it
+
+
+def test_operator_draws_a_region_when_it_puts_more_right_than_a_review_did():
+    from bench.effort.operator import Operator
+
+    op = Operator(None, None, None, 1, [], None)  # type: ignore[arg-type]  # _need reads only its counts
+    assert op._need(10_000) == 20  # its first look: region_share of the seen object points
+    op.counts.edits, op._right = 10, 5_000
+    op._since = (10, 5_000)  # the look ended after 10 actions
+    assert op._need(10_000) == 20  # no action since: still the share
+    op.counts.edits, op._right = 15, 5_600  # five reviews put 600 more points right
+    assert op._need(10_000) == 120
+    op._right = 4_000  # the reviews made it worse: any region that puts a point right is worth more
+    assert op._need(10_000) == 1
