@@ -55,7 +55,7 @@ class Policy:
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
     ground_every: int = 5  # reviews between two looks at every frame from above
     ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
-    prisms_per_frame: float = 2.0  # regions with heights at most, per frame of the sequence
+    prisms_per_frame: float = 4.0  # regions with heights at most, per frame of the sequence
     # what a region must put right (net) before the operator has seen what its reviews do, as a
     # share of the seen points that are not ground; afterwards: what a review put right on average
     region_share: float = 0.002
