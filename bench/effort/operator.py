@@ -268,8 +268,9 @@ class Operator:
 
     def _need(self, seen_objects: int) -> int:
         """The points a region must put right (net), at least one: what an action put right on
-        average since the operator last looked from above (a region is drawn when it is worth more
-        than the next review), or `region_share` of the seen object points at its first look."""
+        average since the operator's previous look from above ended (the reviews since, and the
+        regions of this look: a region is drawn when it is worth more than the next review), or
+        `region_share` of the seen object points at its first look."""
         if self._since is None or self.counts.actions == self._since[0]:
             return max(int(self.policy.region_share * seen_objects), 1)
         actions, right = self._since
