@@ -37,7 +37,8 @@ class Lasso:
     heights: tuple[float, float] | None = None  # world z low, high: every point between (None: ground points)
 
 
-def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTICES, cell: float = CELL) -> np.ndarray | None:
+def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTICES,
+             cell_size: float = CELL) -> np.ndarray | None:
     """The outer outline of a cell mask as a world polygon along the cells' outer edges (to
     1 / (2 UP) of a cell: the contour runs through the centres of the edge pixels of the mask
     drawn UP times larger), simplified to at most `max_vertices`."""
@@ -54,7 +55,7 @@ def _outline(mask: np.ndarray, origin: np.ndarray, max_vertices: int = MAX_VERTI
     if len(poly) < 3:
         return None
     rc = poly[:, 0, ::-1].astype(np.float64)  # (row, col) = (x, y) pixels
-    return origin + ((rc + 0.5) / UP - 1) * cell  # the grid has a margin of one cell
+    return origin + ((rc + 0.5) / UP - 1) * cell_size  # the grid has a margin of one cell
 
 
 def _gain(inside: np.ndarray, true: np.ndarray, current: np.ndarray, cls: int) -> int:
@@ -121,11 +122,11 @@ def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects
     if not wrong.any():
         return None
     best: Lasso | None = None
-    for cell in PRISM_CELLS:
-        for cls, estimate, mask, origin, in_area in _areas(world[:, :2], true, wrong, true < objects, n_classes, cell):
+    for size in PRISM_CELLS:
+        for cls, estimate, mask, origin, in_area in _areas(world[:, :2], true, wrong, true < objects, n_classes, size):
             if best is not None and estimate <= best.gain:
                 continue
-            polygon = _outline(mask, origin, PRISM_VERTICES, cell)
+            polygon = _outline(mask, origin, PRISM_VERTICES, size)
             if polygon is not None:
                 best = _lift(world, true, current, objects, Lasso(polygon, cls, 0), in_area, best)
     return best

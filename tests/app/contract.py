@@ -76,5 +76,5 @@ def _cross_field_refusal(response: Any) -> bool:
     if response.status_code != 422:
         return False
     detail = response.json().get("detail")
-    return bool(detail) and isinstance(detail, list) and all(
+    return isinstance(detail, list) and bool(detail) and all(
         d.get("loc") == ["body"] and d.get("type") == "value_error" for d in detail)
