@@ -2,8 +2,11 @@
 change feed (`GET /sequences/{id}/changes`), drops the cached frames a split, merge or undo
 rewrote, and pushes the change to each tab that shows a changed track or a rewritten frame (the
 tab re-reads its track and redraws). A tab's own edit polls at once (`poll_now`), so the tab
-draws the new frames before the poller's next round; other tabs follow within `POLL_S`. The feed's
-`regions` digest tells the tabs when the sequence's ground regions were drawn or undone.
+draws the new frames before the poller's next round; other tabs follow within `POLL_S`. Each answer
+lists the sequence's live ground regions; a tab that shows other ones re-reads them. The feed
+compares with what the tab shows, not with its previous answer: a tab reads regions itself (after
+its own edit, on a new frame), so a region drawn and undone between two polls may be on screen
+though the feed never listed it.
 """
 
 from __future__ import annotations
@@ -28,13 +31,14 @@ class Watcher(Protocol):
 
     def service_changed(self, tracks: dict[int, dict[str, Any]], frames: dict[int, str]) -> None: ...
 
+    def shown_regions(self) -> tuple[int, ...]: ...
+
     def regions_changed(self) -> None: ...
 
 
 @dataclass
 class _Cursor:
     since: str | None = None
-    regions: str | None = None  # the digest of the sequence's ground regions last seen
 
 
 class ChangeFeed:
@@ -75,18 +79,14 @@ class ChangeFeed:
                 return
             first = cursor.since is None
             cursor.since = feed["cursor"]
-            regions = feed.get("regions", "")
-            # the first answer too: a region drawn before it and after the tab read them is news
-            regions_moved = regions != cursor.regions
-            cursor.regions = regions
+            regions = tuple(sorted(int(i) for i in feed.get("region_ids", [])))
             if not first:  # else the start of the feed: what the tabs read so far is current
                 if feed.get("truncated"):
                     self.cache.drop_all()
                 self.cache.invalidate({int(f["id"]): str(f["etag"]) for f in feed["frames"]})
-        if regions_moved:
-            for w in watchers:
-                if w is not exclude:
-                    w.regions_changed()
+        for w in watchers:  # the first answer too: a region drawn before it and after the tab read them is news
+            if w is not exclude and w.shown_regions() != regions:
+                w.regions_changed()
         if first:
             return
         frames = {int(f["id"]): str(f["etag"]) for f in feed["frames"]}

@@ -238,8 +238,8 @@ class ApiClient:
 
     def changes(self, sequence_id: int, since: str | None = None) -> dict[str, Any]:
         """SequenceChanges: `cursor` (pass back as `since`), changed `tracks` (id, version, status,
-        n_points), the `frames` (id, index, etag) they have points in, and `regions`, a digest of
-        the sequence's ground regions."""
+        n_points), the `frames` (id, index, etag) they have points in, and `region_ids`, the ids of
+        the sequence's live ground regions."""
         return self._json("GET", f"/sequences/{sequence_id}/changes", params={} if since is None else {"since": since})
 
     def points_progress(self, sequence_id: int) -> dict[str, Any]:

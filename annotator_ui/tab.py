@@ -359,6 +359,10 @@ class ClientTab:
         if not self._closed.is_set():
             self._keys.submit(self._follow_service, tracks, frames)
 
+    def shown_regions(self) -> tuple[int, ...]:
+        """The ids of the ground regions the tab shows, ascending (the change feed compares them)."""
+        return tuple(sorted(r.id for r in self.ground.regions))
+
     def regions_changed(self) -> None:
         """The change feed: the ground regions of the watched sequence changed (any tab, any operator)."""
         self.later(self.ground.refresh)

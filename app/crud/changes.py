@@ -8,9 +8,10 @@ rewrites only frames of the tracks it changes). The cursor it gets back lies `OV
 the query, so a change committed just after the query by a transaction that stamped it just
 before is reported by the next poll; the viewer compares versions and ETags, so a repeat is
 harmless. A track a split created and its undo removed is no longer listed: its frames are
-those of the track it was cut from, which is. Every answer also carries a digest of the
-sequence's live ground regions (a drawn or undone region changes it, whenever it happened), for
-the viewer to re-read them and recolour the ground.
+those of the track it was cut from, which is. Every answer also lists the ids of the
+sequence's live ground regions (a drawn or undone region changes them, whenever it happened): a
+viewer compares them with the regions it shows, not with the previous answer, since it may have
+read a region itself between two polls that then drew and undid it.
 
 Tracks count unevenly (a parked bus and a one-frame bush are one track each), so progress is in
 points: the points of the kept frames of every track, split by the track's state, and among the
@@ -19,7 +20,6 @@ labelled ones by where the class came from (`review` or `bulk`).
 
 from __future__ import annotations
 
-import hashlib
 from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import and_, func, select
@@ -27,7 +27,8 @@ from sqlalchemy.orm import Session
 
 from app.artifacts import frame_etag
 from app.core.errors import NotFound
-from app.models import Frame, GroundRegion, Segment, Sequence, Track, utcnow
+from app.crud.ground_regions import list_regions
+from app.models import Frame, Segment, Sequence, Track, utcnow
 from app.schemas.changes import FrameVersion, PointsProgress, SequenceChanges, TrackVersion
 
 OVERLAP = timedelta(seconds=5)
@@ -44,9 +45,9 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
     points in; `since=None` starts a feed (a cursor, nothing changed)."""
     _require_sequence(session, sequence_id)
     cursor = utcnow() - OVERLAP
-    regions = regions_digest(session, sequence_id)
+    region_ids = [r.id for r in list_regions(session, sequence_id)]
     if since is None:
-        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, regions=regions)
+        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, region_ids=region_ids)
     if since.tzinfo is not None:  # the cursor says UTC; the columns hold naive UTC
         since = since.astimezone(UTC).replace(tzinfo=None)
     rows = session.execute(
@@ -64,18 +65,7 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
             ).order_by(Frame.index)
         ).all()
         frames = [FrameVersion(id=f.id, index=f.index, etag=frame_etag(f.artifact)) for f in frame_rows]
-    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated, regions=regions)
-
-
-def regions_digest(session: Session, sequence_id: int) -> str:
-    """A short digest of the ids of the sequence's live ground regions (an undone one is marked
-    deleted, and so leaves the digest); "" when it has none."""
-    ids = session.scalars(select(GroundRegion.id).where(GroundRegion.sequence_id == sequence_id,
-                                                        GroundRegion.deleted_at.is_(None))
-                          .order_by(GroundRegion.id)).all()
-    if not ids:
-        return ""
-    return hashlib.sha1(",".join(str(i) for i in ids).encode()).hexdigest()[:16]
+    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated, region_ids=region_ids)
 
 
 def points_progress(session: Session, sequence_id: int) -> PointsProgress:

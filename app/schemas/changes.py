@@ -25,8 +25,8 @@ class SequenceChanges(BaseModel):
     tracks: list[TrackVersion]
     frames: list[FrameVersion]
     truncated: bool  # more than MAX_TRACKS tracks changed: drop every cache of the sequence
-    regions: str = Field(default="", description="A digest of the sequence's ground regions (every answer): it "
-                         "changes when one is drawn or undone, so a viewer re-reads them.")
+    region_ids: list[int] = Field(default_factory=list, description="The ids of the sequence's live ground regions, "
+                                  "ascending (every answer): a viewer showing other ones re-reads them.")
 
 
 class PointsProgress(BaseModel):

@@ -106,16 +106,14 @@ def test_points_progress_counts_the_labelled_tracks_points_by_source(client, fac
     assert after["points_in_tracks"] == before["points_in_tracks"]
 
 
-def test_changes_feed_regions_digest_changes_when_a_ground_region_is_drawn_or_undone(client, factory):
+def test_changes_feed_lists_the_live_ground_regions_in_every_answer(client, factory):
     seq = factory.ingested_sequence(n_frames=2, n_objects=1)
     op = factory.user()
     start = _get(client, op, f"/sequences/{seq}/changes").json()
-    assert start["regions"] == ""
+    assert start["region_ids"] == []
     square = {"class_name": "bush", "polygon": [[0, 0], [5, 0], [5, 5], [0, 5]]}
     first = _post(client, op, f"/sequences/{seq}/ground-regions", square)
-    drawn = _get(client, op, f"/sequences/{seq}/changes", since=start["cursor"]).json()["regions"]
-    assert drawn != ""
+    assert _get(client, op, f"/sequences/{seq}/changes", since=start["cursor"]).json()["region_ids"] == [first["id"]]
+    second = _post(client, op, f"/sequences/{seq}/ground-regions", square)  # the same polygon again: a new region
     assert client.delete(f"/api/v1/ground-regions/{first['id']}", headers=op.headers).status_code == 200
-    assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] == ""
-    _post(client, op, f"/sequences/{seq}/ground-regions", square)  # the same polygon again: a new region
-    assert _get(client, op, f"/sequences/{seq}/changes").json()["regions"] not in ("", drawn)
+    assert _get(client, op, f"/sequences/{seq}/changes").json()["region_ids"] == [second["id"]]
