@@ -250,8 +250,8 @@ class Operator:
 
     def _best_region(self) -> tuple[Lasso | None, int]:
         """The best of a lasso over the ground layer (points the export labels as ground or by a
-        region) and a prism over every point, each while its budget lasts; and the gain one must
-        reach."""
+        region) and a prism over every point, each while its budget lasts; and the seen object
+        points (`_need` reads them). Notes the seen points right (`_right`)."""
         n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
         pol, frames = self.policy, len(self.frames)
         world, true, current, ground = self.layer()
@@ -264,12 +264,12 @@ class Operator:
             best.append(plan(world[ground, :2], true[ground], current[ground], n))
         if self.counts.prisms < pol.prisms_per_frame * frames:
             best.append(plan_prism(world, true, current, objects, n))
-        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), self._need(int((true < objects).sum()))
+        return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), int((true < objects).sum())
 
     def _need(self, seen_objects: int) -> int:
         """The points a region must put right (net), at least one: what an action put right on
-        average since the operator's previous look from above ended (the reviews since, and the
-        regions of this look: a region is drawn when it is worth more than the next review), or
+        average between the end of the operator's previous look from above and the start of this
+        one (the reviews: a region is drawn when it is worth more than the next review), or
         `region_share` of the seen object points at its first look."""
         if self._since is None or self.counts.actions == self._since[0]:
             return max(int(self.policy.region_share * seen_objects), 1)
@@ -279,10 +279,12 @@ class Operator:
     def region_pass(self, budget: int | None = None) -> bool:
         """Draw the regions that put the most seen points right (one action each), the best
         first, while one puts more right than a review would (`_need`) and the budgets last
-        (`budget`: the actions); False when none did."""
-        drawn = False
+        (`budget`: the actions); False when none did. The bar is set once, as the look starts:
+        the regions of this look would raise it, yet what a region competes with is a review."""
+        drawn, need = False, None
         while budget is None or self.counts.actions < budget:
-            lasso, need = self._best_region()
+            lasso, seen_objects = self._best_region()
+            need = self._need(seen_objects) if need is None else need
             if lasso is None or lasso.gain < need:
                 break
             body: dict[str, Any] = {"class_name": self.label_set.point_class_names[lasso.class_],

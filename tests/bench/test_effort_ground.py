@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.effort.ground import plan
+from bench.effort.ground import Lasso, plan
 from pipeline.classes import UNLABELLED
 from pipeline.regions import points_in_polygon
 
@@ -118,3 +118,28 @@ def test_operator_draws_a_region_when_it_puts_more_right_than_a_review_did():
     assert op._need(10_000) == 120
     op._right = 4_000  # the reviews made it worse: any region that puts a point right is worth more
     assert op._need(10_000) == 1
+
+
+def test_operator_keeps_the_bar_of_its_reviews_through_a_look_from_above(monkeypatch):
+    from bench.effort.operator import Operator, Policy
+
+    op = Operator(None, None, None, 1, [], None, policy=Policy(prisms_per_frame=9))  # type: ignore[arg-type]
+    op.counts.edits, op._right, op._since = 15, 5_600, (10, 5_000)  # five reviews put 600 points right: 120 each
+    offered, drawn = [500, 200, 130, 90], []
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+    def best() -> tuple[Lasso, int]:
+        op._right = 5_600 + sum(drawn)  # each region drawn put its gain right
+        return Lasso(square, 0, offered[len(drawn)], (0.0, 1.0)), 10_000
+
+    def draw(path: str, body: dict) -> dict:
+        op.counts.edits += 1
+        drawn.append(offered[len(drawn)])
+        return {}
+
+    monkeypatch.setattr(op, "_best_region", best)
+    monkeypatch.setattr(op, "_edit", draw)
+    assert op.region_pass()
+    # 500, 200 and 130 beat a review's 120, 90 does not; a bar that counted the regions of this
+    # look would have risen to 183 after the first and stopped at 130
+    assert drawn == [500, 200, 130]
