@@ -143,3 +143,17 @@ def test_operator_keeps_the_bar_of_its_reviews_through_a_look_from_above(monkeyp
     # 500, 200 and 130 beat a review's 120, 90 does not; a bar that counted the regions of this
     # look would have risen to 183 after the first and stopped at 130
     assert drawn == [500, 200, 130]
+
+
+def test_losses_count_wrong_non_ground_points_by_true_exported_class_and_source():
+    from bench.effort.losses import tally
+    from pipeline.label_sets import preset
+
+    ls = preset("paper")
+    bush, fence, ground = (ls.point_class_names.index(c) for c in ("bush", "unknown", "ground"))
+    true = np.array([bush, bush, bush, fence, fence, ground, UNLABELLED], np.uint8)
+    exported = np.array([bush, ground, ground, bush, UNLABELLED, bush, bush], np.uint8)
+    source = np.array([1, 4, 4, 2, 0, 4, 1], np.uint8)
+    wrong, total = tally(true, exported, source, ls)
+    assert total == 5  # ground and unlabelled truth do not count
+    assert wrong == {(bush, ground, 4): 2, (fence, bush, 2): 1, (fence, UNLABELLED, 0): 1}

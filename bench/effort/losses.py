@@ -1,0 +1,70 @@
+"""Where an exported state's wrong non-ground points went, by true class, exported class and source.
+
+    python -m bench.effort.losses SEQ OUT [--label-set paper] [--top 15]
+
+SEQ: the clip's KITTI folder (with labels/); OUT: a `bench_effort` output folder (its `export/`
+holds the final export with its sources). Prints the wrong share of the labelled non-ground
+points, then the largest groups, each as a share of those points. "ground" as a source means the
+export wrote the point as ground: the ground estimate took it and no region relabelled it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from bench.effort.score import exported_classes, is_ground
+from bench.effort.truth import SequenceTruth
+from pipeline.classes import UNLABELLED
+from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
+
+
+def tally(true: np.ndarray, exported: np.ndarray, source: np.ndarray, ls: LabelSet) -> tuple[Counter, int]:
+    """Wrong labelled non-ground points per (true class, exported class, source index); and the
+    labelled non-ground points. `exported` is UNLABELLED where the export wrote 0."""
+    ng = ~is_ground(true, ls) & (true != UNLABELLED)
+    bad = ng & (exported != true)
+    keys, counts = np.unique(np.stack([true[bad], exported[bad], source[bad]], 1).astype(np.int64), axis=0,
+                             return_counts=True)
+    return Counter({tuple(int(v) for v in k): int(c) for k, c in zip(keys, counts, strict=True)}), int(ng.sum())
+
+
+def losses(seq: Path, out: Path, label_set: str) -> tuple[Counter, int, list[str]]:
+    """tally over every labelled frame of the export in OUT; and the export's source names."""
+    ls = preset(label_set)
+    names = json.loads((out / "export" / "summary.json").read_text())["sources"]
+    wrong, total = Counter(), 0
+    for name, ft in SequenceTruth(seq, ls).labelled.items():
+        path = out / "export" / "labels" / f"{name}.label"
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: the export has no labels for frame {name}")
+        words = np.fromfile(path, np.uint32)
+        source = np.fromfile(out / "export" / "sources" / f"{name}.source", np.uint8)
+        w, n = tally(ft.per_input_row(), exported_classes(words, ls), source, ls)
+        wrong, total = wrong + w, total + n
+    return wrong, total, names
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("seq", type=Path)
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--label-set", default=DEFAULT_LABEL_SET)
+    ap.add_argument("--top", type=int, default=15)
+    args = ap.parse_args(argv)
+    ls = preset(args.label_set)
+    wrong, total, sources = losses(args.seq, args.out, args.label_set)
+    print(f"{args.seq.name}: {sum(wrong.values()) / max(total, 1):.4f} of {total} non-ground points wrong")
+    cls = [*ls.point_class_names]
+    for (t, e, s), n in wrong.most_common(args.top):
+        exported = "nothing" if e == UNLABELLED else cls[e]
+        print(f"  {cls[t]:>14} as {exported:<14} {sources[s]:<11} {n / total:.4f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
