@@ -27,7 +27,7 @@ from sqlalchemy.orm import Session
 
 from app.artifacts import frame_etag
 from app.core.errors import NotFound
-from app.crud.ground_regions import list_regions
+from app.crud.ground_regions import region_ids
 from app.models import Frame, Segment, Sequence, Track, utcnow
 from app.schemas.changes import FrameVersion, PointsProgress, SequenceChanges, TrackVersion
 
@@ -45,9 +45,9 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
     points in; `since=None` starts a feed (a cursor, nothing changed)."""
     _require_sequence(session, sequence_id)
     cursor = utcnow() - OVERLAP
-    region_ids = [r.id for r in list_regions(session, sequence_id)]
+    live_regions = region_ids(session, sequence_id)
     if since is None:
-        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, region_ids=region_ids)
+        return SequenceChanges(cursor=cursor, tracks=[], frames=[], truncated=False, region_ids=live_regions)
     if since.tzinfo is not None:  # the cursor says UTC; the columns hold naive UTC
         since = since.astimezone(UTC).replace(tzinfo=None)
     rows = session.execute(
@@ -65,7 +65,7 @@ def sequence_changes(session: Session, sequence_id: int, since: datetime | None)
             ).order_by(Frame.index)
         ).all()
         frames = [FrameVersion(id=f.id, index=f.index, etag=frame_etag(f.artifact)) for f in frame_rows]
-    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated, region_ids=region_ids)
+    return SequenceChanges(cursor=cursor, tracks=tracks, frames=frames, truncated=truncated, region_ids=live_regions)
 
 
 def points_progress(session: Session, sequence_id: int) -> PointsProgress:
