@@ -53,7 +53,7 @@ class Policy:
     audit_per_bulk: int = 5
     wait_for_model: bool = True
     queue: str = "priority"  # the review queue's order (POST /review/next?order=)
-    ground_every: int = 5  # reviews between two looks at every frame from above
+    ground_every: int = 3  # reviews between two looks at every frame from above
     ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
     prisms_per_frame: float = 4.0  # regions with heights at most, per frame of the sequence
     # what a region must put right (net) before the operator has seen what its reviews do, as a
