@@ -11,13 +11,13 @@ export wrote the point as ground: the ground estimate took it and no region rela
 from __future__ import annotations
 
 import argparse
-import json
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from bench.effort.score import exported_classes, is_ground
+from bench.effort.service import Export
 from bench.effort.truth import SequenceTruth
 from pipeline.classes import UNLABELLED
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
@@ -35,18 +35,14 @@ def tally(true: np.ndarray, exported: np.ndarray, source: np.ndarray, ls: LabelS
 
 def losses(seq: Path, out: Path, label_set: str) -> tuple[Counter, int, list[str]]:
     """tally over every labelled frame of the export in OUT; and the export's source names."""
-    ls = preset(label_set)
-    names = json.loads((out / "export" / "summary.json").read_text())["sources"]
+    ls, export = preset(label_set), Export.read(out / "export")
     wrong, total = Counter(), 0
     for name, ft in SequenceTruth(seq, ls).labelled.items():
-        path = out / "export" / "labels" / f"{name}.label"
-        if not path.exists():
-            raise FileNotFoundError(f"{path}: the export has no labels for frame {name}")
-        words = np.fromfile(path, np.uint32)
-        source = np.fromfile(out / "export" / "sources" / f"{name}.source", np.uint8)
-        w, n = tally(ft.per_input_row(), exported_classes(words, ls), source, ls)
+        if name not in export.labels:
+            raise FileNotFoundError(f"{out / 'export'}: the export has no labels for frame {name}")
+        w, n = tally(ft.per_input_row(), exported_classes(export.labels[name], ls), export.sources[name], ls)
         wrong, total = wrong + w, total + n
-    return wrong, total, names
+    return wrong, total, export.summary["sources"]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,6 +22,7 @@ import numpy as np
 from bench.bench_effort import _frames
 from bench.effort.ground import plan_prism
 from bench.effort.score import exported_classes, is_ground
+from bench.effort.service import Export
 from bench.effort.truth import SequenceTruth
 from pipeline.classes import UNLABELLED
 from pipeline.io.registry import open_reader
@@ -32,8 +33,8 @@ from pipeline.propagation import GroundRegion, to_world
 def load(seq: Path, out: Path, frames: tuple[int, int] | None, label_set: str) -> dict[str, np.ndarray]:
     """Every labelled frame's stored points: world, true class, exported class, whether decided."""
     ls = preset(label_set)
-    truth, source = SequenceTruth(seq, ls), open_reader(seq)
-    names = json.loads((out / "export" / "summary.json").read_text())["sources"]
+    truth, source, export = SequenceTruth(seq, ls), open_reader(seq), Export.read(out / "export")
+    names = export.summary["sources"]
     decided = [names.index("reviewed"), names.index("bulk")]
     parts: dict[str, list[np.ndarray]] = {"world": [], "true": [], "current": [], "decided": []}
     first, last = frames or (0, len(source) - 1)
@@ -42,8 +43,7 @@ def load(seq: Path, out: Path, frames: tuple[int, int] | None, label_set: str) -
         if name not in truth.labelled:
             continue
         ft, rows = truth.labelled[name], truth.labelled[name].input_rows
-        words = np.fromfile(out / "export" / "labels" / f"{name}.label", np.uint32)
-        src = np.fromfile(out / "export" / "sources" / f"{name}.source", np.uint8)
+        words, src = export.labels[name], export.sources[name]
         if rows is not None:
             words, src = words[rows], src[rows]
         parts["world"].append(to_world(source.frame(i).points[:, :3], source.poses[i]))

@@ -95,6 +95,13 @@ class Export:
     summary: dict[str, Any]
     tar: bytes
 
+    @classmethod
+    def read(cls, folder: Path) -> Export:
+        """The export a benchmark run kept (OUT/export: labels/, sources/, summary.json)."""
+        return cls({p.stem: np.fromfile(p, np.uint32) for p in sorted((folder / "labels").glob("*.label"))},
+                   {p.stem: np.fromfile(p, np.uint8) for p in sorted((folder / "sources").glob("*.source"))},
+                   json.loads((folder / "summary.json").read_text()), b"")
+
 
 class Api:
     """REST calls as one user. `client` is any httpx client whose base URL is the API root."""
