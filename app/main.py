@@ -22,6 +22,7 @@ from app.api import errors
 from app.api.body_limit import BodyLimit
 from app.api.docs import install_docs
 from app.api.main import api_router
+from app.api.read_limit import ReadLimit
 from app.api.routes import health
 from app.api.security import FailedAuthLimit, SecurityHeaders
 from app.artifacts import ArtifactStore
@@ -107,11 +108,16 @@ def create_app(settings: Settings | None = None, db: Database | None = None) -> 
         lifespan=lifespan,
     )
     app.state.settings = settings
-    app.state.db = db or Database.from_settings(settings)
+    # no ping before each use of a pooled connection: that round trip came on every request; a
+    # connection the database dropped fails once and the request runs again (app/api/retry.py)
+    app.state.db = db or Database.from_settings(settings, pre_ping=False)
     app.state.artifacts = ArtifactStore(settings.artifacts_path, payload_cache_bytes=settings.frame_cache_mb << 20)
 
     app.state.auth_limit = FailedAuthLimit(settings.auth_failures_per_minute)
 
+    # inside ServerTiming, so that a read's wait for its slot is timed
+    app.add_middleware(ReadLimit, limit=settings.read_concurrency,
+                       exempt=("/health", f"{API_PREFIX}/health", f"{API_PREFIX}/exports"))
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_middleware(ServerTiming)
     app.add_middleware(SecurityHeaders, docs_path=f"{API_PREFIX}/docs")  # outermost: every answer

@@ -20,7 +20,8 @@ Three load shapes:
   - `paced`: each client thinks (exponential, mean 250 ms) between requests, like an operator's
     viewer (~3 requests/s per client, ~60/s offered in all). The targets are judged on this one.
   - `saturated`: no think time; latency is then mostly queueing (20 requests in flight on one
-    server process), and the figure that matters is the throughput.
+    server process). The server computes one read at a time and lets writes through
+    (app/api/read_limit.py), so the queueing falls on the list pages and frames.
 
 The result's `targets` (list_p95_ms and action_p95_ms as the client sees them, frame_server_p95_ms
 from `Server-Timing`, all from the paced run) and `headline` are what `make bench` reports.

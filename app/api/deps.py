@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from sqlalchemy.orm import Session
 
 from app import crud
+from app.api.retry import retrying
 from app.artifacts import ArtifactStore
 from app.core.config import Settings
 from app.core.db import Database
@@ -94,6 +95,7 @@ async def get_current_user(
 CurrentUser = Annotated[AuthUser, Depends(get_current_user)]
 
 
+@retrying
 def _lookup_token(db: Database, token: str) -> AuthUser | None:
     with db.read() as session:
         return crud.user_for_token(session, token)

@@ -80,6 +80,8 @@ class Settings(BaseSettings):
     embedded_worker: bool = False
     threadpool_size: int = Field(default=8, ge=1, le=256)  # threads for the sync routes
     gil_switch_interval_ms: float = Field(default=1.0, gt=0, le=100)  # Python's default is 5 ms
+    # GET requests computing their answers at once; writes never wait for these (app/api/read_limit.py)
+    read_concurrency: int = Field(default=1, ge=1, le=256)
 
     @field_validator("data_roots", mode="before")
     @classmethod

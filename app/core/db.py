@@ -4,7 +4,9 @@ SQLite (the embedded default) runs in WAL mode with foreign keys on and a busy t
 own transaction handling is switched off and we emit `BEGIN` ourselves, so that write sessions can
 open with `BEGIN IMMEDIATE`: a deferred transaction that reads first and writes later fails with
 SQLITE_BUSY (no wait) when another writer committed in between; an immediate one queues instead.
-PostgreSQL uses ordinary transactions; writers lock rows (`FOR UPDATE [SKIP LOCKED]`) where needed.
+PostgreSQL uses ordinary transactions for writers, which lock rows (`FOR UPDATE [SKIP LOCKED]`)
+where needed; its read sessions run in autocommit (each statement sees the latest commits, as in a
+READ COMMITTED transaction, without the BEGIN and ROLLBACK round trips).
 """
 
 from __future__ import annotations
@@ -65,8 +67,9 @@ def _install_sqlite_hooks(engine: Engine) -> None:
             write_lock.release()
 
 
-def make_engine(url: str, echo: bool = False) -> Engine:
-    """An engine for `url`; SQLite files get their folder created and the pragmas above."""
+def make_engine(url: str, echo: bool = False, pre_ping: bool = True) -> Engine:
+    """An engine for `url`; SQLite files get their folder created and the pragmas above.
+    `pre_ping` tests a pooled PostgreSQL connection with a round trip before each use."""
     u = make_url(url)
     if u.get_backend_name() == "sqlite":
         if u.database and u.database != ":memory:":
@@ -74,15 +77,16 @@ def make_engine(url: str, echo: bool = False) -> Engine:
         engine = create_engine(url, echo=echo, connect_args={"check_same_thread": False, "timeout": 30})
         _install_sqlite_hooks(engine)
         return engine
-    return create_engine(url, echo=echo, pool_pre_ping=True, pool_size=10, max_overflow=20)
+    return create_engine(url, echo=echo, pool_pre_ping=pre_ping, pool_size=10, max_overflow=20)
 
 
 @dataclass
 class Database:
     """An engine with a read session factory and a write session factory.
 
-    `read()` sessions begin deferred; `write()` sessions begin IMMEDIATE on SQLite, so the
-    whole transaction holds the write lock and never fails on a stale snapshot.
+    `read()` sessions begin deferred on SQLite and run in autocommit on PostgreSQL; they never
+    write. `write()` sessions begin IMMEDIATE on SQLite, so the whole transaction holds the write
+    lock and never fails on a stale snapshot.
     """
 
     engine: Engine
@@ -90,18 +94,21 @@ class Database:
     write: sessionmaker[Session]
 
     @classmethod
-    def from_url(cls, url: str) -> Database:
-        engine = make_engine(url)
+    def from_url(cls, url: str, pre_ping: bool = True) -> Database:
+        engine = make_engine(url, pre_ping=pre_ping)
         writer = engine.execution_options(sqlite_immediate=True)
+        # PostgreSQL's READ COMMITTED gives each statement its own snapshot anyway, so a read
+        # session's BEGIN and ROLLBACK would only add two round trips to every request
+        reader = engine if engine.dialect.name == "sqlite" else engine.execution_options(isolation_level="AUTOCOMMIT")
         return cls(
             engine=engine,
-            read=sessionmaker(engine, expire_on_commit=False),
+            read=sessionmaker(reader, expire_on_commit=False),
             write=sessionmaker(writer, expire_on_commit=False),
         )
 
     @classmethod
-    def from_settings(cls, settings: Settings) -> Database:
-        return cls.from_url(settings.db_url)
+    def from_settings(cls, settings: Settings, pre_ping: bool = True) -> Database:
+        return cls.from_url(settings.db_url, pre_ping)
 
     @property
     def dialect(self) -> str:
@@ -145,13 +152,16 @@ _RETRY_SQLITE = ("database is locked", "database table is locked", "UNIQUE const
 def is_transient(exc: BaseException) -> bool:
     """True for an error that says another transaction got there first (a deadlock, a
     serialization failure, a lock wait that ran out, a duplicate insert of a racing writer):
-    the request may run again from the start."""
+    the request may run again from the start. So may one whose pooled connection the database
+    dropped (a restart): SQLAlchemy then renews the whole pool."""
     from sqlalchemy.exc import DBAPIError
 
     if isinstance(exc, TimeoutError):  # this process's SQLite write lock (see _on_begin)
         return True
     if not isinstance(exc, DBAPIError):
         return False
+    if exc.connection_invalidated:  # the database dropped a pooled connection: the pool is renewed
+        return True
     code = getattr(exc.orig, "sqlstate", None)
     if code is not None:
         return code in _RETRY_SQLSTATES

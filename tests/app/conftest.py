@@ -72,7 +72,11 @@ def db_url(db_kind: str, tmp_path: Path, request: pytest.FixtureRequest) -> str:
         Base.metadata.create_all(engine)
         engine.dispose()
         return url
-    schema = request.getfixturevalue("pg_schema")
+    return emptied_pg_url(request.getfixturevalue("pg_schema"))
+
+
+def emptied_pg_url(schema: str | None) -> str:
+    """The URL of the session's PostgreSQL schema, its tables emptied."""
     assert PG_URL and schema
     url = pg_schema_url(PG_URL, schema)
     engine = create_engine(url)

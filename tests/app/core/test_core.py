@@ -7,11 +7,12 @@ import os
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import text
+from sqlalchemy import func, select, text
 
 from app.artifacts import ArtifactStore, FrameArtifact
 from app.core.config import Settings
 from app.core.db import Database
+from app.models import User
 
 
 def test_config_defaults_live_under_data_dir(tmp_path, monkeypatch):
@@ -36,6 +37,23 @@ def test_db_sqlite_runs_wal_with_foreign_keys(tmp_path):
         busy = s.execute(text("PRAGMA busy_timeout")).scalar()
     db.dispose()
     assert (mode, fk) == ("wal", 1) and busy > 0
+
+
+def test_db_read_sessions_hold_no_transaction_on_postgresql(db, factory):
+    """PostgreSQL read sessions run in autocommit: no BEGIN / ROLLBACK round trips, no transaction
+    left open between statements, and each statement sees the latest commits. SQLite's deferred
+    read transaction keeps one snapshot."""
+    with db.read() as r:
+        before = r.scalar(select(func.count()).select_from(User))
+        factory.user()
+        after = r.scalar(select(func.count()).select_from(User))
+        if db.dialect == "postgresql":
+            pid = r.scalar(text("SELECT pg_backend_pid()"))
+            with db.engine.connect() as c:
+                state = c.scalar(text("SELECT state FROM pg_stat_activity WHERE pid = :pid"), {"pid": pid})
+            assert (after, state) == (before + 1, "idle")
+        else:
+            assert after == before
 
 
 def _frame(n: int, value: float) -> FrameArtifact:
