@@ -24,15 +24,14 @@ class ReadLimit:
         self.app = app
         self.limit = limit
         self.exempt = exempt
-        self._slots: asyncio.Semaphore | None = None  # made in the server's event loop, on first use
+        self._slots: asyncio.Semaphore | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
         if scope["type"] != "http" or scope["method"] not in _READS or scope["path"].startswith(self.exempt):
             await self.app(scope, receive, send)
             return
-        if self._slots is None:
-            self._slots = asyncio.Semaphore(self.limit)
-        slots = self._slots
+        slots = self._slots_of(asyncio.get_running_loop())
         await slots.acquire()
         held = True
 
@@ -48,3 +47,10 @@ class ReadLimit:
         finally:
             if held:
                 slots.release()
+
+    def _slots_of(self, loop: asyncio.AbstractEventLoop) -> asyncio.Semaphore:
+        """The slots, made in the loop that serves (a semaphore belongs to one event loop, and a
+        test client runs each of its sessions in a new one)."""
+        if self._slots is None or self._loop is not loop:
+            self._slots, self._loop = asyncio.Semaphore(self.limit), loop
+        return self._slots

@@ -100,6 +100,23 @@ def test_a_read_that_fails_gives_its_slot_back():
     asyncio.run(scenario())
 
 
+def test_the_slots_follow_the_event_loop_that_serves():
+    inner = _App()
+    app = ReadLimit(inner, limit=1)
+
+    async def two_reads() -> None:
+        first, second = _request(app, "GET", "/a"), _request(app, "GET", "/b")
+        await _settle()
+        assert inner.running == {"/a"}
+        inner.gate("/a").set()
+        inner.gate("/b").set()
+        await asyncio.gather(first, second)
+        inner.gates.clear()
+
+    asyncio.run(two_reads())
+    asyncio.run(two_reads())  # a new loop: a semaphore of the old one would raise here
+
+
 def test_the_api_gives_its_reads_the_configured_slots_and_exempts_exports(settings, db):
     from app.main import create_app
 
