@@ -33,9 +33,9 @@ def tally(true: np.ndarray, exported: np.ndarray, source: np.ndarray, ls: LabelS
     return Counter({tuple(int(v) for v in k): int(c) for k, c in zip(keys, counts, strict=True)}), int(ng.sum())
 
 
-def losses(seq: Path, out: Path, label_set: str) -> tuple[Counter, int, list[str]]:
+def losses(seq: Path, out: Path, ls: LabelSet) -> tuple[Counter, int, list[str]]:
     """tally over every labelled frame of the export in OUT; and the export's source names."""
-    ls, export = preset(label_set), Export.read(out / "export")
+    export = Export.read(out / "export")
     wrong, total = Counter(), 0
     for name, ft in SequenceTruth(seq, ls).labelled.items():
         if name not in export.labels:
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--top", type=int, default=15)
     args = ap.parse_args(argv)
     ls = preset(args.label_set)
-    wrong, total, sources = losses(args.seq, args.out, args.label_set)
+    wrong, total, sources = losses(args.seq, args.out, ls)
     print(f"{args.seq.name}: {sum(wrong.values()) / max(total, 1):.4f} of {total} non-ground points wrong")
     cls = [*ls.point_class_names]
     for (t, e, s), n in wrong.most_common(args.top):
