@@ -27,7 +27,8 @@ bearer = HTTPBearer(auto_error=False, description="`Authorization: Bearer <token
 
 # Dependencies that do no I/O are `async def`: FastAPI runs sync dependencies in its thread pool,
 # and a hop per dependency costs more than the dependency itself. A Session does no I/O until it is
-# used (inside the sync route, in the pool); closing it (returning the connection) is one pool hop.
+# used (inside the sync route, in the pool), nor when it is closed with no transaction left open
+# on the database: then it is closed right here.
 
 
 async def get_database(request: Request) -> Database:
@@ -47,7 +48,8 @@ async def get_read_session(db: Annotated[Database, Depends(get_database)]) -> As
     try:
         yield session
     finally:
-        await run_in_threadpool(session.close)
+        # PostgreSQL reads run in autocommit, and ending SQLite's read transaction is a local call
+        session.close()
 
 
 async def get_write_session(db: Annotated[Database, Depends(get_database)]) -> AsyncIterator[Session]:
@@ -55,7 +57,10 @@ async def get_write_session(db: Annotated[Database, Depends(get_database)]) -> A
     try:
         yield session
     finally:
-        await run_in_threadpool(session.close)
+        if session.in_transaction():  # a route that failed: its ROLLBACK is a round trip
+            await run_in_threadpool(session.close)
+        else:
+            session.close()
 
 
 DatabaseDep = Annotated[Database, Depends(get_database)]
@@ -97,8 +102,8 @@ CurrentUser = Annotated[AuthUser, Depends(get_current_user)]
 
 @retrying
 def _lookup_token(db: Database, token: str) -> AuthUser | None:
-    with db.read() as session:
-        return crud.user_for_token(session, token)
+    with db.connect_read() as conn:  # a bare connection: a Session would cost more than the query
+        return crud.user_for_token(conn, token)
 
 
 async def require_admin(user: CurrentUser) -> AuthUser:

@@ -16,7 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -109,6 +109,10 @@ class Database:
     @classmethod
     def from_settings(cls, settings: Settings, pre_ping: bool = True) -> Database:
         return cls.from_url(settings.db_url, pre_ping)
+
+    def connect_read(self) -> Connection:
+        """A Core connection that reads as `read()` sessions do (autocommit on PostgreSQL)."""
+        return self.read.kw["bind"].connect()
 
     @property
     def dialect(self) -> str:

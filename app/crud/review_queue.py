@@ -7,6 +7,7 @@ from typing import Any
 
 from sqlalchemy import or_, select, update
 from sqlalchemy.orm import Session
+from sqlalchemy.orm.attributes import set_committed_value
 
 from app.core.errors import NotFound
 from app.crud.leases import LeaseHeld
@@ -44,6 +45,7 @@ def lease_next_track(
     one with the most points). Tracks in `exclude` are passed over (one user's other viewer tabs
     hold them, or the operator skipped them); among equal priorities the newest track first. Commits."""
     now = utcnow()
+    expires = now + timedelta(seconds=lease_seconds)
     ready = select(Sequence.id).where(Sequence.status == "ready")
     base = [Track.status == "pending", Track.sequence_id.in_(ready)]
     if sequence_id is not None:
@@ -81,16 +83,18 @@ def lease_next_track(
                 Track.status == "pending",
                 _unleased(now),
             )
-            .values(lease_user_id=user.id, lease_expires_at=now + timedelta(seconds=lease_seconds))
+            .values(lease_user_id=user.id, lease_expires_at=expires)
             .execution_options(synchronize_session=False)
         )
         if res.rowcount == 1:
             track = cand
+            # what the update wrote, as loaded state: set as a change, the flush would write it again
+            set_committed_value(track, "lease_user_id", user.id)
+            set_committed_value(track, "lease_expires_at", expires)
     if track is None:
         session.rollback()
         return None
-    track.lease_user_id = user.id
-    track.lease_expires_at = now + timedelta(seconds=lease_seconds)
+    track.lease_expires_at = expires  # renews the caller's own lease (a no-op for a new one)
     session.commit()
     return track
 

@@ -113,3 +113,26 @@ def test_leases_every_409_of_a_lease_reads_the_same(client, factory):
     by_lease = client.post(f"/api/v1/review/{track['id']}/lease", headers=second.headers).json()["detail"]
     pattern = rf"^track {track['id']} is leased to ann until \S+Z; an admin may override with override_lease=true$"
     assert re.match(pattern, by_action) and re.match(pattern, by_lease), (by_action, by_lease)
+
+
+def test_leases_next_writes_a_new_lease_once_and_renews_the_callers_own(client, factory, db):
+    from sqlalchemy import event
+
+    factory.ingested_sequence(n_objects=3)
+    ann = factory.user("operator", "ann")
+    updates: list[str] = []
+
+    def count(_conn, _cursor, statement, *_args) -> None:  # noqa: ANN001
+        if statement.lstrip().upper().startswith("UPDATE TRACKS"):
+            updates.append(statement)
+
+    event.listen(db.engine, "before_cursor_execute", count)
+    try:
+        first = client.post("/api/v1/review/next", headers=ann.headers).json()
+        assert len(updates) == 1  # the conditional update that wins the lease; nothing flushed after it
+        granted = factory.track(first["id"]).lease_expires_at
+        again = client.post("/api/v1/review/next", headers=ann.headers).json()
+        assert again["id"] == first["id"] and len(updates) == 2
+        assert factory.track(first["id"]).lease_expires_at > granted
+    finally:
+        event.remove(db.engine, "before_cursor_execute", count)
