@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from sqlalchemy import case, delete, func, insert, literal, select
+from sqlalchemy import case, cast, delete, func, insert, literal, null, select
 from sqlalchemy.orm import Session
 
 from app import crud
@@ -224,14 +224,19 @@ def update_by_id(session: Session, table: Any, rows: list[dict[str, Any]]) -> No
     """Set fields of rows by id (`rows`: {"id": ..., field: value, ...}, each with the same
     fields) in one `UPDATE ... SET f = CASE id WHEN ... END` per 500 rows. An executemany runs a
     statement per row, and on SQLite each hands the GIL over and back: under load the write
-    transaction, which holds the write lock, stretched from 20 to 180 ms."""
+    transaction, which holds the write lock, stretched from 20 to 180 ms. A NULL is cast to its
+    column's type: PostgreSQL types a CASE whose branches are all untyped NULLs as text."""
     if not rows:
         return
     fields = [k for k in rows[0] if k != "id"]
     for k in range(0, len(rows), 500):
         chunk = rows[k : k + 500]
-        values = {f: case({r["id"]: literal(r[f], table.c[f].type) for r in chunk}, value=table.c.id) for f in fields}
+        values = {f: case({r["id"]: _typed(r[f], table.c[f].type) for r in chunk}, value=table.c.id) for f in fields}
         session.execute(table.update().where(table.c.id.in_([r["id"] for r in chunk])).values(values))
+
+
+def _typed(value: Any, type_: Any) -> Any:
+    return cast(null(), type_) if value is None else literal(value, type_)
 
 
 def update_segments(session: Session, rows: list[dict[str, Any]]) -> None:

@@ -359,3 +359,20 @@ def test_repair_merged_track_length_counts_frames_after_truncate(client, factory
     assert out["length"] == 4
     out = _post(client, op, a, "truncate", {"version": 2, "start": 1, "end": 3})
     assert out["length"] == 3 and out["n_samples"] == 6
+
+
+def test_repair_rows_written_back_with_only_nulls_keep_their_column_types(factory, db):
+    """Undoing a split restores the split segment rows; when every restored `link_score` is NULL
+    (the split pieces were track starts), PostgreSQL typed the CASE over bare NULLs as text and
+    the undo answered 500."""
+    from app.services.repair_common import SEGMENT_FIELDS, update_segments
+
+    seq = factory.ingested_sequence(n_frames=3, n_objects=1)
+    with db.write() as s:
+        seg = s.scalars(select(Segment).where(Segment.sequence_id == seq).order_by(Segment.id)).first()
+        row = {"id": seg.id, **{f: getattr(seg, f) for f in SEGMENT_FIELDS}, "link_score": None, "sample_index": None}
+        update_segments(s, [row])
+        s.commit()
+    with db.read() as s:
+        back = s.get(Segment, row["id"])
+        assert back.link_score is None and back.sample_index is None and back.cx == pytest.approx(row["cx"])
