@@ -107,7 +107,8 @@ def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) 
     return best
 
 
-def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects: int, n_classes: int) -> Lasso | None:
+def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects: int, n_classes: int,
+               cells: tuple[float, ...] = PRISM_CELLS, vertices: int = PRISM_VERTICES) -> Lasso | None:
     """The best region with a height range over these seen points ((N, 3) world; true and
     current class per point, UNLABELLED where unknown): around a connected area of cells whose
     points that are not ground are mostly of one object class (`objects`: the first classes), on
@@ -115,18 +116,20 @@ def plan_prism(world: np.ndarray, true: np.ndarray, current: np.ndarray, objects
     highest of that class's points there (99th percentile), from the bottom of the `BOTTOMS`
     percentiles of their heights that keeps the most ground out, as a person lifts a prism over a
     hedge or a fence above the lawn it stands on. A ground point inside counts against it
-    whatever its class now: the prism takes it from the ground layer's lassos."""
+    whatever its class now: the prism takes it from the ground layer's lassos. `cells` and
+    `vertices` ask more of the operator (finer grids, longer outlines) when measuring what prisms
+    can reach at all."""
     known = true != UNLABELLED
     world, true, current = world[known], true[known], current[known]
     wrong = (true != current) & (true < objects)
     if not wrong.any():
         return None
     best: Lasso | None = None
-    for size in PRISM_CELLS:
+    for size in cells:
         for cls, estimate, mask, origin, in_area in _areas(world[:, :2], true, wrong, true < objects, n_classes, size):
             if best is not None and estimate <= best.gain:
                 continue
-            polygon = _outline(mask, origin, PRISM_VERTICES, size)
+            polygon = _outline(mask, origin, vertices, size)
             if polygon is not None:
                 best = _lift(world, true, current, objects, Lasso(polygon, cls, 0), in_area, best)
     return best

@@ -1,14 +1,16 @@
 """What more prisms would put right on a state the operator benchmark exported, without the service.
 
     python -m bench.effort.replay_regions SEQ OUT [--frames A-B] [--regions 15] [--undecided-only]
+                                          [--cells 0.5,0.35] [--vertices 32]
 
 SEQ: the clip's KITTI folder (with labels/ and poses); OUT: a `bench_effort` output folder (its
 `export/` holds the final export with its sources). The planner of the simulated operator
 (`bench.effort.ground.plan_prism`) draws prisms one after another over every point of the
 labelled frames, each applied with the service's rule (`pipeline.propagation.GroundRegion`),
 while one puts at least `--min-gain` points right; `--undecided-only` lets them label only the
-points no reviewed or bulk-accepted track holds. Prints the non-ground and ground points right
-after each.
+points no reviewed or bulk-accepted track holds. `--cells` (the grids areas are read from, in
+metres) and `--vertices` (the longest outline) default to the operator's; the API takes outlines
+of up to 1,000 vertices. Prints the non-ground and ground points right after each.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.bench_effort import _frames
-from bench.effort.ground import plan_prism
+from bench.effort.ground import PRISM_CELLS, PRISM_VERTICES, plan_prism
 from bench.effort.score import exported_classes, is_ground
 from bench.effort.service import Export
 from bench.effort.truth import SequenceTruth
@@ -53,8 +55,8 @@ def load(seq: Path, out: Path, frames: tuple[int, int] | None, label_set: str) -
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
-def replay(state: dict[str, np.ndarray], ls: LabelSet, regions: int, min_gain: int,
-           undecided_only: bool) -> list[dict[str, float]]:
+def replay(state: dict[str, np.ndarray], ls: LabelSet, regions: int, min_gain: int, undecided_only: bool,
+           cells: tuple[float, ...] = PRISM_CELLS, vertices: int = PRISM_VERTICES) -> list[dict[str, float]]:
     """Draw up to `regions` prisms greedily; the scores after each (the first row: none)."""
     world, true, current = state["world"], state["true"], state["current"].copy()
     objects, n_classes = len(ls.sample_classes), len(ls.point_classes)
@@ -64,7 +66,7 @@ def replay(state: dict[str, np.ndarray], ls: LabelSet, regions: int, min_gain: i
     rows = [_score(current, true, ng, g, 0)]
     for _ in range(regions):
         seen = np.flatnonzero(free)
-        lasso = plan_prism(world[seen], true[seen], current[seen], objects, n_classes)
+        lasso = plan_prism(world[seen], true[seen], current[seen], objects, n_classes, cells, vertices)
         if lasso is None or lasso.gain < min_gain:
             break
         inside = GroundRegion(lasso.polygon, lasso.class_, lasso.heights).labels(world, None) & free
@@ -78,6 +80,13 @@ def _score(current: np.ndarray, true: np.ndarray, ng: np.ndarray, g: np.ndarray,
             "ground_right": round(float((current[g] == true[g]).mean()), 4)}
 
 
+def _cells(text: str) -> tuple[float, ...]:
+    sizes = tuple(float(v) for v in text.split(","))
+    if not sizes or min(sizes) <= 0:
+        raise argparse.ArgumentTypeError("cell sizes must be positive metres, e.g. 0.5,0.35")
+    return sizes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("seq", type=Path)
@@ -87,9 +96,12 @@ def main() -> None:
     ap.add_argument("--min-gain", type=int, default=200)
     ap.add_argument("--undecided-only", action="store_true")
     ap.add_argument("--label-set", default="paper")
+    ap.add_argument("--cells", type=_cells, default=PRISM_CELLS, help="grid sizes in metres, e.g. 0.5,0.35,0.2")
+    ap.add_argument("--vertices", type=int, default=PRISM_VERTICES, help="the longest outline (the API's limit: 1000)")
     a = ap.parse_args()
     state = load(a.seq, a.out, a.frames, a.label_set)
-    for k, row in enumerate(replay(state, preset(a.label_set), a.regions, a.min_gain, a.undecided_only)):
+    rows = replay(state, preset(a.label_set), a.regions, a.min_gain, a.undecided_only, a.cells, a.vertices)
+    for k, row in enumerate(rows):
         print(json.dumps({"prisms": k, **row}))
 
 

@@ -106,6 +106,25 @@ def test_prism_traces_a_fence_along_a_hedge_on_the_finer_grid():
     assert lasso.gain >= 900  # on the 0.5 m grid alone: 233, the hedge's edge taken with it
 
 
+def test_prism_on_a_finer_grid_reaches_a_fence_the_operators_grids_cannot():
+    """A fence 0.1 m behind a dense hedge: every 0.5 m and 0.35 m cell that holds it is mostly
+    hedge, so the operator's grids find no fence area; a 0.2 m grid (`cells`, as replay_regions
+    measures what prisms can reach) does."""
+    from bench.effort.ground import plan_prism
+
+    BUSH, FENCE = 1, 2  # of car, bush, fence (objects), then ground
+    rng = np.random.default_rng(5)
+    hedge = np.column_stack([rng.uniform(0, 20, 12000), rng.uniform(5.0, 6.18, 12000), rng.uniform(0.3, 1.8, 12000)])
+    fence = np.column_stack([rng.uniform(0, 20, 1200), rng.uniform(6.28, 6.32, 1200), rng.uniform(0.3, 1.2, 1200)])
+    world = np.concatenate([hedge, fence])
+    true = np.repeat(np.array([BUSH, FENCE], np.uint8), [12000, 1200])
+    current = np.full(len(true), BUSH, np.uint8)  # the fence shows as bush
+    coarse = plan_prism(world, true, current, objects=3, n_classes=4)
+    assert coarse is None or coarse.gain < 300
+    fine = plan_prism(world, true, current, objects=3, n_classes=4, cells=(0.5, 0.35, 0.2), vertices=1000)
+    assert fine is not None and fine.class_ == FENCE and fine.gain >= 900
+
+
 def test_operator_draws_a_region_when_it_puts_more_right_than_a_review_did():
     from bench.effort.operator import Operator
 
