@@ -82,7 +82,7 @@ def _score(current: np.ndarray, true: np.ndarray, ng: np.ndarray, g: np.ndarray,
 
 def _cells(text: str) -> tuple[float, ...]:
     sizes = tuple(float(v) for v in text.split(","))
-    if not sizes or min(sizes) <= 0:
+    if min(sizes) <= 0:
         raise argparse.ArgumentTypeError("cell sizes must be positive metres, e.g. 0.5,0.35")
     return sizes
 

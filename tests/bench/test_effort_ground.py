@@ -87,18 +87,27 @@ def test_prism_over_low_bushes_keeps_the_lawn_under_them_out():
     assert lasso.gain == int(inside[:5000].sum() - inside[5000:].sum())
 
 
+BUSH, FENCE = 1, 2  # of car, bush, fence (objects), then ground, in the fence-and-hedge scenes
+
+
+def _fence_behind_hedge(seed: int, hedge_points: int, hedge_back: float,
+                        fence: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A hedge 20 m long from y = 5 m to `hedge_back` and 1,200 points of fence between the y of
+    `fence`: world points, true classes, and current classes (all bush: the fence shows as bush)."""
+    rng = np.random.default_rng(seed)
+    n = hedge_points
+    hedge = np.column_stack([rng.uniform(0, 20, n), rng.uniform(5.0, hedge_back, n), rng.uniform(0.3, 1.8, n)])
+    wire = np.column_stack([rng.uniform(0, 20, 1200), rng.uniform(*fence, 1200), rng.uniform(0.3, 1.2, 1200)])
+    true = np.repeat(np.array([BUSH, FENCE], np.uint8), [n, 1200])
+    return np.concatenate([hedge, wire]), true, np.full(len(true), BUSH, np.uint8)
+
+
 def test_prism_traces_a_fence_along_a_hedge_on_the_finer_grid():
     """A fence 0.25 m behind a hedge shows as the hedge's bush: no 0.5 m cell is mostly fence,
     some 0.35 m cells are, so the prism that labels it is traced on those."""
     from bench.effort.ground import plan_prism
 
-    BUSH, FENCE = 1, 2  # of car, bush, fence (objects), then ground
-    rng = np.random.default_rng(4)
-    hedge = np.column_stack([rng.uniform(0, 20, 6000), rng.uniform(5.0, 6.2, 6000), rng.uniform(0.3, 1.8, 6000)])
-    fence = np.column_stack([rng.uniform(0, 20, 1200), rng.uniform(6.35, 6.45, 1200), rng.uniform(0.3, 1.2, 1200)])
-    world = np.concatenate([hedge, fence])
-    true = np.repeat(np.array([BUSH, FENCE], np.uint8), [6000, 1200])
-    current = np.full(len(true), BUSH, np.uint8)  # the fence shows as bush
+    world, true, current = _fence_behind_hedge(4, 6000, hedge_back=6.2, fence=(6.35, 6.45))
     lasso = plan_prism(world, true, current, objects=3, n_classes=4)
     assert lasso is not None and lasso.class_ == FENCE
     inside = points_in_polygon(world[:, :2], lasso.polygon)
@@ -112,13 +121,7 @@ def test_prism_on_a_finer_grid_reaches_a_fence_the_operators_grids_cannot():
     measures what prisms can reach) does."""
     from bench.effort.ground import plan_prism
 
-    BUSH, FENCE = 1, 2  # of car, bush, fence (objects), then ground
-    rng = np.random.default_rng(5)
-    hedge = np.column_stack([rng.uniform(0, 20, 12000), rng.uniform(5.0, 6.18, 12000), rng.uniform(0.3, 1.8, 12000)])
-    fence = np.column_stack([rng.uniform(0, 20, 1200), rng.uniform(6.28, 6.32, 1200), rng.uniform(0.3, 1.2, 1200)])
-    world = np.concatenate([hedge, fence])
-    true = np.repeat(np.array([BUSH, FENCE], np.uint8), [12000, 1200])
-    current = np.full(len(true), BUSH, np.uint8)  # the fence shows as bush
+    world, true, current = _fence_behind_hedge(5, 12000, hedge_back=6.18, fence=(6.28, 6.32))
     coarse = plan_prism(world, true, current, objects=3, n_classes=4)
     assert coarse is None or coarse.gain < 300
     fine = plan_prism(world, true, current, objects=3, n_classes=4, cells=(0.5, 0.35, 0.2), vertices=1000)
