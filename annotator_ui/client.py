@@ -298,13 +298,20 @@ class ApiClient:
         return self._json("GET", f"/sequences/{sequence_id}/ground-regions")
 
     def create_ground_region(self, sequence_id: int, class_name: str, polygon: list[list[float]],
-                             heights: tuple[float, float] | None = None) -> dict[str, Any]:
+                             heights: tuple[float, float] | None = None, frame_index: int | None = None,
+                             clip_from_world: np.ndarray | None = None) -> dict[str, Any]:
         """Label the ground points inside `polygon` (world x, y; 3..1000 vertices) as `class_name` in
-        every frame, or with `heights` (world z low, high) every point inside the prism; 422
-        (ApiError) for a class outside the sequence's label set, no area or heights out of order."""
+        every frame, or with `heights` (world z low, high) every point inside the prism; with
+        `frame_index` in that frame only, and with `clip_from_world` ((4, 4) of the camera) every
+        point of that frame inside `polygon` drawn in its device coordinates; 422 (ApiError) for
+        a class outside the sequence's label set, no area, heights out of order or no such frame."""
         body: dict[str, Any] = {"class_name": class_name, "polygon": polygon}
         if heights is not None:
             body["z_min"], body["z_max"] = float(heights[0]), float(heights[1])
+        if frame_index is not None:
+            body["frame_index"] = int(frame_index)
+        if clip_from_world is not None:
+            body["clip_from_world"] = np.asarray(clip_from_world, np.float64).reshape(-1).tolist()
         return self._json("POST", f"/sequences/{sequence_id}/ground-regions", json=body)
 
     def delete_ground_region(self, region_id: int) -> dict[str, Any]:

@@ -7,13 +7,17 @@ polygon (world x, y) as a ground region of the sequence: the service then gives 
 inside it that class in every frame. With *Every point between heights* ticked it gives the class
 to every point inside the prism from *From* to *To* metres above the polygon's ground (the median
 height of its vertices), a reviewed track's points too: a hedge, or a fence grown into one, in one
-action. *Undo last region* deletes the sequence's newest region.
+action. Alt + drag on the canvas labels every point of the frame shown inside the rectangle with
+the chosen class, in that frame only (a lasso in the frame's view: the fence boards inside a
+hedge, the last leaves among the lawn), between *Alt + drag depth* From and To metres from the
+camera when To is the larger. *Undo last region* deletes the sequence's newest region.
 
 Scene (the shown frame's lidar frame, like every node of the tab):
   /ground/draft    the polygon being drawn: its edges (yellow) and the closing edge (grey)
   /ground/nodes    its vertices
-  /ground/regions  the outlines of the stored regions, in their class colours, at the frame's
-                   ground height (a region with heights: at its low and high)
+  /ground/regions  the outlines of the stored regions of every frame and of the frame shown, in
+                   their class colours, at the frame's ground height (a region with heights: at
+                   its low and high); a lasso in a frame's view has no outline on the ground
   /ground/map      every frame's ground (world points under a frame node placed at the world's
                    pose in the frame shown, so a frame step moves it without sending it again),
                    in the stored regions' colours
@@ -33,7 +37,13 @@ import viser
 
 from annotator_ui.client import ApiClient, ApiError, FramePayload
 from annotator_ui.colours import fade
-from annotator_ui.geometry import matrix_wxyz, polyline_segments, world_to_lidar
+from annotator_ui.geometry import (
+    clip_from_scene,
+    matrix_wxyz,
+    polyline_segments,
+    rect_polygon_ndc,
+    world_to_lidar,
+)
 from annotator_ui.ground_regions import (
     GroundView,
     RegionClasses,
@@ -44,6 +54,7 @@ from annotator_ui.ground_regions import (
     paint_regions,
 )
 from pipeline.propagation import to_world
+from pipeline.regions import with_depth_planes
 
 MAP_GROUND = np.array([150, 140, 120], np.uint8)  # the map's ground that no region labels
 DRAFT = (255, 215, 0)
@@ -58,7 +69,7 @@ def _segments(vertices: np.ndarray, closed: bool) -> np.ndarray:
 
 def _keys(regions: tuple[StoredRegion, ...]) -> list[tuple[int, str, bytes, tuple[float, float] | None]]:
     """What tells two region lists apart: ids, and what a region labels with what."""
-    return [(r.id, r.class_name, r.polygon.tobytes(), r.heights) for r in regions]
+    return [(r.id, r.class_name, r.polygon.tobytes(), r.heights, r.frame_index) for r in regions]
 
 
 class GroundPanel:
@@ -72,7 +83,8 @@ class GroundPanel:
         self.load_map, self.look_down, self.later = load_map, look_down, later
         gui.add_markdown("Tick the Draw box, click the ground around an area (a lawn, a sidewalk), then "
                          "close and label it: its ground points take the class in every frame. With *Every "
-                         "point between heights*, every point from From to To above it does (a hedge, a fence).")
+                         "point between heights*, every point from From to To above it does (a hedge, a fence). "
+                         "Alt + drag on the canvas: every point of this frame inside the rectangle takes the class.")
         self.gui_class = gui.add_dropdown("Region class", ("ground",), initial_value="ground")
         self.gui_every = gui.add_checkbox("Every frame's ground", initial_value=False,
                                           hint="Show the ground of all frames from above, and draw on it.")
@@ -82,6 +94,9 @@ class GroundPanel:
                                                "ground (reviewed tracks' too), not only its ground points.")
         self.gui_low = gui.add_number("From (m above ground)", initial_value=0.2, step=0.1)
         self.gui_high = gui.add_number("To (m above ground)", initial_value=3.0, step=0.1)
+        self.gui_depth = gui.add_vector2("Alt + drag depth (m)", (0.0, 0.0), min=(0.0, 0.0), step=0.5,
+                                         hint="From, To: only the points at these distances from the camera "
+                                              "(the boards, not the house seen through their gaps); 0, 0: all.")
         self.gui_status = gui.add_markdown("")
         self.gui_close = gui.add_button("Close & label", color="green", icon=viser.Icon.LASSO_POLYGON, disabled=True)
         self.gui_clear = gui.add_button("Clear", icon=viser.Icon.ERASER, disabled=True)
@@ -105,6 +120,7 @@ class GroundPanel:
         self.gui_undo.on_click(lambda _: self.undo())
         self.gui_draw.on_update(lambda _: self._show_status())
         self.gui_every.on_update(lambda _: self.later(self.show_every_frame))
+        scene.on_rect_select(modifier="alt")(self._on_rect)
 
     @property
     def drawing(self) -> bool:
@@ -159,6 +175,37 @@ class GroundPanel:
             self.draft = []
         what = "its ground points" if heights is None else "every point between its heights"
         self.notify("Region labelled", f"Region #{region['id']}: {what} are {class_name} in every frame.", "green")
+        self.refresh()
+        return region
+
+    def _on_rect(self, event: viser.SceneRectSelectEvent) -> None:
+        cam = event.client.camera
+        clip_scene = clip_from_scene(np.asarray(cam.position), np.asarray(cam.wxyz), float(cam.fov), float(cam.aspect))
+        self.label_in_view(rect_polygon_ndc(event.screen_min, event.screen_max), clip_scene)
+
+    def label_in_view(self, polygon_ndc: np.ndarray, clip_from_lidar: np.ndarray) -> dict[str, Any] | None:
+        """Store a lasso drawn in the frame shown ((K, 2) device coordinates of the camera whose
+        (4, 4) matrix takes the frame's lidar points to clip space): every point of this frame
+        inside it takes the chosen class. The region as the service holds it."""
+        v = self.view()
+        with self._lock:
+            seq = self.sequence_id
+        if v is None or v.frame_index is None or seq is None or seq != v.sequence_id:
+            self.notify("No frame", "Show a frame before labelling its points.", "yellow")
+            return None
+        class_name = str(self.gui_class.value)
+        clip_world = np.asarray(clip_from_lidar, np.float64) @ np.linalg.inv(v.T_world_lidar)
+        near, far = (float(d) for d in self.gui_depth.value)
+        if far > near:
+            clip_world = with_depth_planes(clip_world, max(near, 0.01), far)
+        try:
+            region = self.api.create_ground_region(seq, class_name, np.asarray(polygon_ndc).tolist(),
+                                                   frame_index=v.frame_index, clip_from_world=clip_world)
+        except ApiError as exc:
+            self.notify("Points not labelled", exc.detail, "red")
+            return None
+        self.notify("Points labelled", f"Region #{region['id']}: the points of frame {v.frame_index} inside the "
+                                       f"rectangle are {class_name}.", "green")
         self.refresh()
         return region
 
@@ -318,7 +365,7 @@ class GroundPanel:
         eligible = labelable(payload.ground[keep], payload.track[keep], tracks, frame_index)
         any_point = None if tracks is not None else payload.track[keep] == 0
         return paint_regions(colours, to_world(payload.points[keep], v.T_world_lidar), eligible, regions, classes,
-                             lambda c: fade(c, np.zeros(len(c), bool)), any_point)
+                             lambda c: fade(c, np.zeros(len(c), bool)), any_point, frame_index)
 
     def draw(self) -> None:
         """The draft polygon and the stored outlines, in the frame shown (call after a frame change,
@@ -370,12 +417,17 @@ class GroundPanel:
         world_z = float((v.T_world_lidar @ np.array([0.0, 0.0, z, 1.0]))[2])  # the frame's ground, in the world
         edges, colours = [], []
         for r in regions:
+            if r.view is not None or (r.frame_index is not None and r.frame_index != v.frame_index):
+                continue
             rgb = classes.colours.get(r.class_name, np.array([128, 128, 128], np.uint8))
             for h in (world_z,) if r.heights is None else r.heights:
                 poly = world_to_lidar(np.column_stack([r.polygon, np.full(len(r.polygon), h)]), v.T_world_lidar)
                 e = _segments(poly, closed=True)
                 edges.append(e)
                 colours.append(np.broadcast_to(rgb, (len(e), 2, 3)))
+        if not edges:
+            self._remove("/ground/regions")
+            return
         self._on_canvas.add("/ground/regions")
         self.scene.add_line_segments("/ground/regions", np.concatenate(edges), np.concatenate(colours).astype(np.uint8),
                                      thickness=2.0, thickness_units="screen")

@@ -6,8 +6,9 @@ gives its class to the ground points inside its polygon (world x, y) in every fr
 "ground" is the frame's ground estimate plus the points of tracks that are no object (discarded,
 or predicted `no_object`) in their kept frames, and never to a point of a track decided with a
 class (accepted with a label) in its kept frames; a region with heights gives it to every point
-inside its prism (world z between them), a decided track's too; the newest region wins where
-regions overlap.
+inside its prism (world z between them), a decided track's too; a region of one frame labels only
+that frame's points, and a lasso drawn in a frame's view every point of the frame inside it; the
+newest region wins where regions overlap.
 The viewer paints exactly those points, with the rule the service uses
 (`pipeline.propagation.GroundRegion.labels`). In the *track* colour mode the viewer does not
 read the tracks' states, and the points of a track keep the track's hue there: that mode shows
@@ -57,30 +58,41 @@ class RegionClasses:
 @dataclass(frozen=True)
 class GroundView:
     """What the lasso needs of the frame shown: points (N, 3) float32 lidar frame, ground (N,)
-    bool, T_world_lidar (4, 4), and the frame's sequence."""
+    bool, T_world_lidar (4, 4), the frame's sequence and its index there."""
 
     points: np.ndarray
     ground: np.ndarray
     T_world_lidar: np.ndarray
     sequence_id: int
+    frame_index: int | None = None
 
 
 @dataclass(frozen=True)
 class StoredRegion:
     """A region as the service holds it: polygon (K, 2) float64 world x, y (not closed), heights
-    (world z low, high) or None for a region of ground points."""
+    (world z low, high) or None for a region of ground points; frame_index: the one frame it
+    labels (None: all); view: (4, 4) clip_from_world of a lasso drawn in that frame's view, whose
+    polygon is then in the camera's device coordinates."""
 
     id: int
     class_name: str
     polygon: np.ndarray
     heights: tuple[float, float] | None = None
+    frame_index: int | None = None
+    view: np.ndarray | None = None
 
     @classmethod
     def from_public(cls, body: Mapping[str, Any]) -> StoredRegion:
         polygon = np.asarray(body["polygon"], np.float64).reshape(-1, 2)
         low, high = body.get("z_min"), body.get("z_max")
         heights = None if low is None or high is None else (float(low), float(high))
-        return cls(int(body["id"]), str(body["class_name"]), polygon, heights)
+        frame, view = body.get("frame_index"), body.get("clip_from_world")
+        return cls(int(body["id"]), str(body["class_name"]), polygon, heights,
+                   None if frame is None else int(frame), None if view is None else np.asarray(view, np.float64).reshape(4, 4))
+
+    def rule(self) -> GroundRegion:
+        """The service's rule for this region (its class left out: the caller colours by index)."""
+        return GroundRegion(self.polygon, 0, self.heights, frame=self.frame_index, view=self.view)
 
 
 def ground_height(points: np.ndarray, ground: np.ndarray, xy: np.ndarray | None = None) -> float | None:
@@ -154,29 +166,32 @@ def labelable(ground: np.ndarray, track: np.ndarray, tracks: Mapping[int, Mappin
 
 
 def region_classes_of_points(points_world: np.ndarray, eligible: np.ndarray, regions: Sequence[StoredRegion],
-                             any_eligible: np.ndarray | None = None) -> np.ndarray:
-    """(N,) int: per point ((N, 3) world) the index into `regions` of the newest region that
-    labels it, -1 = none. `eligible`: the points a region of ground points may label
-    (`labelable`); `any_eligible`: those a region with heights may (None: every point)."""
+                             any_eligible: np.ndarray | None = None, frame_index: int | None = None) -> np.ndarray:
+    """(N,) int: per point ((N, 3) world, of frame `frame_index`; None: of no one frame, as the
+    map of every frame's ground) the index into `regions` of the newest region that labels it,
+    -1 = none. `eligible`: the points a region of ground points may label (`labelable`);
+    `any_eligible`: those a prism or a view's lasso may (None: every point)."""
     world = np.asarray(points_world, np.float64)
     free = np.asarray(eligible, bool)
     anywhere = np.ones(len(world), bool) if any_eligible is None else np.asarray(any_eligible, bool)
     out = np.full(len(world), -1, np.int64)
     for k, r in enumerate(regions):  # oldest first: a newer region overwrites an older one
-        mine = GroundRegion(r.polygon, 0, r.heights).labels(world, free)
-        out[mine & anywhere if r.heights is not None else mine] = k
+        rule = r.rule()
+        mine = rule.labels(world, free, frame_index)
+        out[mine & anywhere if rule.every_point else mine] = k
     return out
 
 
 def paint_regions(colours: np.ndarray, points_world: np.ndarray, eligible: np.ndarray,
                   regions: Sequence[StoredRegion], classes: RegionClasses,
-                  shade: Any = None, any_eligible: np.ndarray | None = None) -> np.ndarray:
+                  shade: Any = None, any_eligible: np.ndarray | None = None,
+                  frame_index: int | None = None) -> np.ndarray:
     """(N, 3) uint8 colours with the points ((N, 3) world) that regions label in their class
     colours (`region_classes_of_points`; `shade` maps (M, 3) colours to those the cloud shows,
     e.g. its fade). `colours` itself when no point changes (the scene then sends nothing new)."""
     if not regions:
         return colours
-    which = region_classes_of_points(points_world, eligible, regions, any_eligible)
+    which = region_classes_of_points(points_world, eligible, regions, any_eligible, frame_index)
     hit = which >= 0
     if not hit.any():
         return colours

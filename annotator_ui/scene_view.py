@@ -87,6 +87,7 @@ class SceneView:
         self.frame_ground: np.ndarray | None = None  # (N,) bool ground estimate per point
         self.frame_pose: np.ndarray = np.eye(4)  # T_world_lidar of the frame shown
         self.frame_sequence: int | None = None
+        self.frame_index: int | None = None  # the shown frame's index in its sequence
         # the ground regions' colours over the background (GroundPanel.paint), None = none
         self.paint_ground: Callable[..., np.ndarray] | None = None
         self.shown: Shown | None = None
@@ -175,7 +176,7 @@ class SceneView:
             # arrive as soon as the cloud does)
             self.frame_points, self.frame_tracks = payload.points, payload.track
             self.frame_ground, self.frame_pose = payload.ground, pose_matrix(frame.get("pose"))
-            self.frame_sequence = int(t["sequence_id"])
+            self.frame_sequence, self.frame_index = int(t["sequence_id"]), int(fi)
             if self.paint_ground is not None:
                 colours = self.paint_ground(colours, payload, keep, info, fi)
             t_coloured = time.perf_counter()

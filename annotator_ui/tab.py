@@ -164,7 +164,7 @@ class ClientTab:
         s = self.scene
         if s.frame_points is None or s.frame_ground is None or s.frame_sequence is None:
             return None
-        return GroundView(s.frame_points, s.frame_ground, s.frame_pose, s.frame_sequence)
+        return GroundView(s.frame_points, s.frame_ground, s.frame_pose, s.frame_sequence, s.frame_index)
 
     def _ground_map(self, sequence_id: int) -> np.ndarray:
         """Every frame's ground of a sequence, world (ground_regions.ground_map), read through the

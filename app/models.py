@@ -487,7 +487,10 @@ class GroundRegion(Base):
     a height range every point inside the prism (`pipeline.propagation.GroundRegion`). Later
     regions are drawn over earlier ones. Deleting one is its undo: the row stays with
     `deleted_at` set, so that the operations a sequence took can be counted
-    (`crud.operation_count`). Migrations 0014, 0015 (the heights)."""
+    (`crud.operation_count`). With `frame_index` it labels that frame's points only; with
+    `clip_from_world` as well, `polygon` is a lasso in that camera's normalised device coordinates
+    (a frame's view) and every point of the frame it holds takes the class. Migrations 0014,
+    0015 (the heights), 0016 (the frame and view)."""
 
     __tablename__ = "ground_regions"
     __table_args__ = (Index("ix_ground_regions_sequence_id_id", "sequence_id", "id"),)
@@ -498,6 +501,8 @@ class GroundRegion(Base):
     polygon: Mapped[list[list[float]]] = mapped_column(JSON)  # [[x, y], ...] world metres, not closed
     z_min: Mapped[float | None] = mapped_column(Float)  # world z (m): with z_max, every point between (0015)
     z_max: Mapped[float | None] = mapped_column(Float)
+    frame_index: Mapped[int | None] = mapped_column(Integer)  # the one frame it labels (0016)
+    clip_from_world: Mapped[list[float] | None] = mapped_column(JSON)  # 16 floats, row-major: a view's lasso
     created_by_id: Mapped[int | None] = mapped_column(ForeignKey("users.id", ondelete="SET NULL"))
     created_at: Mapped[datetime] = mapped_column(DateTime, default=utcnow)
     deleted_at: Mapped[datetime | None] = mapped_column(DateTime)

@@ -8,7 +8,10 @@ A point's class comes, in this order, from
 2. an operator's region (`region`), in any frame: a polygon on the top view gives its class to the
    ground points inside it (the ground estimate's, or points of a track that is no object) that
    no decided track holds; one with a height range gives it to every point inside the prism,
-   a decided track's too (the operator painted them: a fence grown into a reviewed hedge);
+   a decided track's too (the operator painted them: a fence grown into a reviewed hedge). A
+   region of one frame holds only that frame's points; a lasso drawn in a frame's view gives its
+   class to every point of the frame that it holds, whatever else holds them (the last points no
+   track, prism or radius separates: fence boards inside a hedge, low leaves among the lawn);
 3. the nearest point so decided within `radius` in the world frame, in this frame or a nearby one
    (`propagated`): points of segments too small to be samples, points the range image did not
    give a segment (deeper returns through foliage), parts of tracks nobody reviewed. A point the
@@ -31,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.regions import points_in_polygon
+from pipeline.regions import ScreenLasso, points_in_polygon
 
 NONE = 255  # class index of a point without a class
 SOURCES: tuple[str, ...] = ("none", "reviewed", "bulk", "propagated", "predicted", "ground", "region")
@@ -68,13 +71,24 @@ class Rules:
 class GroundRegion:
     """A polygon an operator drew on the top view (world x, y; (K, 2), K >= 3) and its class.
     Without `heights` the ground points inside it take the class in every frame; with heights
-    (world z low, high) every point inside the prism does. A later region is drawn over an
-    earlier one where they overlap. object_: whether the class is an object class (not ground)."""
+    (world z low, high) every point inside the prism does. With `frame` only that frame's points
+    count. With `view` (the (4, 4) clip_from_world of the camera it was drawn with; `frame` too)
+    the polygon is in its normalised device coordinates and every point of the frame that the
+    lasso holds (`pipeline.regions.ScreenLasso`, within `heights` if given) takes the class. A
+    later region is drawn over an earlier one where they overlap. object_: whether the class is
+    an object class (not ground)."""
 
     polygon: np.ndarray
     class_: int
     heights: tuple[float, float] | None = None
     object_: bool = False
+    frame: int | None = None
+    view: np.ndarray | None = None
+
+    @property
+    def every_point(self) -> bool:
+        """Whether it labels every point it holds (a prism or a view's lasso), not only free ground."""
+        return self.heights is not None or self.view is not None
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """(N,) bool of (N, 2) world points; the bounding box first, so a frame far from the
@@ -85,15 +99,26 @@ class GroundRegion:
         out[near] = points_in_polygon(xy[near], self.polygon)
         return out
 
-    def labels(self, world: np.ndarray, free_ground: np.ndarray | None) -> np.ndarray:
-        """(N,) bool the points of (N, 3) world points this region labels: inside its prism, or
-        without heights the `free_ground` points inside its polygon (None: no point is free)."""
-        if self.heights is None:
-            idx = np.flatnonzero(free_ground) if free_ground is not None else np.zeros(0, np.int64)
+    def labels(self, world: np.ndarray, free_ground: np.ndarray | None,
+               frame: int | np.ndarray | None = None) -> np.ndarray:
+        """(N,) bool the points of (N, 3) world points this region labels: inside its prism or
+        its view's lasso, or without either the `free_ground` points inside its polygon (None: no
+        point is free). frame: the points' frame index (an int, or (N,) ints); a region of one
+        frame labels nothing of points whose frame is not given."""
+        if self.every_point:
+            keep = np.ones(len(world), bool)
+            if self.heights is not None:
+                keep = (world[:, 2] >= self.heights[0]) & (world[:, 2] <= self.heights[1])
         else:
-            idx = np.flatnonzero((world[:, 2] >= self.heights[0]) & (world[:, 2] <= self.heights[1]))
+            keep = np.asarray(free_ground, bool) if free_ground is not None else np.zeros(len(world), bool)
+        if self.frame is not None:
+            keep = keep & (np.broadcast_to(-1 if frame is None else frame, len(world)) == self.frame)
+        idx = np.flatnonzero(keep)
         out = np.zeros(len(world), bool)
-        out[idx[self.contains(world[idx, :2])]] = True
+        if self.view is not None:
+            out[idx[ScreenLasso(self.polygon, self.view).contains(world[idx])]] = True
+        else:
+            out[idx[self.contains(world[idx, :2])]] = True
         return out
 
 
@@ -196,18 +221,19 @@ def decided_labels(track: np.ndarray, decided: TrackClasses) -> PointLabels:
     return out
 
 
-def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion]) -> np.ndarray:
-    """Step 2: each region, oldest first, gives its class to the points it labels
-    (`GroundRegion.labels`; ground points that no decided track holds, or its prism's). Returns
-    (N,) bool the points that a region without heights gave an object class."""
+def region_labels(out: PointLabels, ground: np.ndarray, world: np.ndarray, regions: Sequence[GroundRegion],
+                  frame: int | None = None) -> np.ndarray:
+    """Step 2: each region, oldest first, gives its class to the points of frame `frame` it labels
+    (`GroundRegion.labels`; ground points that no decided track holds, or its prism's or view
+    lasso's). Returns (N,) bool the points that a region of ground points gave an object class."""
     spreads = np.zeros(len(world), bool)
     if not regions:
         return spreads
     free = np.asarray(ground, bool) & ~out.labelled
     for r in regions:
-        mask = r.labels(world, free)
+        mask = r.labels(world, free, frame)
         out.set(mask, r.class_, SOURCE["region"], 1.0)
-        spreads[mask] = r.object_ and r.heights is None
+        spreads[mask] = r.object_ and not r.every_point
     return spreads
 
 
@@ -235,19 +261,20 @@ def _take(out: PointLabels, want: np.ndarray, points: np.ndarray, near: NearestL
 
 def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, decided: TrackClasses,
                   predicted: TrackClasses, field: NearestLabel | None, rules: Rules,
-                  ground_class: int | None, regions: Sequence[GroundRegion] = ()) -> PointLabels:
+                  ground_class: int | None, regions: Sequence[GroundRegion] = (), frame: int | None = None) -> PointLabels:
     """Every point's class, source and confidence in one frame (module docstring).
 
     track: (N,) int64 track id per point (0 = none); ground: (N,) bool the ground estimate;
     world: (N, 3) float64 world coordinates; decided / predicted: the frame's track classes;
     field: decided points of this and nearby frames (None = no world search); ground_class: the
     class written on ground points no other step reached (None = leave them without one);
-    regions: the operators' ground regions, oldest first.
+    regions: the operators' ground regions, oldest first; frame: this frame's index (what a
+    region of one frame is matched against).
     """
     track = np.asarray(track, np.int64)
     ground = np.asarray(ground, bool)
     out = decided_labels(track, decided)
-    spreads = region_labels(out, ground, world, regions)
+    spreads = region_labels(out, ground, world, regions, frame)
     if field is not None:
         _take(out, ~out.labelled & ~ground, world, field, rules.radius, SOURCE["propagated"])
         _take(out, ~out.labelled & ground, world, field, rules.ground_radius, SOURCE["propagated"])

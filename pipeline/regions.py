@@ -9,7 +9,9 @@ A region answers one question: which of these (N, 3) world points lie inside it.
   the top view).
 - `ScreenLasso`: a polygon in normalised device coordinates (x right, y up, both -1..1) and the
   4x4 `clip_from_world` matrix of the camera it was drawn with; a point is inside when it lies in
-  front of the camera (clip w > 0) and its projection falls inside the polygon.
+  front of the camera (clip w > 0), between its near and far planes (-w <= clip z <= w: a
+  projection whose z row equals its w row, as the viewer's, has no such planes) and its
+  projection falls inside the polygon.
 """
 
 from __future__ import annotations
@@ -82,9 +84,20 @@ class ScreenLasso:
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         homo = np.concatenate([points, np.ones((len(points), 1))], axis=1) @ self.clip_from_world.T  # (N, 4)
-        front = homo[:, 3] > 1e-9
-        ndc = homo[:, :2] / np.where(front, homo[:, 3], 1.0)[:, None]
+        w = homo[:, 3]
+        front = (w > 1e-9) & (np.abs(homo[:, 2]) <= w * (1.0 + 1e-9))
+        ndc = homo[:, :2] / np.where(front, w, 1.0)[:, None]
         return front & points_in_polygon(ndc, self.polygon)
+
+
+def with_depth_planes(clip_from_world: np.ndarray, near: float, far: float) -> np.ndarray:
+    """(4, 4) `clip_from_world` whose clip z is -w at depth `near` and w at `far` (depth: its clip
+    w), so that a `ScreenLasso` drawn with it holds only the points between (0 < near < far)."""
+    out = np.array(clip_from_world, np.float64)
+    a, b = (far + near) / (far - near), -2.0 * far * near / (far - near)
+    out[2] = a * out[3]
+    out[2, 3] += b
+    return out
 
 
 Region = Box | HalfSpace | Prism | ScreenLasso

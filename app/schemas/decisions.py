@@ -150,12 +150,21 @@ class GroundRegionCreate(_Request):
     """A polygon on the top view (world x, y in metres, 3 to 1000 vertices, not closed) and the
     class of the sequence's label set its points take: its ground points that no decided track
     holds, or with `z_min` and `z_max` every point of the prism between them, a decided track's
-    too (the prism of a split's region)."""
+    too (the prism of a split's region). With `frame_index` only that frame's points; with
+    `clip_from_world` as well the polygon is a lasso drawn in that frame's view (normalised
+    device coordinates of the camera, x right and y up in -1..1) and every point of the frame it
+    holds takes the class, whatever holds it: the points no track, prism or radius separates."""
 
     class_name: str = Field(min_length=1, max_length=32)
     polygon: list[tuple[WorldCoordinate, WorldCoordinate]] = Field(min_length=3, max_length=1000)
     z_min: WorldCoordinate | None = Field(default=None, description="World z (m), with z_max: the prism's bottom.")
     z_max: WorldCoordinate | None = Field(default=None, description="World z (m), with z_min: the prism's top.")
+    frame_index: int | None = Field(default=None, ge=0, le=2**31 - 1,
+                                    description="The sequence's frame whose points alone the region labels.")
+    clip_from_world: list[WorldCoordinate] | None = Field(
+        default=None, min_length=16, max_length=16,
+        description="With frame_index: the 4x4 row-major matrix of the camera the lasso was drawn with; a point "
+                    "counts in front of it, between its near and far planes (-w <= clip z <= w).")
 
     @model_validator(mode="after")
     def _both_heights(self) -> GroundRegionCreate:
@@ -163,6 +172,8 @@ class GroundRegionCreate(_Request):
             raise ValueError("z_min and z_max: give both or neither")
         if self.z_min is not None and self.z_max is not None and not self.z_min < self.z_max:
             raise ValueError(f"z_min {self.z_min} must be below z_max {self.z_max}")
+        if self.clip_from_world is not None and self.frame_index is None:
+            raise ValueError("clip_from_world: a lasso in a view needs the frame_index it was drawn on")
         return self
 
     @property
@@ -172,8 +183,9 @@ class GroundRegionCreate(_Request):
 
 class GroundRegionPublic(_Public):
     """A stored region: the ground points inside its polygon (with `z_min` and `z_max`, every
-    point inside the prism) take `class_name` in every frame of the sequence's exports; the
-    newest region wins where regions overlap."""
+    point inside the prism; with `clip_from_world`, every point of its frame inside the lasso)
+    take `class_name` in every frame of the sequence's exports (with `frame_index`, in that
+    frame); the newest region wins where regions overlap."""
 
     id: int
     sequence_id: int
@@ -181,5 +193,8 @@ class GroundRegionPublic(_Public):
     polygon: list[tuple[float, float]]
     z_min: float | None
     z_max: float | None
+    frame_index: int | None = Field(default=None, description="The one frame it labels (None: every frame).")
+    clip_from_world: list[float] | None = Field(
+        default=None, description="The camera of a lasso drawn in a frame's view (polygon in its device coordinates).")
     created_by_id: int | None
     created_at: UtcDateTime

@@ -98,7 +98,9 @@ def stored_regions(session: Session, sequence_id: int, label_set: LabelSet) -> t
     """The sequence's live regions, oldest first, with their classes' indices in `label_set`."""
     rows = [(r, label_set.index(r.class_name)) for r in list_regions(session, sequence_id)]
     objects = len(label_set.sample_classes)
-    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), c, r.heights, c < objects) for r, c in rows)
+    return tuple(GroundRegion(np.asarray(r.polygon, np.float64), c, r.heights, c < objects, r.frame_index,
+                              None if r.clip_from_world is None else np.asarray(r.clip_from_world, np.float64).reshape(4, 4))
+                 for r, c in rows)
 
 
 @dataclass(frozen=True)
@@ -128,7 +130,7 @@ def region_cover(frames: list[tuple[int, str, str, np.ndarray | None]], regions:
     for index, _name, art, pose in frames:
         a = artifacts.read_arrays(art, ("points", "track", "ground", "segment", "sample_segment"))
         labels = PointLabels.empty(len(a["track"]))
-        region_labels(labels, np.asarray(a["ground"], bool), to_world(a["points"], pose), regions)
+        region_labels(labels, np.asarray(a["ground"], bool), to_world(a["points"], pose), regions, index)
         ids, n = np.unique(np.asarray(a["track"], np.int64)[labels.labelled], return_counts=True)
         for i, c in zip(ids.tolist(), n.tolist(), strict=True):
             if i in kept and kept[i][0] <= index <= kept[i][1]:
@@ -244,12 +246,12 @@ def iter_frame_labels(plan: PointLabelPlan, artifacts: ArtifactStore) -> Iterato
         ground = np.asarray(a["ground"], bool) | _in_frame(plan.no_object, index).lookup(track)[0]
         if opts.reviewed_only:
             labels = decided_labels(track, decided)
-            region_labels(labels, ground, to_world(a["points"], pose), plan.regions)
+            region_labels(labels, ground, to_world(a["points"], pose), plan.regions, index)
             if ground_class is not None:
                 labels.set(~labels.labelled & ground, ground_class, SOURCE["ground"], 1.0)
         else:
             labels = resolve_frame(track, ground, to_world(a["points"], pose), decided, predicted,
-                                   clouds.field(pos), opts.rules, ground_class, plan.regions)
+                                   clouds.field(pos), opts.rules, ground_class, plan.regions, index)
         own = decided.lookup(track)[0] | (predicted.lookup(track)[0] & (labels.source == SOURCE["predicted"]))
         yield FrameLabels(index, name, labels, a.get("input_rows"), track, own, ground)
 

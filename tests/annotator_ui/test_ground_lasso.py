@@ -268,3 +268,46 @@ def test_ground_every_frame_shows_the_route_from_above_and_takes_clicks_beyond_t
     panel.show_every_frame()
     tab.headless.wait_for(lambda m: m.type == "RemoveSceneNodeMessage" and m.name == "/ground/map", since)
     assert panel._map_of(live_api.sequence_id) is None  # clicks land on the frame's ground again
+
+
+def test_alt_drag_labels_every_point_of_the_frame_shown_inside_the_rectangle_in_that_frame_only(lasso_tab, live_api):
+    from annotator_ui.geometry import clip_from_scene, matrix_wxyz
+    from pipeline.regions import ScreenLasso
+
+    tab = lasso_tab
+    panel, scene = tab.ground, tab.scene
+    wait_until(lambda: panel.sequence_id == live_api.sequence_id)
+    before = scene._cloud_colours.copy()
+    # a camera at the sensor looking along its x axis (OpenCV axes: x right = -y, y down = -z, z forward = x)
+    R = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    cam = SimpleNamespace(position=(0.0, 0.0, 0.0), wxyz=tuple(matrix_wxyz(R)), fov=1.2, aspect=1.5)
+    panel.gui_class.value = "building"
+    panel._on_rect(SimpleNamespace(client=SimpleNamespace(camera=cam), screen_min=(0.3, 0.3), screen_max=(0.7, 0.9)))
+    admin = {"Authorization": f"Bearer {live_api.admin_token}"}
+    api = httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions", headers=admin).json()
+    assert len(api) == 1 and api[0]["class_name"] == "building"
+    assert api[0]["frame_index"] == tab.session.frame_index and len(api[0]["clip_from_world"]) == 16
+    view, keep = tab.ground_view(), scene._cloud_keep
+    clip = clip_from_scene(np.zeros(3), np.asarray(cam.wxyz), cam.fov, cam.aspect)
+    lasso = ScreenLasso(np.array(api[0]["polygon"]), clip)
+    inside = lasso.contains(view.points[keep].astype(np.float64)) & (scene.frame_tracks[keep] == 0)  # the track mode
+    assert inside.sum() >= 10 and (~inside).sum() >= 10
+    building = fade(np.array([CLASS_COLOURS["building"]], np.uint8), np.zeros(1, bool))[0]
+    wait_until(lambda: (scene._cloud_colours[inside] == building).all())
+    assert np.array_equal(scene._cloud_colours[~inside], before[~inside])
+    # stored in the world: the same points from the world's side, and only in this frame
+    rule = StoredRegion.from_public(api[0]).rule()
+    world = to_world(view.points[keep], view.T_world_lidar)
+    assert np.array_equal(rule.labels(world, None, tab.session.frame_index) & (scene.frame_tracks[keep] == 0), inside)
+    assert not rule.labels(world, None, tab.session.frame_index + 1).any()
+    assert panel.undo() is not None
+    wait_until(lambda: np.array_equal(scene._cloud_colours, before))
+    # with a depth from 2 to 12 m the points nearer and farther stay out
+    panel.gui_depth.value = (2.0, 12.0)
+    panel._on_rect(SimpleNamespace(client=SimpleNamespace(camera=cam), screen_min=(0.3, 0.3), screen_max=(0.7, 0.9)))
+    api = httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions", headers=admin).json()
+    held = StoredRegion.from_public(api[0]).rule().labels(world, None, tab.session.frame_index)
+    depth = view.points[keep][:, 0]  # the camera looks along the sensor's x axis
+    assert held.any() and (depth[held] >= 2.0 - 1e-6).all() and (depth[held] <= 12.0 + 1e-6).all()
+    assert (inside & ~held).any()
+    panel.gui_depth.value = (0.0, 0.0)

@@ -166,3 +166,29 @@ def test_a_lassoed_object_reaches_the_points_just_above_it_and_a_prism_or_a_grou
                   resolve(GroundRegion(lasso, other, None, True), rules=Rules(far_radius=5.0, region_radius=0.0))):
         assert plain.class_[[0, 1, 3]].tolist() == [BUSH, BUSH, BUSH]
         assert plain.source[0] == SOURCE["predicted"]
+
+
+def test_a_lasso_in_a_frame_s_view_labels_every_point_of_that_frame_it_holds_and_none_behind_or_elsewhere():
+    from pipeline.propagation import GroundRegion
+
+    track, ground, world, decided, predicted = _frame()
+    field = _field(world, track, decided)
+    # a camera at (-5, 0, 1) looking along +x (right: -y, up: z) sees every point on its axis; its
+    # near and far planes at 4.5 and 6.5 m hold the car (x = 0, 1), the loose point at 1.2 and
+    # both ground points, and not the far ones (x = 3, 10, 11, 11.25)
+    near, far = 4.5, 6.5
+    a, b = (far + near) / (far - near), -2 * far * near / (far - near)
+    view = np.array([[0, -1, 0, 0], [0, 0, 1, -1], [a, 0, 0, 5 * a + b], [1, 0, 0, 5]], np.float64)
+    square = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    lasso = GroundRegion(square, BUSH, frame=3, view=view)
+    assert lasso.labels(world, None, 3).tolist() == [True, True, False, False, True, False, False, True, True]
+    assert not lasso.labels(world, None, 2).any() and not lasso.labels(world, None).any()
+    out = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
+                        (lasso,), frame=3)
+    assert out.class_[[0, 1, 4, 7, 8]].tolist() == [BUSH] * 5  # the reviewed car's points too
+    assert (out.source[[0, 1, 4, 7, 8]] == SOURCE["region"]).all()
+    plain = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS)
+    other = resolve_frame(track, ground, world, decided, predicted, field, Rules(far_radius=0.0), GROUND_CLASS,
+                          (lasso,), frame=2)
+    assert np.array_equal(other.class_, plain.class_) and np.array_equal(other.source, plain.source)
+    assert np.array_equal(out.class_[[2, 3, 5, 6]], plain.class_[[2, 3, 5, 6]])

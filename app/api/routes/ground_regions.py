@@ -1,7 +1,9 @@
 """Ground regions: the top view's lasso. An operator draws a polygon over a sequence's ground and
 gives it a class of the sequence's label set; the ground points inside it take that class in
 every frame (one action for a whole sidewalk or lawn), or with a height range every point inside
-the prism (a hedge, a fence, whatever tracks it fell into). Deleting a region undoes it."""
+the prism (a hedge, a fence, whatever tracks it fell into), or, drawn in one frame's view, every
+point of that frame inside the lasso (the last points nothing else separates). Deleting a region
+undoes it."""
 
 from __future__ import annotations
 
@@ -25,10 +27,13 @@ def list_ground_regions(sequence_id: IdPath, _user: CurrentUser, session: Sessio
 def create_ground_region(sequence_id: IdPath, body: GroundRegionCreate, user: CurrentUser,
                          session: WriteSessionDep) -> GroundRegionPublic:
     """Label the ground points inside `polygon`, in every frame, as `class_name`, or with `z_min`
-    and `z_max` every point inside the prism (422 for a class outside the sequence's label set, a
-    polygon without area, or one of z_min and z_max alone or out of order)."""
+    and `z_max` every point inside the prism; with `frame_index` in that frame only, and with
+    `clip_from_world` every point of that frame inside the lasso drawn in its view (422 for a
+    class outside the sequence's label set, a polygon without area, one of z_min and z_max alone
+    or out of order, a frame the sequence lacks, or a view without its frame)."""
     return GroundRegionPublic.model_validate(
-        crud.create_region(session, sequence_id, user, body.class_name, body.polygon, body.heights))
+        crud.create_region(session, sequence_id, user, body.class_name, body.polygon, body.heights,
+                           body.frame_index, body.clip_from_world))
 
 
 @router.delete("/ground-regions/{region_id}")

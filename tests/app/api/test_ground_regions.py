@@ -109,3 +109,57 @@ def test_region_with_heights_labels_every_point_between_them_a_reviewed_track_s_
     assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
     listed = client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json()
     assert [(r["z_min"], r["z_max"]) for r in listed] == [(1e3, 1e4)]
+
+
+# a camera whose view sends every point to the centre of the screen, between its planes
+EVERY_POINT_VIEW = [0.0] * 15 + [1.0]
+CENTRE = [[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]
+
+
+def _view_lasso(client, caller, seq, class_name, frame, view=EVERY_POINT_VIEW, status=200):
+    body = {"class_name": class_name, "polygon": CENTRE, "frame_index": frame, "clip_from_world": view}
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", json=body, headers=caller.headers)
+    assert r.status_code == status, r.text
+    return r.json()
+
+
+def test_a_lasso_in_a_frame_s_view_labels_every_point_of_that_frame_inside_it_and_no_other_frame(client, factory):
+    seq = factory.ingested_sequence(n_frames=3, n_objects=2)
+    op = factory.user()
+    track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]
+    r = client.post(f"/api/v1/tracks/{track['id']}/label", json={"version": track["version"], "label": "car"},
+                    headers=op.headers)
+    assert r.status_code == 200, r.text
+    before = _labels(client, op, seq)
+    region = _view_lasso(client, op, seq, "building", 1)
+    assert region["frame_index"] == 1 and region["clip_from_world"] == EVERY_POINT_VIEW
+    after = _labels(client, op, seq)
+    assert set(after[1].tolist()) == {SEMANTICKITTI_WRITE_ID["building"]}  # a reviewed car's points too
+    assert np.array_equal(after[0], before[0]) and np.array_equal(after[2], before[2])
+    # a camera that looks away from every point (w < 0) labels none; undoing the lasso restores the frame
+    away = [0.0] * 15 + [-1.0]
+    _view_lasso(client, op, seq, "bush", 2, view=away)
+    assert np.array_equal(_labels(client, op, seq)[2], before[2])
+    assert client.delete(f"/api/v1/ground-regions/{region['id']}", headers=op.headers).status_code == 200
+    assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
+    # the same polygon on the top view of frame 1 alone: only that frame's ground points
+    in_frame = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
+                                   json={"class_name": "bush", "polygon": EVERYWHERE, "frame_index": 1})
+    assert in_frame.status_code == 200, in_frame.text
+    ground = SEMANTICKITTI_WRITE_ID["ground"]
+    after = _labels(client, op, seq)
+    assert set(after[1][before[1] == ground].tolist()) == {SEMANTICKITTI_WRITE_ID["bush"]}
+    assert np.array_equal(after[0], before[0]) and np.array_equal(after[2], before[2])
+
+
+def test_a_lasso_in_a_view_needs_a_frame_the_sequence_has_and_a_finite_matrix(client, factory):
+    seq = factory.ingested_sequence(n_frames=2, n_objects=1)
+    op = factory.user()
+    assert "no frame 7" in _view_lasso(client, op, seq, "car", 7, status=422)["detail"][0]["msg"]
+    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
+                    json={"class_name": "car", "polygon": CENTRE, "clip_from_world": EVERY_POINT_VIEW})
+    assert r.status_code == 422 and "frame_index" in r.text
+    _view_lasso(client, op, seq, "car", 0, view=EVERY_POINT_VIEW[:15], status=422)
+    _view_lasso(client, op, seq, "car", 0, view=[*EVERY_POINT_VIEW[:15], "nan"], status=422)
+    _view_lasso(client, op, seq, "car", -1, status=422)
+    assert client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json() == []
