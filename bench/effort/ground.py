@@ -76,14 +76,22 @@ def _areas(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, area: np.ndarray
     major = counts.argmax(1)
     for cls in np.unique(true[wrong]):
         mask = ((major == cls) & (counts.sum(1) > 0)).reshape(h, w).astype(np.uint8)
-        n, comp = cv2.connectedComponents(mask, connectivity=8)
-        comp_of_point = comp.ravel()[cell]
-        estimate = np.bincount(comp_of_point[wrong & (true == cls)], minlength=n)
-        estimate[0] = 0
-        for k in np.argsort(-estimate)[:CANDIDATES]:
-            if estimate[k] == 0:
-                break
-            yield int(cls), int(estimate[k]), (comp == k).astype(np.uint8), origin, comp_of_point == k
+        for estimate, comp, in_area in components(mask, cell, wrong & (true == cls)):
+            yield int(cls), estimate, comp, origin, in_area
+
+
+def components(mask: np.ndarray, cell: np.ndarray, wrong: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """The `CANDIDATES` connected areas of a cell mask that hold the most `wrong` points (each
+    point in cell `cell`, flat index), largest first: (that count, the area's mask, which points
+    lie in it)."""
+    n, comp = cv2.connectedComponents(mask, connectivity=8)
+    comp_of_point = comp.ravel()[cell]
+    estimate = np.bincount(comp_of_point[wrong], minlength=n)
+    estimate[0] = 0
+    for k in np.argsort(-estimate)[:CANDIDATES]:
+        if estimate[k] == 0:
+            break
+        yield int(estimate[k]), (comp == k).astype(np.uint8), comp_of_point == k
 
 
 def plan(xy: np.ndarray, true: np.ndarray, current: np.ndarray, n_classes: int) -> Lasso | None:

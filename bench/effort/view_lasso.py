@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from bench.effort.ground import CANDIDATES, MAX_VERTICES, _gain, _outline
+from bench.effort.ground import MAX_VERTICES, _gain, _outline, components
 from pipeline.classes import UNLABELLED
 from pipeline.propagation import GroundRegion
 from pipeline.regions import with_depth_planes
@@ -150,11 +150,5 @@ def _areas_in_span(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, span: np
         # along a beam's row only (axis 0 is the view's x): across rows it would join two rows of
         # boards over the leaves between them, whose outline holds the leaves
         mask = core | (empty & (cv2.dilate(core, np.ones((3, 1), np.uint8)) > 0)).astype(np.uint8)
-        n, comp = cv2.connectedComponents(mask, connectivity=8)
-        comp_of_point = comp.ravel()[cell]
-        estimate = np.bincount(comp_of_point[wrong & (true == cls)], minlength=n)
-        estimate[0] = 0
-        for k in np.argsort(-estimate)[:CANDIDATES]:
-            if estimate[k] == 0:
-                break
-            yield int(cls), int(estimate[k]), (comp == k).astype(np.uint8), origin, comp_of_point == k
+        for estimate, comp, in_area in components(mask, cell, wrong & (true == cls)):
+            yield int(cls), estimate, comp, origin, in_area

@@ -21,8 +21,8 @@ def _labels(client, caller, seq, **params):
             for n in sorted(tar.getnames()) if n.endswith(".label")]
 
 
-def _region(client, caller, seq, class_name, polygon, status=200, heights=None):
-    body = {"class_name": class_name, "polygon": polygon}
+def _region(client, caller, seq, class_name, polygon, status=200, heights=None, **more):
+    body = {"class_name": class_name, "polygon": polygon, **more}
     if heights is not None:
         body["z_min"], body["z_max"] = heights
     r = client.post(f"/api/v1/sequences/{seq}/ground-regions", json=body, headers=caller.headers)
@@ -90,13 +90,17 @@ def test_ground_region_refuses_a_class_outside_the_label_set_and_a_flat_polygon(
     assert client.get(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers).json() == []
 
 
+def _review_one_as_car(client, caller, seq) -> None:
+    track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=caller.headers).json()["items"][0]
+    r = client.post(f"/api/v1/tracks/{track['id']}/label", json={"version": track["version"], "label": "car"},
+                    headers=caller.headers)
+    assert r.status_code == 200, r.text
+
+
 def test_region_with_heights_labels_every_point_between_them_a_reviewed_track_s_too(client, factory):
     seq = factory.ingested_sequence(n_frames=2, n_objects=2)
     op = factory.user()
-    track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]
-    r = client.post(f"/api/v1/tracks/{track['id']}/label", json={"version": track["version"], "label": "car"},
-                    headers=op.headers)
-    assert r.status_code == 200, r.text
+    _review_one_as_car(client, op, seq)
     before = _labels(client, op, seq)
     car = SEMANTICKITTI_WRITE_ID["car"]
     assert any((b == car).any() for b in before)
@@ -117,19 +121,13 @@ CENTRE = [[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]
 
 
 def _view_lasso(client, caller, seq, class_name, frame, view=EVERY_POINT_VIEW, status=200):
-    body = {"class_name": class_name, "polygon": CENTRE, "frame_index": frame, "clip_from_world": view}
-    r = client.post(f"/api/v1/sequences/{seq}/ground-regions", json=body, headers=caller.headers)
-    assert r.status_code == status, r.text
-    return r.json()
+    return _region(client, caller, seq, class_name, CENTRE, status, frame_index=frame, clip_from_world=view)
 
 
 def test_a_lasso_in_a_frame_s_view_labels_every_point_of_that_frame_inside_it_and_no_other_frame(client, factory):
     seq = factory.ingested_sequence(n_frames=3, n_objects=2)
     op = factory.user()
-    track = client.get("/api/v1/tracks", params={"sequence_id": seq}, headers=op.headers).json()["items"][0]
-    r = client.post(f"/api/v1/tracks/{track['id']}/label", json={"version": track["version"], "label": "car"},
-                    headers=op.headers)
-    assert r.status_code == 200, r.text
+    _review_one_as_car(client, op, seq)
     before = _labels(client, op, seq)
     region = _view_lasso(client, op, seq, "building", 1)
     assert region["frame_index"] == 1 and region["clip_from_world"] == EVERY_POINT_VIEW
@@ -143,9 +141,7 @@ def test_a_lasso_in_a_frame_s_view_labels_every_point_of_that_frame_inside_it_an
     assert client.delete(f"/api/v1/ground-regions/{region['id']}", headers=op.headers).status_code == 200
     assert all(np.array_equal(a, b) for a, b in zip(_labels(client, op, seq), before, strict=True))
     # the same polygon on the top view of frame 1 alone: only that frame's ground points
-    in_frame = client.post(f"/api/v1/sequences/{seq}/ground-regions", headers=op.headers,
-                                   json={"class_name": "bush", "polygon": EVERYWHERE, "frame_index": 1})
-    assert in_frame.status_code == 200, in_frame.text
+    _region(client, op, seq, "bush", EVERYWHERE, frame_index=1)
     ground = SEMANTICKITTI_WRITE_ID["ground"]
     after = _labels(client, op, seq)
     assert set(after[1][before[1] == ground].tolist()) == {SEMANTICKITTI_WRITE_ID["bush"]}
