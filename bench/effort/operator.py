@@ -32,7 +32,6 @@ from bench.effort.ground import Lasso, plan, plan_prism
 from bench.effort.score import exported_classes
 from bench.effort.service import Api, FrameInfo
 from bench.effort.truth import TruthStore
-from bench.effort.view_lasso import ViewLasso, plan_view_lasso
 from pipeline.classes import UNLABELLED
 from pipeline.label_sets import DEFAULT_LABEL_SET, LabelSet, preset
 from pipeline.propagation import GroundRegion
@@ -57,7 +56,6 @@ class Policy:
     ground_every: int = 3  # reviews between two looks at every frame from above
     ground_per_frame: float = 1.0  # lassos over the ground layer at most, per frame of the sequence
     prisms_per_frame: float = 4.0  # regions with heights at most, per frame of the sequence
-    views_per_frame: float = 0.0  # lassos in a frame's view at most, per frame of the sequence
     # what a region must put right (net) before the operator has seen what its reviews do, as a
     # share of the seen points that are not ground; afterwards: what a review put right on average
     region_share: float = 0.002
@@ -73,7 +71,6 @@ class Counts:
     discards: int = 0
     regions: int = 0
     prisms: int = 0  # of the regions, those with a height range
-    views: int = 0  # of the regions, lassos in a frame's view
     bulk_accepts: int = 0
     bulk_tracks: int = 0
     bulk_undos: int = 0
@@ -224,14 +221,14 @@ class Operator:
         self._decide(res["track"], major)
 
     # ------------------------------------------------------------------ the ground layer
-    def layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Show every frame's points from above: their world x, y, z, true class, current class,
-        whether `ground` or a `region` labelled them (the ground layer), and their frame's index."""
+    def layer(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Show every frame's points from above: their world x, y, z, true class, current class
+        and whether `ground` or a `region` labelled them (the ground layer)."""
         export = self.op.export(self.sequence_id, include_ground=True)
         names = export.summary.get("sources", [])
         layer = [names.index(s) for s in ("ground", "region") if s in names]
         self.store.forget()
-        world, true, current, ground, frame = [], [], [], [], []
+        world, true, current, ground = [], [], [], []
         for f in self.frames:
             if f.name not in export.labels or f.name not in self.input_rows:
                 continue
@@ -247,32 +244,26 @@ class Operator:
             true.append(self.store.read(f.name, idx))
             current.append(exported_classes(words[idx], self.label_set))
             ground.append(np.isin(src[idx], layer))
-            frame.append(np.full(len(idx), f.index, np.int64))
         if not world:
-            return np.zeros((0, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, bool), np.zeros(0, np.int64)
-        return tuple(np.concatenate(a) for a in (world, true, current, ground, frame))  # type: ignore[return-value]
+            return np.zeros((0, 3)), np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, bool)
+        return tuple(np.concatenate(a) for a in (world, true, current, ground))  # type: ignore[return-value]
 
-    def _best_region(self) -> tuple[Lasso | ViewLasso | None, int]:
+    def _best_region(self) -> tuple[Lasso | None, int]:
         """The best of a lasso over the ground layer (points the export labels as ground or by a
-        region), a prism over every point and a lasso in one frame's view, each while its budget
-        lasts; and the seen object points (`_need` reads them). Notes the seen points right
-        (`_right`)."""
+        region) and a prism over every point, each while its budget lasts; and the seen object
+        points (`_need` reads them). Notes the seen points right (`_right`)."""
         n, objects = len(self.label_set.point_classes), len(self.label_set.sample_classes)
         pol, frames = self.policy, len(self.frames)
-        world, true, current, ground, frame = self.layer()
+        world, true, current, ground = self.layer()
         self._right = int(((true == current) & (true != UNLABELLED)).sum())
         self.store.forget()
         for p in self._prisms:  # the points its own prisms label are no ground layer
             ground &= ~GroundRegion(p.polygon, p.class_, p.heights).labels(world, None)
         best = []
-        if self.counts.regions - self.counts.prisms - self.counts.views < pol.ground_per_frame * frames:
+        if self.counts.regions - self.counts.prisms < pol.ground_per_frame * frames:
             best.append(plan(world[ground, :2], true[ground], current[ground], n))
         if self.counts.prisms < pol.prisms_per_frame * frames:
             best.append(plan_prism(world, true, current, objects, n))
-        if self.counts.views < pol.views_per_frame * frames:
-            for f in self.frames:
-                m = frame == f.index
-                best.append(plan_view_lasso(world[m], true[m], current[m], f.T_world_lidar, f.index, n))
         return max((r for r in best if r is not None), key=lambda r: r.gain, default=None), int((true < objects).sum())
 
     def _need(self, seen_objects: int) -> int:
@@ -298,14 +289,11 @@ class Operator:
                 break
             body: dict[str, Any] = {"class_name": self.label_set.point_class_names[lasso.class_],
                                     "polygon": [[float(x), float(y)] for x, y in lasso.polygon]}
-            if isinstance(lasso, ViewLasso):
-                body["frame_index"], body["clip_from_world"] = lasso.frame, lasso.view.reshape(-1).tolist()
-                self.counts.views += 1
-            elif lasso.heights is not None:
+            if lasso.heights is not None:
                 body["z_min"], body["z_max"] = lasso.heights
             self._edit(f"/sequences/{self.sequence_id}/ground-regions", body)
             self.counts.regions += 1
-            if isinstance(lasso, Lasso) and lasso.heights is not None:
+            if lasso.heights is not None:
                 self.counts.prisms += 1
                 self._prisms.append(lasso)
             drawn = True

@@ -39,7 +39,6 @@ class ViewLasso:
     view: np.ndarray  # (4, 4) clip_from_world
     class_: int
     gain: int  # points of the frame it puts right minus points it puts wrong
-    frame: int = -1  # the frame's index in its sequence
 
     def rule(self, frame: int) -> GroundRegion:
         return GroundRegion(self.polygon, self.class_, frame=frame, view=self.view)
@@ -131,7 +130,7 @@ def _best_in_span(world, true, current, frame, n_classes, vertices, view, xy, de
         inside[near_box] = lasso.rule(frame).labels(world[near_box], None, frame)
         gain = _gain(inside, true, current, cls)
         if best is None or gain > best.gain:
-            best = ViewLasso(lasso.polygon, lasso.view, cls, gain, frame)
+            best = ViewLasso(lasso.polygon, lasso.view, cls, gain)
     return best
 
 
