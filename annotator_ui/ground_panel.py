@@ -274,6 +274,7 @@ class GroundPanel:
     def _show_list(self) -> None:
         rows = [f"- #{r.id}: {r.class_name}, {len(r.polygon)} vertices"
                 + ("" if r.heights is None else f", every point at z {r.heights[0]:.1f} to {r.heights[1]:.1f} m")
+                + ("" if r.frame_index is None else f", frame {r.frame_index}" + (" (its view)" if r.view is not None else ""))
                 for r in self.regions[-8:]]
         self.gui_regions.content = ("**Ground regions** (newest last; it wins where they overlap)  \n" + "\n".join(rows)
                                     if rows else "No ground region yet.")

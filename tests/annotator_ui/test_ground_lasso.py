@@ -287,6 +287,7 @@ def test_alt_drag_labels_every_point_of_the_frame_shown_inside_the_rectangle_in_
     api = httpx.get(f"{live_api.url}/api/v1/sequences/{live_api.sequence_id}/ground-regions", headers=admin).json()
     assert len(api) == 1 and api[0]["class_name"] == "building"
     assert api[0]["frame_index"] == tab.session.frame_index and len(api[0]["clip_from_world"]) == 16
+    wait_until(lambda: f"frame {tab.session.frame_index} (its view)" in panel.gui_regions.content)
     view, keep = tab.ground_view(), scene._cloud_keep
     clip = clip_from_scene(np.zeros(3), np.asarray(cam.wxyz), cam.fov, cam.aspect)
     lasso = ScreenLasso(np.array(api[0]["polygon"]), clip)
