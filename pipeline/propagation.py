@@ -105,6 +105,8 @@ class GroundRegion:
         its view's lasso, or without either the `free_ground` points inside its polygon (None: no
         point is free). frame: the points' frame index (an int, or (N,) ints); a region of one
         frame labels nothing of points whose frame is not given."""
+        if self.frame is not None and (frame is None or (np.ndim(frame) == 0 and frame != self.frame)):
+            return np.zeros(len(world), bool)  # another frame's: an operator may draw hundreds
         if self.every_point:
             keep = np.ones(len(world), bool)
             if self.heights is not None:
