@@ -68,16 +68,25 @@ def _areas(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, area: np.ndarray
     """Per class of the wrong points, the connected areas of grid cells whose `area` points are
     mostly of that class, largest first by the wrong points of that class they hold: (class,
     that estimate, the cell mask, its grid origin, which points lie in its cells)."""
-    origin = xy.min(0)
-    ij = np.floor((xy - origin) / cell_size).astype(np.int64) + 1  # a margin of one cell for the outline
-    h, w = ij.max(0) + 2
-    cell = ij[:, 0] * w + ij[:, 1]
-    counts = np.bincount(cell[area] * n_classes + true[area], minlength=h * w * n_classes).reshape(h * w, n_classes)
-    major = counts.argmax(1)
+    origin, cell, counts = class_grid(xy, true, area, n_classes, cell_size)
+    major, seen = counts.argmax(2), counts.sum(2) > 0
     for cls in np.unique(true[wrong]):
-        mask = ((major == cls) & (counts.sum(1) > 0)).reshape(h, w).astype(np.uint8)
+        mask = ((major == cls) & seen).astype(np.uint8)
         for estimate, comp, in_area in components(mask, cell, wrong & (true == cls)):
             yield int(cls), estimate, comp, origin, in_area
+
+
+def class_grid(xy: np.ndarray, true: np.ndarray, area: np.ndarray, n_classes: int,
+               cell_size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A grid of `cell_size` over (N, 2) points with a margin of one cell (for the outline): its
+    origin, each point's cell (flat index) and (H, W, n_classes) counts of the `area` points' true
+    classes per cell."""
+    origin = xy.min(0)
+    ij = np.floor((xy - origin) / cell_size).astype(np.int64) + 1
+    h, w = ij.max(0) + 2
+    cell = ij[:, 0] * w + ij[:, 1]
+    counts = np.bincount(cell[area] * n_classes + true[area], minlength=h * w * n_classes)
+    return origin, cell, counts.reshape(h, w, n_classes)
 
 
 def components(mask: np.ndarray, cell: np.ndarray, wrong: np.ndarray) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from bench.effort.ground import MAX_VERTICES, _gain, _outline, components
+from bench.effort.ground import MAX_VERTICES, _gain, _outline, class_grid, components
 from pipeline.classes import UNLABELLED
 from pipeline.propagation import GroundRegion
 from pipeline.regions import with_depth_planes
@@ -52,12 +52,17 @@ def camera(T_world_lidar: np.ndarray, yaw: float, elevations: tuple[float, float
     fwd = R @ np.array([np.cos(yaw), np.sin(yaw), 0.0])
     right = R @ np.array([np.sin(yaw), -np.cos(yaw), 0.0])
     up = R @ np.array([0.0, 0.0, 1.0])
-    # a point off the view's axis is seen 1 / cos(yaw off) higher: at the field's edge 10 % more
-    mid, half = (elevations[0] + elevations[1]) / 2, 1.1 * (elevations[1] - elevations[0]) / 2
+    mid, half = (elevations[0] + elevations[1]) / 2, _half_height(elevations)
     m = np.zeros((4, 4))
     for i, r in enumerate((right / HALF_WIDTH, (up - mid * fwd) / half, fwd, fwd)):
         m[i, :3], m[i, 3] = r, -r @ o
     return with_depth_planes(m, 0.1, 1000.0)
+
+
+def _half_height(elevations: tuple[float, float]) -> float:
+    """Half the view's height (tan): a point off the view's axis is seen 1 / cos(yaw off) higher,
+    at the field's edge 10 % more than on the axis."""
+    return 1.1 * (elevations[1] - elevations[0]) / 2
 
 
 def _ndc(view: np.ndarray, world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,8 +102,7 @@ def plan_view_lasso(world: np.ndarray, true: np.ndarray, current: np.ndarray, T_
 def _best_in_view(world, true, current, frame, n_classes, vertices, view, xy, depth, seen, wrong, cell, elevations,
                   best):
     """`best`, or a better lasso around an area of this view's cells (`plan_view_lasso`)."""
-    half_el = 1.1 * (elevations[1] - elevations[0]) / 2
-    scale = np.array([np.tan(np.deg2rad(cell[0])) / HALF_WIDTH, np.tan(np.deg2rad(cell[1])) / half_el])
+    scale = np.array([np.tan(np.deg2rad(cell[0])) / HALF_WIDTH, np.tan(np.deg2rad(cell[1])) / _half_height(elevations)])
     idx = np.flatnonzero(seen)
     if not wrong[idx].any():
         return best
@@ -139,14 +143,10 @@ def _areas_in_span(xy: np.ndarray, true: np.ndarray, wrong: np.ndarray, span: np
     """`bench.effort.ground._areas` over unit cells, the majority read from the `span` points, and
     a cell with none of them (a gap between boards, where the house behind shows) joining the
     area of a neighbour in its row: the lasso spans it, its planes keep what is behind out."""
-    origin = xy.min(0)
-    ij = np.floor(xy - origin).astype(np.int64) + 1  # a margin of one cell for the outline
-    h, w = ij.max(0) + 2
-    cell = ij[:, 0] * w + ij[:, 1]
-    counts = np.bincount(cell[span] * n_classes + true[span], minlength=h * w * n_classes).reshape(h * w, n_classes)
-    major, empty = counts.argmax(1), (counts.sum(1) == 0).reshape(h, w)
+    origin, cell, counts = class_grid(xy, true, span, n_classes, 1.0)
+    major, empty = counts.argmax(2), counts.sum(2) == 0
     for cls in np.unique(true[wrong]):
-        core = ((major == cls) & (counts.sum(1) > 0)).reshape(h, w).astype(np.uint8)
+        core = ((major == cls) & ~empty).astype(np.uint8)
         # along a beam's row only (axis 0 is the view's x): across rows it would join two rows of
         # boards over the leaves between them, whose outline holds the leaves
         mask = core | (empty & (cv2.dilate(core, np.ones((3, 1), np.uint8)) > 0)).astype(np.uint8)
