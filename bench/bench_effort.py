@@ -12,7 +12,7 @@ actions, and how much can be labelled at all.
 3. At checkpoints (every 10 actions up to 100, then every 50) export SemanticKITTI labels through
    REST (ground on request) and score them against `labels/` (bench/effort/score.py).
 Writes OUT/curve.json (the checkpoints, counts, timings, the bulk error measured against the
-truth beside the audit's estimate), OUT/effort.png and OUT/export/ (the final export: one uint32
+truth as each bulk was taken and after the audits, beside the audit's estimate), OUT/effort.png and OUT/export/ (the final export: one uint32
 per input point, the input's file names, and its summary.json).
 """
 
@@ -31,7 +31,14 @@ from typing import Any
 import httpx
 
 from bench.effort.operator import MODEL_SETTLE_S, WORKER_POLL_S, Counts, Operator, Policy
-from bench.effort.score import bulk_error, prediction_calibration, score_export
+from bench.effort.score import (
+    as_accepted_summary,
+    bulk_as_accepted,
+    bulk_error,
+    bulk_track_ids,
+    prediction_calibration,
+    score_export,
+)
 from bench.effort.service import Api, LocalService
 from bench.effort.truth import SequenceTruth, TruthStore
 from bench.real_data import REAL
@@ -86,6 +93,17 @@ class Run:
         rows = {name: ft.input_rows for name, ft in truth.labelled.items()}
         self.operator = Operator(op, reviewer, self.admin, self.sequence_id, frames, store, policy, truth.label_set, rows)
         self.curve: list[dict[str, Any]] = []
+        self.bulks: list[dict[str, Any]] = []  # each bulk accept scored as taken (`_score_bulk`)
+        self._bulk_ids: set[int] = set()
+        self.operator.on_bulk = self._score_bulk
+
+    def _score_bulk(self, bulk: dict[str, Any]) -> None:
+        """Score a bulk accept against the truth before its audit: its tracks are those accepted in
+        bulk now and not before the bulk round (audits and undos since only remove tracks)."""
+        now = bulk_track_ids(self.admin, self.sequence_id)
+        self.bulks.append(bulk_as_accepted(self.admin, self.sequence_id, bulk, now - self._bulk_ids,
+                                           self.operator.frames, self.truth))
+        self._bulk_ids = now
 
     def checkpoint(self) -> dict[str, Any]:
         self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
@@ -107,6 +125,7 @@ class Run:
             if not op.review_next():
                 break
             if op.counts.reviews % pol.bulk_every == 0:
+                self._bulk_ids = bulk_track_ids(self.admin, self.sequence_id)
                 op.bulk_round()
             if op.counts.reviews % pol.ground_every == 0:
                 op.region_pass(budget)
@@ -139,6 +158,9 @@ class Run:
             rows.append({**radii, "non_ground_right": s["non_ground_right"], "ground_right": s["ground_right"]})
         return rows
 
+    def _undone_bulks(self) -> set[int]:
+        return {int(b["id"]) for b in self.admin.get(f"/sequences/{self.sequence_id}/bulk-actions") if b.get("undone_at")}
+
     def assist_seconds(self) -> list[float]:
         jobs = self.admin.get("/jobs", params={"type": "assist", "status": "succeeded", "limit": 1000})
         return [float(j["result"]["seconds"]) for j in jobs if j.get("result")]
@@ -152,6 +174,7 @@ class Run:
                 "bulk_error_measured": bulk_error(self.admin, self.sequence_id, ops.frames, self.truth),
                 "pending_predictions": prediction_calibration(self.admin, self.sequence_id, ops.frames, self.truth),
                 "bulk_error_audited": stats["audit"]["bulk"], "operations_in_the_log": stats["operations"],
+                "bulk_error_as_accepted": as_accepted_summary(self.bulks, self._undone_bulks()),
                 "assist_runs_seconds": self.assist_seconds(), "export_variants": self.variants()}
 
 
@@ -276,6 +299,9 @@ def main(argv: list[str] | None = None) -> int:
                        args.keep, args.label_set)
     last = res["curve"][-1]
     print(f"{last['actions']} actions: non-ground right {last['non_ground_right']}, ground right {last['ground_right']}")
+    taken = res["bulk_error_as_accepted"]
+    print(f"bulk accepts as taken: {taken['all']}; of the bulks kept: {taken['kept']}; "
+          f"after the audits: {res['bulk_error_measured']['track_error']}")
     return 0
 
 

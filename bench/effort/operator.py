@@ -102,6 +102,7 @@ class Operator:
     input_rows: dict[str, np.ndarray | None] = field(default_factory=dict)  # per frame: the scan rows that are points
     counts: Counts = field(default_factory=Counts)
     on_action: Callable[[], None] | None = None  # called after every action (the benchmark's checkpoints)
+    on_bulk: Callable[[dict[str, Any]], None] | None = None  # called after each bulk accept, before its audit
     _payloads: dict[int, dict[str, np.ndarray]] = field(default_factory=dict)
     _prisms: list[Lasso] = field(default_factory=list)  # the regions with heights it drew
     _since: tuple[int, int] | None = None  # (actions, seen points right) when its last look from above ended
@@ -316,6 +317,8 @@ class Operator:
                               {"class_name": name, "min_confidence": pol.bulk_confidence, "expected_tracks": p["tracks"]})
             self.counts.bulk_accepts += 1
             self.counts.bulk_tracks += int(bulk["n_tracks"])
+            if self.on_bulk:
+                self.on_bulk(bulk)
             if self.audit(pol.audit_per_bulk, seed=int(bulk["id"])):
                 self._edit(f"/bulk-actions/{bulk['id']}/undo", {})  # the audit found a wrong class: not trusted
                 self.counts.bulk_undos += 1

@@ -84,6 +84,40 @@ def _track_truth(t: dict[str, Any], frames: list[FrameInfo], payloads: dict[int,
     return c[c != UNLABELLED]
 
 
+def bulk_track_ids(admin: Api, sequence_id: int) -> set[int]:
+    """The tracks accepted in bulk now (audited, corrected and undone ones are not)."""
+    return {int(t["id"]) for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"}
+
+
+def bulk_as_accepted(admin: Api, sequence_id: int, bulk: dict[str, Any], ids: set[int], frames: list[FrameInfo],
+                     truth: SequenceTruth) -> dict[str, Any]:
+    """One bulk accept scored against the truth the moment it was taken, before any audit: its
+    tracks (`ids`) whose labelled points are mostly of another class than the bulk's."""
+    names = truth.label_set.point_class_names
+    cls = names.index(bulk["class_name"])
+    payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
+    tracks = [t for t in _all_tracks(admin, sequence_id, "accepted") if int(t["id"]) in ids]
+    wrong = []
+    for t in tracks:
+        c = _track_truth(t, frames, payloads, truth)
+        major = int(np.bincount(c).argmax()) if len(c) else None
+        if major != cls:
+            wrong.append({"track": int(t["id"]), "points": int(t["n_points"]),
+                          "truth": names[major] if major is not None else None})
+    return {"bulk": int(bulk["id"]), "class": bulk["class_name"], "tracks": len(tracks),
+            "n_tracks": int(bulk["n_tracks"]), "ids": sorted(int(t["id"]) for t in tracks), "wrong": wrong}
+
+
+def as_accepted_summary(records: list[dict[str, Any]], undone: set[int]) -> dict[str, Any]:
+    """The error of bulk accepts as they were taken, over every bulk (undone ones included) and
+    over the bulks that stayed."""
+    def rate(rs: list[dict[str, Any]]) -> dict[str, Any]:
+        n, w = sum(r["tracks"] for r in rs), sum(len(r["wrong"]) for r in rs)
+        return {"bulks": len(rs), "tracks": n, "wrong": w, "error": round(w / n, 4) if n else None}
+    return {"all": rate(records), "kept": rate([r for r in records if r["bulk"] not in undone]),
+            "undone": rate([r for r in records if r["bulk"] in undone]), "bulks": records}
+
+
 CONFIDENCE_EDGES = (0.5, 0.7, 0.8, 0.9, 0.95, 0.99, 1.01)
 
 

@@ -103,3 +103,36 @@ def test_effort_operator_reads_the_truth_of_shown_tracks_only(setup):
     op.store.forget()
     with pytest.raises(PermissionError):
         op.store.read(op.frames[0].name, np.array([0]))
+
+
+def test_each_bulk_is_scored_against_the_truth_as_taken_before_its_audit(setup):
+    from types import SimpleNamespace
+
+    from bench.effort.score import as_accepted_summary, bulk_as_accepted, bulk_track_ids
+
+    seq, op, worker = setup
+    truth = SimpleNamespace(all=op.store.truth, label_set=op.label_set)
+    tracks = sorted(op.admin.get("/tracks", params={"sequence_id": seq, "limit": 100})["items"], key=lambda t: t["n_points"])
+    for t in tracks[:3]:
+        op.review(op.op.get(f"/tracks/{t['id']}"))
+        _settle(worker)
+    for _ in range(3):
+        op.review_next()
+        _settle(worker)
+    records, before = [], bulk_track_ids(op.admin, seq)
+
+    def score(bulk):
+        nonlocal before
+        now = bulk_track_ids(op.admin, seq)
+        records.append(bulk_as_accepted(op.admin, seq, bulk, now - before, op.frames, truth))
+        before = now
+
+    op.on_bulk = score
+    op.bulk_round()
+    assert records and all(r["tracks"] == r["n_tracks"] for r in records)
+    names = op.label_set.point_class_names
+    for r in records:  # the track's key decides its class in this truth (`_truth`)
+        truths = {i: names[(op.admin.get(f"/tracks/{i}")["key"] - 1) % 3] for i in r["ids"]}
+        assert {w["track"]: w["truth"] for w in r["wrong"]} == {i: c for i, c in truths.items() if c != r["class"]}
+    summary = as_accepted_summary(records, undone=set())
+    assert summary["all"]["tracks"] == sum(r["n_tracks"] for r in records)
