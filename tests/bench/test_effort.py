@@ -71,13 +71,11 @@ def _work(op: Operator, worker: Worker, reviews: int) -> None:
             op.bulk_round()
 
 
-def test_effort_action_count_is_the_event_log_s(setup, db):
-    from app import crud
-
-    seq, op, worker = setup
-    # the queue offers the largest tracks first, and a bulk takes only tracks at least as large as
-    # the smallest reviewed one the model was checked on: the operator first opens the smallest
-    # tracks from the track list, so that pending tracks above that size remain
+def _review_six(seq: int, op: Operator, worker: Worker) -> None:
+    """Three reviews of the smallest tracks, then three of the queue's. The queue offers the
+    largest tracks first, and a bulk takes only tracks at least as large as the smallest reviewed
+    one the model was checked on: opening the smallest from the track list first leaves pending
+    tracks above that size."""
     tracks = sorted(op.admin.get("/tracks", params={"sequence_id": seq, "limit": 100})["items"], key=lambda t: t["n_points"])
     for t in tracks[:3]:
         op.review(op.op.get(f"/tracks/{t['id']}"))
@@ -85,6 +83,13 @@ def test_effort_action_count_is_the_event_log_s(setup, db):
     for _ in range(3):
         op.review_next()
         _settle(worker)
+
+
+def test_effort_action_count_is_the_event_log_s(setup, db):
+    from app import crud
+
+    seq, op, worker = setup
+    _review_six(seq, op, worker)
     op.bulk_round()  # on the model of all six reviews
     op.review_next()
     c = op.counts
@@ -112,13 +117,7 @@ def test_each_bulk_is_scored_against_the_truth_as_taken_before_its_audit(setup):
 
     seq, op, worker = setup
     truth = SimpleNamespace(all=op.store.truth, label_set=op.label_set)
-    tracks = sorted(op.admin.get("/tracks", params={"sequence_id": seq, "limit": 100})["items"], key=lambda t: t["n_points"])
-    for t in tracks[:3]:
-        op.review(op.op.get(f"/tracks/{t['id']}"))
-        _settle(worker)
-    for _ in range(3):
-        op.review_next()
-        _settle(worker)
+    _review_six(seq, op, worker)
     records, before = [], bulk_track_ids(op.admin, seq)
 
     def score(bulk):
