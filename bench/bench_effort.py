@@ -35,7 +35,7 @@ from bench.effort.score import (
     as_accepted_summary,
     bulk_as_accepted,
     bulk_error,
-    bulk_track_ids,
+    bulk_tracks,
     prediction_calibration,
     score_export,
 )
@@ -100,10 +100,10 @@ class Run:
     def _score_bulk(self, bulk: dict[str, Any]) -> None:
         """Score a bulk accept against the truth before its audit: its tracks are those accepted in
         bulk now and not before the bulk round (audits and undos since only remove tracks)."""
-        now = bulk_track_ids(self.admin, self.sequence_id)
-        self.bulks.append(bulk_as_accepted(self.admin, self.sequence_id, bulk, now - self._bulk_ids,
-                                           self.operator.frames, self.truth))
-        self._bulk_ids = now
+        now = bulk_tracks(self.admin, self.sequence_id)
+        taken = [t for i, t in now.items() if i not in self._bulk_ids]
+        self.bulks.append(bulk_as_accepted(self.admin, bulk, taken, self.operator.frames, self.truth))
+        self._bulk_ids = set(now)
 
     def checkpoint(self) -> dict[str, Any]:
         self.admin.wait_jobs_idle("assist", settle=MODEL_SETTLE_S)
@@ -125,7 +125,7 @@ class Run:
             if not op.review_next():
                 break
             if op.counts.reviews % pol.bulk_every == 0:
-                self._bulk_ids = bulk_track_ids(self.admin, self.sequence_id)
+                self._bulk_ids = set(bulk_tracks(self.admin, self.sequence_id))
                 op.bulk_round()
             if op.counts.reviews % pol.ground_every == 0:
                 op.region_pass(budget)

@@ -84,19 +84,18 @@ def _track_truth(t: dict[str, Any], frames: list[FrameInfo], payloads: dict[int,
     return c[c != UNLABELLED]
 
 
-def bulk_track_ids(admin: Api, sequence_id: int) -> set[int]:
-    """The tracks accepted in bulk now (audited, corrected and undone ones are not)."""
-    return {int(t["id"]) for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"}
+def bulk_tracks(admin: Api, sequence_id: int) -> dict[int, dict[str, Any]]:
+    """The tracks accepted in bulk now, by id (audited, corrected and undone ones are not)."""
+    return {int(t["id"]): t for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"}
 
 
-def bulk_as_accepted(admin: Api, sequence_id: int, bulk: dict[str, Any], ids: set[int], frames: list[FrameInfo],
+def bulk_as_accepted(admin: Api, bulk: dict[str, Any], tracks: list[dict[str, Any]], frames: list[FrameInfo],
                      truth: SequenceTruth) -> dict[str, Any]:
     """One bulk accept scored against the truth the moment it was taken, before any audit: its
-    tracks (`ids`) whose labelled points are mostly of another class than the bulk's."""
+    `tracks` whose labelled points are mostly of another class than the bulk's."""
     names = truth.label_set.point_class_names
     cls = names.index(bulk["class_name"])
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
-    tracks = [t for t in _all_tracks(admin, sequence_id, "accepted") if int(t["id"]) in ids]
     wrong = []
     for t in tracks:
         c = _track_truth(t, frames, payloads, truth)
@@ -151,7 +150,7 @@ def bulk_error(admin: Api, sequence_id: int, frames: list[FrameInfo], truth: Seq
     labelled points are of another class (ground included: such a track is no object); shares of
     tracks and of their points, the wrong tracks that are ground, and the share of their labelled
     points whose class differs from the track's."""
-    tracks = [t for t in _all_tracks(admin, sequence_id, "accepted") if t.get("label_source") == "bulk"]
+    tracks = list(bulk_tracks(admin, sequence_id).values())
     payloads = {f.id: admin.payload(f.id)["track"] for f in frames}
     names, ls = truth.label_set.point_class_names, truth.label_set
     wrong_tracks = wrong_track_points = points = disagree = labelled = ground_tracks = 0

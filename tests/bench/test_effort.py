@@ -113,18 +113,18 @@ def test_effort_operator_reads_the_truth_of_shown_tracks_only(setup):
 def test_each_bulk_is_scored_against_the_truth_as_taken_before_its_audit(setup):
     from types import SimpleNamespace
 
-    from bench.effort.score import as_accepted_summary, bulk_as_accepted, bulk_track_ids
+    from bench.effort.score import as_accepted_summary, bulk_as_accepted, bulk_tracks
 
     seq, op, worker = setup
     truth = SimpleNamespace(all=op.store.truth, label_set=op.label_set)
     _review_six(seq, op, worker)
-    records, before = [], bulk_track_ids(op.admin, seq)
+    records, before = [], set(bulk_tracks(op.admin, seq))
 
     def score(bulk):
         nonlocal before
-        now = bulk_track_ids(op.admin, seq)
-        records.append(bulk_as_accepted(op.admin, seq, bulk, now - before, op.frames, truth))
-        before = now
+        now = bulk_tracks(op.admin, seq)
+        records.append(bulk_as_accepted(op.admin, bulk, [t for i, t in now.items() if i not in before], op.frames, truth))
+        before = set(now)
 
     op.on_bulk = score
     op.bulk_round()
