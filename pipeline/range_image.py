@@ -72,16 +72,17 @@ def elevation_rows(points: np.ndarray, sensor: SensorModel) -> np.ndarray:
     return (len(beams) - 1 - asc).astype(np.int16)
 
 
+NO_BOX = np.array([1, -1, 1, -1, 1, -1], dtype=np.float32)  # x, y, z ranges with min > max
+
+
 @njit(cache=True, inline="always")
 def fast_atan2(y, x):  # pragma: no cover - numba
     """float32 atan2 by an odd minimax polynomial of atan on [0, 1] (max error ~2e-6 rad,
     0.1 % of a 2160-column bin; several times cheaper than atan2f, which dominated the projection)."""
     ax = abs(x)
     ay = abs(y)
-    mx = max(ax, ay)
-    if mx == 0.0:
-        return np.float32(0.0)
-    t = min(ax, ay) / mx
+    # selects, not branches, so that loops over points vectorise; max(mx, tiny) makes atan2(0, 0) 0
+    t = min(ax, ay) / max(max(ax, ay), np.float32(1e-30))
     s = t * t
     r = t * (
         np.float32(0.99997726)
@@ -90,19 +91,14 @@ def fast_atan2(y, x):  # pragma: no cover - numba
             + s * (np.float32(0.19354346) + s * (np.float32(-0.11643287) + s * (np.float32(0.05265332) - s * np.float32(0.0117212))))
         )
     )
-    if ay > ax:
-        r = np.float32(1.57079637) - r
-    if x < 0.0:
-        r = np.float32(3.14159274) - r
-    if y < 0.0:
-        r = -r
-    return r
+    r = np.float32(1.57079637) - r if ay > ax else r
+    r = np.float32(3.14159274) - r if x < 0.0 else r
+    return -r if y < 0.0 else r
 
 
 @njit(cache=True, parallel=True)
 def _project_kernel(points, ring, height, width, min_range, max_range, box):  # pragma: no cover - numba
     n = points.shape[0]
-    boxed = box.shape[0] == 6
     index = np.full((height, width), -1, dtype=np.int32)
     rimg = np.zeros((height, width), dtype=np.float32)
     col = np.empty(n, dtype=np.int32)
@@ -119,17 +115,14 @@ def _project_kernel(points, ring, height, width, min_range, max_range, box):  # 
         r = np.sqrt(x * x + y * y + z * z)
         rng[i] = r
         # float32 throughout: a column is 0.17 deg (2.9e-3 rad) wide
-        c = int(np.floor((half - fast_atan2(y, x) * inv_two_pi) * fw))
+        c = np.int32(np.floor((half - fast_atan2(y, x) * inv_two_pi) * fw))
         # the angle term lies in [0, 1] up to float32 rounding: wrap without an integer division
-        if c >= width:
-            c -= width
-        elif c < 0:
-            c += width
-        col[i] = c
+        c = c - width if c >= width else c
+        col[i] = c + width if c < 0 else c
         row = ring[i]
-        kept[i] = r >= min_range and r <= max_range and row >= 0 and row < height
-        if boxed and box[0] <= x <= box[1] and box[2] <= y <= box[3] and box[4] <= z <= box[5]:
-            kept[i] = False  # the vehicle's own body
+        inside = (box[0] <= x) & (x <= box[1]) & (box[2] <= y) & (y <= box[3]) & (box[4] <= z) & (z <= box[5])
+        # the vehicle's own body is not kept
+        kept[i] = (r >= min_range) & (r <= max_range) & (row >= 0) & (row < height) & ~inside
     # 2. each pixel keeps its nearest point (serial: points compete for pixels)
     for i in range(n):
         if not kept[i]:
@@ -150,6 +143,8 @@ def project(scan: Scan, sensor: SensorModel, config: RangeImageConfig | None = N
     height = sensor.n_rings
     width = config.width or sensor.width
     box = np.asarray(sensor.ego_box if config.ego_box is None else config.ego_box, dtype=np.float32)
+    if box.shape != (6,):
+        box = NO_BOX  # the kernel tests every point against a box: one that holds nothing
     index, rimg, col, rng, kept = _project_kernel(
         scan.points, scan.ring, height, width, np.float32(config.min_range), np.float32(config.max_range), box
     )

@@ -59,46 +59,55 @@ def _rough_pixels(rng, ok, hb, hs, tb, ts):  # pragma: no cover - numba
     residual of the pixel's line fit along its row exceeds tb + ts * range m (fewer than 4
     fitting pixels: 0).
 
-    float32 and a branch-free fit (each of the 2p + 1 pixels enters its sums with weight 0 or 1):
-    a third faster than branching on every neighbour."""
+    float32 and branch-free: each of the 2p + 1 pixels enters its fit's sums with weight 0 or 1,
+    and the sums of a whole row are built one offset at a time, so the inner loop runs over
+    contiguous columns and vectorises (a third faster than one fit per pixel, though it also
+    fits the pixels that are not ok)."""
     h, w = rng.shape
     p = TEXTURE_HALF
     half = TEXTURE_WINDOW[1] // 2
-    # the row with `p` wrapped columns each side (-1 = no fit pixel), so the fit needs no modulo
-    pr = np.empty((h, w + 2 * p), dtype=np.float32)
-    for r in prange(h):
-        for c in range(p):
-            pr[r, c] = rng[r, w - p + c] if ok[r, w - p + c] else np.float32(-1.0)
-            pr[r, w + p + c] = rng[r, c] if ok[r, c] else np.float32(-1.0)
-        for c in range(w):
-            pr[r, c + p] = rng[r, c] if ok[r, c] else np.float32(-1.0)
     out = np.zeros((h, w + 2 * half), dtype=np.uint8)
     hb32, hs32, tb32, ts32 = np.float32(hb), np.float32(hs), np.float32(tb), np.float32(ts)
     for r in prange(h):
+        # the row with `p` wrapped columns each side (-1 = no fit pixel), so the fit needs no modulo
+        pr = np.empty(w + 2 * p, dtype=np.float32)
+        for c in range(p):
+            pr[c] = rng[r, w - p + c] if ok[r, w - p + c] else np.float32(-1.0)
+            pr[w + p + c] = rng[r, c] if ok[r, c] else np.float32(-1.0)
         for c in range(w):
-            if not ok[r, c]:
-                continue
-            d0 = rng[r, c]
-            lim = hb32 + hs32 * d0
-            n = sx = sy = sxx = sxy = syy = np.float32(0.0)
-            for k in range(-p, p + 1):
-                dk = pr[r, c + p + k]
-                y = dk - d0
-                m = np.float32(1.0) if (dk >= 0.0) & (abs(y) <= lim * max(1, abs(k))) else np.float32(0.0)
-                n += m
-                sx += m * k
-                sy += m * y
-                sxx += m * (k * k)
-                sxy += m * (k * y)
-                syy += m * (y * y)
-            if n < 4:
-                continue
-            b = (n * sxy - sx * sy) / (n * sxx - sx * sx)
-            a = (sy - b * sx) / n
+            pr[c + p] = rng[r, c] if ok[r, c] else np.float32(-1.0)
+        lim = np.empty(w, dtype=np.float32)
+        for c in range(w):
+            lim[c] = hb32 + hs32 * pr[c + p]
+        n = np.zeros(w, dtype=np.float32)
+        sx = np.zeros(w, dtype=np.float32)
+        sy = np.zeros(w, dtype=np.float32)
+        sxx = np.zeros(w, dtype=np.float32)
+        sxy = np.zeros(w, dtype=np.float32)
+        syy = np.zeros(w, dtype=np.float32)
+        for k in range(-p, p + 1):
+            fk = np.float32(k)
+            kk = np.float32(k * k)
+            reach = np.float32(max(1, abs(k)))
+            for c in range(w):
+                dk = pr[c + p + k]
+                y = dk - pr[c + p]
+                m = np.float32(1.0) if (dk >= np.float32(0.0)) & (abs(y) <= lim[c] * reach) else np.float32(0.0)
+                n[c] += m
+                sx[c] += m * fk
+                sy[c] += m * y
+                sxx[c] += m * kk
+                sxy[c] += m * (fk * y)
+                syy[c] += m * (y * y)
+        for c in range(w):
+            nc = n[c]
+            den = nc * sxx[c] - sx[c] * sx[c]
+            b = (nc * sxy[c] - sx[c] * sy[c]) / (den if den != 0.0 else np.float32(1.0))
+            a = (sy[c] - b * sx[c]) / max(nc, np.float32(1.0))
             # sum of squared residuals of y = a + b k, expanded
-            ss = syy - 2.0 * a * sy - 2.0 * b * sxy + n * a * a + 2.0 * a * b * sx + b * b * sxx
-            thr = tb32 + ts32 * d0
-            out[r, c + half] = 1 if ss > thr * thr * (n - 2) else 0
+            ss = syy[c] - 2.0 * a * sy[c] - 2.0 * b * sxy[c] + nc * a * a + 2.0 * a * b * sx[c] + b * b * sxx[c]
+            thr = tb32 + ts32 * pr[c + p]
+            out[r, c + half] = 1 if ok[r, c] & (nc >= 4) & (ss > thr * thr * (nc - 2)) else 0
         for k in range(half):  # wrap the padding
             out[r, k] = out[r, w + k]
             out[r, w + half + k] = out[r, half + k]
