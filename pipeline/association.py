@@ -134,14 +134,15 @@ def _land(x0, y0, z0, R, t, beams_asc, below, low, inv_step, h, w):  # pragma: n
 
 
 @njit(cache=True)
-def _votes(points, order, starts, seg_pixel, pix_range, R, t, beams_asc, below, low, inv_step, n_prev, max_points):  # pragma: no cover
-    """Move each segment's points with (R, t), project them onto t-1's range image and count them
-    for the t-1 segment there when the ranges agree: (S_t, S_{t-1}) float64. A segment of more
-    than `max_points` points votes with an evenly strided subset, scaled to its size."""
+def _votes(points, order, starts, rows, seg_pixel, cols, pix_range, R, t, beams_asc, below, low, inv_step, max_points):  # pragma: no cover
+    """Move the points of segments `rows` with (R, t), project them onto t-1's range image and
+    count them for the t-1 segment there when the ranges agree: (len(rows), len(cols)) float64,
+    cols[b] the column of t-1 segment b (-1: none). A segment of more than `max_points` points
+    votes with an evenly strided subset, scaled to its size."""
     h, w = seg_pixel.shape
-    n_curr = starts.shape[0] - 1
-    votes = np.zeros((n_curr, n_prev), dtype=np.float64)
-    for a in range(n_curr):
+    votes = np.zeros((rows.shape[0], cols.max() + 1), dtype=np.float64)
+    for k in range(rows.shape[0]):
+        a = rows[k]
         size = starts[a + 1] - starts[a]
         stride = max(1, (size + max_points - 1) // max_points)  # at most max_points points
         weight = size / ((size + stride - 1) // stride) if size else 0.0
@@ -150,8 +151,8 @@ def _votes(points, order, starts, seg_pixel, pix_range, R, t, beams_asc, below, 
             row, col, r_proj = _land(np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]),
                                      R, t, beams_asc, below, low, inv_step, h, w)
             b = seg_pixel[row, col]
-            if b >= 0 and abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
-                votes[a, b] += weight
+            if b >= 0 and cols[b] >= 0 and abs(r_proj - pix_range[row, col]) <= 0.3 + 0.03 * r_proj:
+                votes[k, cols[b]] += weight
     return votes
 
 
@@ -242,18 +243,21 @@ def vote_matrix(
     prev: AssociationFrame,
     T_prev_curr: np.ndarray,
     sensor: SensorModel,
+    rows: np.ndarray,
+    cols: np.ndarray,
     by_segment: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """(S_t, S_{t-1}) float64 votes: points of each t segment that land on each t-1 segment
-    (segments of more than VOTE_POINTS points vote with a subset, scaled)."""
-    n_prev = len(prev.n_points)
-    if n_curr == 0 or n_prev == 0:
-        return np.zeros((n_curr, n_prev), dtype=np.float64)
+    """(len(rows), len(cols)) float64 votes: points of t segment rows[i] that land on t-1 segment
+    cols[j] (segments of more than VOTE_POINTS points vote with a subset, scaled)."""
+    if len(rows) == 0 or len(cols) == 0:
+        return np.zeros((len(rows), len(cols)), dtype=np.float64)
     order, starts = by_segment if by_segment is not None else _points_by_segment(seg_point, n_curr)
+    col_of = np.full(len(prev.n_points), -1, dtype=np.int64)
+    col_of[cols] = np.arange(len(cols))
     T = np.asarray(T_prev_curr, dtype=np.float64)
     return _votes(
-        points, order, starts, prev.seg_pixel, prev.range, np.ascontiguousarray(T[:3, :3]),
-        np.ascontiguousarray(T[:3, 3]), *_lookup_args(sensor), n_prev, VOTE_POINTS,
+        points, order, starts, np.asarray(rows, dtype=np.int64), prev.seg_pixel, col_of, prev.range,
+        np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), *_lookup_args(sensor), VOTE_POINTS,
     )
 
 
@@ -301,7 +305,7 @@ def associate(
     if len(va) == 0 or len(vb) == 0:
         return links
     by_segment = _points_by_segment(curr_seg_point, n_curr)
-    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor, by_segment)[np.ix_(va, vb)]
+    votes = vote_matrix(curr_points, curr_seg_point, n_curr, prev, T_prev_curr, sensor, va, vb, by_segment)
     vel_b = prev_velocity[vb]
     blk = _Block(
         va, vb, np.maximum(curr.n_points[va], 1).astype(np.float64), np.maximum(prev.n_points[vb], 1).astype(np.float64),
@@ -321,8 +325,7 @@ def associate(
     if config.use_motion_prediction:
         _add_motion_scores(score, share, blk, prev.T_world_lidar, vote_moving, config)
     # 3. gates: point counts must be comparable, centroids must be near after ego-motion
-    ratio = blk.n_a[:, None] / blk.n_b[None, :]
-    _apply_gates(score, share, ratio, blk, config)
+    ratio = _apply_gates(score, share, blk, config)
     # 4. one-to-one
     r, c = linear_sum_assignment(-score)
     ok = score[r, c] >= config.min_score
@@ -340,14 +343,32 @@ def associate(
 def _overlap_score(votes: np.ndarray, share: np.ndarray, blk: _Block, config: AssociationConfig) -> np.ndarray:
     """(A, B) float64 link score from the plain votes: 0 where a's share on b is under
     min_overlap or a's votes split between two t-1 segments (a likely merge)."""
-    # votes over the larger of the two segments, so that the pieces of a split do not tie with
-    # the whole at 1.0 (the smaller piece scores low and stays unlinked)
-    overlap = votes / np.maximum(blk.n_a[:, None], blk.n_b[None, :])
-    if len(blk.vb) >= 2:
-        top2 = np.sort(share, axis=1)[:, -2:]
-        ambiguous = (top2[:, 0] > config.ambiguity_ratio * top2[:, 1]) & (top2[:, 0] >= 0.1)
-        overlap[ambiguous] = 0.0
-    return np.where(share >= config.min_overlap, overlap, 0.0)
+    return _overlap_kernel(votes, share, blk.n_a, blk.n_b, config.min_overlap, config.ambiguity_ratio)
+
+
+@njit(cache=True)
+def _overlap_kernel(votes, share, n_a, n_b, min_overlap, ambiguity_ratio):  # pragma: no cover - numba
+    """`_overlap_score` in one pass over the block (a dozen numpy passes over it cost 0.4 ms)."""
+    n_rows, n_cols = votes.shape
+    score = np.zeros((n_rows, n_cols))
+    for i in range(n_rows):
+        if n_cols >= 2:
+            first = second = -np.inf  # the two largest shares of the row, ties counted twice
+            for j in range(n_cols):
+                v = share[i, j]
+                if v > first:
+                    second = first
+                    first = v
+                elif v > second:
+                    second = v
+            if second > ambiguity_ratio * first and second >= 0.1:
+                continue  # a likely merge: the row stays 0
+        for j in range(n_cols):
+            if share[i, j] >= min_overlap:
+                # votes over the larger of the two segments, so that the pieces of a split do not
+                # tie with the whole at 1.0 (the smaller piece scores low and stays unlinked)
+                score[i, j] = votes[i, j] / max(n_a[i], n_b[j])
+    return score
 
 
 def _add_motion_scores(
@@ -368,31 +389,66 @@ def _add_motion_scores(
         return
     mv = np.flatnonzero(moving)
     pred = blk.cw_b[mv] + blk.vel_b[mv] * blk.dt
-    dist = cdist(blk.cw_a[:, :2], pred[:, :2])
-    gate = _gate(blk.speed[mv], blk.dt, config)[None, :]  # (1, M) metres: wider for faster tracks
-    cscore = np.clip(1.0 - dist / gate, 0.0, 1.0)
-    # a moving object keeps its height: a bollard under a crown is not the crown moved
-    dz = np.abs(blk.cw_a[:, None, 2] - blk.cw_b[None, mv, 2])
-    cscore[dz > config.max_height_change] = 0.0
-    # motion-compensated votes: a's points moved back by the b track's own motion, for the pairs
-    # whose plain votes leave them under the score or the strong-share gate (only there can
-    # motion votes change the outcome)
-    near = dist < gate + 1.5
-    near &= (score[:, mv] < config.min_score) | (share[:, mv] < config.strong_share)
-    # pairs the height or the point-count gate turns down anyway cost no votes
-    ratio = blk.n_a[:, None] / blk.n_b[None, mv]
-    near &= (dz <= config.max_height_change) & (ratio <= config.max_point_ratio) & (ratio >= 1.0 / config.max_point_ratio)
-    ia, jb = np.nonzero(near)
+    gate = _gate(blk.speed[mv], blk.dt, config)  # (M,) metres: wider for faster tracks
+    cscore, dz, ia, jb = _motion_candidates(score, share, blk.n_a, blk.n_b, blk.cw_a, blk.cw_b, mv, pred, gate, config.min_score,
+                                            config.strong_share, config.max_height_change, config.max_point_ratio)
     if len(ia):
         shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
         mvotes = vote_moving(np.stack([blk.va[ia], blk.vb[mv[jb]]], axis=1), shift)
-        mshare = mvotes / blk.n_a[ia]
-        mover = mvotes / np.maximum(blk.n_a[ia], blk.n_b[mv[jb]])
-        good = (mshare >= config.min_overlap) & (dz[ia, jb] <= config.max_height_change)
-        cscore[ia[good], jb[good]] = np.maximum(cscore[ia[good], jb[good]], mover[good])
-        share[ia[good], mv[jb[good]]] = np.maximum(share[ia[good], mv[jb[good]]], mshare[good])
-    sub = score[:, mv]
-    score[:, mv] = np.where(sub < config.min_score, np.maximum(sub, cscore), sub)
+        _take_motion_votes(cscore, share, dz, ia, jb, mv, mvotes, blk.n_a, blk.n_b, config.min_overlap,
+                           config.max_height_change)
+    _raise_weak(score, cscore, mv, config.min_score)
+
+
+@njit(cache=True)
+def _motion_candidates(score, share, n_a, n_b, cw_a, cw_b, mv, pred, gate, min_score, strong_share, max_dz,
+                       max_ratio):  # pragma: no cover - numba
+    """(A, M) predicted-centroid score of each t segment for each moving t-1 track (1 at the
+    predicted centroid, 0 at the gate), (A, M) height change, and the pairs (ia, jb) worth
+    motion-compensated votes: near the gate, left under the score or the strong-share gate by
+    their plain votes (only there can motion votes change the outcome), and passing the height
+    and point-count gates (pairs those turn down anyway cost no votes)."""
+    n_rows, m = cw_a.shape[0], mv.shape[0]
+    cscore = np.zeros((n_rows, m))
+    dz = np.empty((n_rows, m))
+    near = np.zeros((n_rows, m), dtype=np.bool_)
+    for i in range(n_rows):
+        for k in range(m):
+            b = mv[k]
+            dx = cw_a[i, 0] - pred[k, 0]
+            dy = cw_a[i, 1] - pred[k, 1]
+            dist = np.sqrt(dx * dx + dy * dy)
+            h = abs(cw_a[i, 2] - cw_b[b, 2])
+            dz[i, k] = h
+            # a moving object keeps its height: a bollard under a crown is not the crown moved
+            cscore[i, k] = 0.0 if h > max_dz else min(max(1.0 - dist / gate[k], 0.0), 1.0)
+            ratio = n_a[i] / n_b[b]
+            near[i, k] = ((dist < gate[k] + 1.5) and (score[i, b] < min_score or share[i, b] < strong_share)
+                          and h <= max_dz and ratio <= max_ratio and ratio >= 1.0 / max_ratio)
+    ia, jb = np.nonzero(near)
+    return cscore, dz, ia, jb
+
+
+@njit(cache=True)
+def _take_motion_votes(cscore, share, dz, ia, jb, mv, mvotes, n_a, n_b, min_overlap, max_dz):  # pragma: no cover
+    """Raise, in place, cscore and share to the motion-compensated votes of pairs (ia, jb)."""
+    for p in range(ia.shape[0]):
+        i, k = ia[p], jb[p]
+        b = mv[k]
+        mshare = mvotes[p] / n_a[i]
+        if mshare >= min_overlap and dz[i, k] <= max_dz:
+            cscore[i, k] = max(cscore[i, k], mvotes[p] / max(n_a[i], n_b[b]))
+            share[i, b] = max(share[i, b], mshare)
+
+
+@njit(cache=True)
+def _raise_weak(score, cscore, mv, min_score):  # pragma: no cover - numba
+    """Scores of moving tracks under min_score rise, in place, to their motion score."""
+    for i in range(score.shape[0]):
+        for k in range(mv.shape[0]):
+            v = score[i, mv[k]]
+            if v < min_score:
+                score[i, mv[k]] = max(v, cscore[i, k])
 
 
 def _gate(speed: np.ndarray, dt: float, config: AssociationConfig) -> np.ndarray:
@@ -460,16 +516,32 @@ def _first_links(
     return np.concatenate([rows, free_a[r[ok]]]), np.concatenate([cols, free_b[c[ok]]])
 
 
-def _apply_gates(score: np.ndarray, share: np.ndarray, ratio: np.ndarray, blk: _Block, config: AssociationConfig) -> None:
-    """Zero, in place, the scores of pairs whose point counts differ too much (ratio: (A, B)
-    n_a / n_b) or, for weak matches, whose centroids jumped too far."""
-    bad_ratio = (ratio > config.max_point_ratio) | (ratio < 1.0 / config.max_point_ratio)
-    max_jump = config.max_centroid_distance + 1.0 + blk.speed[None, :] * blk.dt * 2.0
-    jump = cdist(blk.cw_a, blk.cw_b)
-    # strong votes are geometric evidence already: the centroid of a large segment (a wall, a
-    # hedge) moves by metres as the visible part changes, so only weak matches face the jump gate
-    strong = share >= config.strong_share
-    score[bad_ratio | ((jump > max_jump) & ~strong)] = 0.0
+def _apply_gates(score: np.ndarray, share: np.ndarray, blk: _Block, config: AssociationConfig) -> np.ndarray:
+    """Zero, in place, the scores of pairs whose point counts differ too much or, for weak
+    matches, whose centroids jumped too far. Returns the (A, B) ratio n_a / n_b."""
+    max_jump = config.max_centroid_distance + 1.0 + blk.speed * blk.dt * 2.0
+    return _gates_kernel(score, share, blk.n_a, blk.n_b, blk.cw_a, blk.cw_b, max_jump, config.max_point_ratio,
+                         config.strong_share)
+
+
+@njit(cache=True)
+def _gates_kernel(score, share, n_a, n_b, cw_a, cw_b, max_jump, max_ratio, strong_share):  # pragma: no cover
+    n_rows, n_cols = score.shape
+    ratio = np.empty((n_rows, n_cols))
+    for i in range(n_rows):
+        for j in range(n_cols):
+            r = n_a[i] / n_b[j]
+            ratio[i, j] = r
+            dx = cw_a[i, 0] - cw_b[j, 0]
+            dy = cw_a[i, 1] - cw_b[j, 1]
+            dz = cw_a[i, 2] - cw_b[j, 2]
+            # strong votes are geometric evidence already: the centroid of a large segment (a
+            # wall, a hedge) moves by metres as the visible part changes, so only weak matches
+            # face the jump gate
+            jumped = np.sqrt(dx * dx + dy * dy + dz * dz) > max_jump[j] and not share[i, j] >= strong_share
+            if r > max_ratio or r < 1.0 / max_ratio or jumped:
+                score[i, j] = 0.0
+    return ratio
 
 
 def _link_leftovers(
@@ -506,9 +578,29 @@ def _with_fragments(
     min_share of its points on the other (votes: (A, B) plain ego-motion votes, before any gate)."""
     if not 0.0 < min_share <= 1.0:
         return links
-    mutual = np.minimum(np.maximum(votes / n_a[:, None], votes / n_b[None, :]), 1.0)  # a pixel may take 2 points
-    ia, jb = np.nonzero(mutual >= min_share)
+    ia, jb, mutual = _mutual_pairs(votes, n_a, n_b, min_share)
     a, b = va[ia], vb[jb]
     keep = links.prev[a] != b
     return replace(links, fragments=np.stack([a[keep], b[keep]], axis=1).astype(np.int32),
-                   fragment_share=mutual[ia[keep], jb[keep]].astype(np.float32))
+                   fragment_share=mutual[keep].astype(np.float32))
+
+
+@njit(cache=True)
+def _mutual_pairs(votes, n_a, n_b, min_share):  # pragma: no cover - numba
+    """The block's pairs, in row order, where either segment has min_share of its points on the
+    other (capped at 1: a pixel may take 2 points), and that share."""
+    n_rows, n_cols = votes.shape
+    ia = np.empty(n_rows * n_cols, dtype=np.int64)
+    jb = np.empty(n_rows * n_cols, dtype=np.int64)
+    mutual = np.empty(n_rows * n_cols)
+    n = 0
+    for i in range(n_rows):
+        for j in range(n_cols):
+            v = votes[i, j]
+            if v == 0.0:
+                continue
+            m = min(max(v / n_a[i], v / n_b[j]), 1.0)
+            if m >= min_share:
+                ia[n], jb[n], mutual[n] = i, j, m
+                n += 1
+    return ia[:n], jb[:n], mutual[:n]
