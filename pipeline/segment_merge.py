@@ -121,44 +121,32 @@ def _label_components(ok, right, down):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _tall(labels, count, v_alpha, h_alpha):  # pragma: no cover - numba
-    """(count,) bool: components taller than wide in angle, by the bounding box of their pixels
-    (a trunk, a pole; a piece of car body is wide)."""
+def _refused_pairs(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, h_alpha):  # pragma: no cover
+    """One pass over the image: the sorted int64 keys (small * count + other) * 4 + kind, one per
+    refused pair of a small component and another, and (count,) bool the components taller than
+    wide in angle by the bounding box of their pixels (a trunk, a pole; a piece of car body is
+    wide).
+
+    Kinds: 0 for pairs of rough pixels the angle criterion alone refused (pieces of one foliage
+    mass), 1 for pairs the texture test alone refused, 2 and 3 for those of them that are vertical
+    with the rough pixel above, 2 when the smooth one below belongs to the small component, 3 when
+    it belongs to the other."""
     h, w = labels.shape
+    keys = np.empty(4 * h * w, dtype=np.int64)
     r0 = np.full(count, h, dtype=np.int64)
     r1 = np.full(count, -1, dtype=np.int64)
     c0 = np.full(count, w, dtype=np.int64)
     c1 = np.full(count, -1, dtype=np.int64)
-    for r in range(h):
-        for c in range(w):
-            a = labels[r, c]
-            if a >= 0:
-                r0[a] = min(r0[a], r)
-                r1[a] = max(r1[a], r)
-                c0[a] = min(c0[a], c)
-                c1[a] = max(c1[a], c)
-    tall = np.zeros(count, dtype=np.bool_)
-    for a in range(count):
-        if r1[a] >= 0:
-            tall[a] = (r1[a] - r0[a] + 1) * v_alpha[r0[a]] > (c1[a] - c0[a] + 1) * h_alpha
-    return tall
-
-
-@njit(cache=True)
-def _refused_pair_keys(labels, sizes, count, right, down, merge_pixels, tex):  # pragma: no cover - numba
-    """Sorted int64 keys (small * count + other) * 4 + kind, one per refused pair of a small
-    component and another: kind 0 for pairs of rough pixels the angle criterion alone refused
-    (pieces of one foliage mass), 1 for pairs the texture test alone refused, 2 and 3 for those
-    of them that are vertical with the rough pixel above, 2 when the smooth one below belongs to
-    the small component, 3 when it belongs to the other."""
-    h, w = labels.shape
-    keys = np.empty(4 * h * w, dtype=np.int64)
     m = 0
     for r in range(h):
         for c in range(w):
             a = labels[r, c]
             if a < 0:
                 continue
+            r0[a] = min(r0[a], r)
+            r1[a] = r
+            c0[a] = min(c0[a], c)
+            c1[a] = max(c1[a], c)
             for side in range(2):
                 flag = right[r, c] if side == 0 else down[r, c]
                 if flag < ANGLE_CUT:
@@ -176,7 +164,11 @@ def _refused_pair_keys(labels, sizes, count, right, down, merge_pixels, tex):  #
                 if sizes[b] < merge_pixels:
                     keys[m] = (b * count + a) * 4 + kind_b
                     m += 1
-    return np.sort(keys[:m])
+    tall = np.zeros(count, dtype=np.bool_)
+    for a in range(count):
+        if r1[a] >= 0:
+            tall[a] = (r1[a] - r0[a] + 1) * v_alpha[r0[a]] > (c1[a] - c0[a] + 1) * h_alpha
+    return np.sort(keys[:m]), tall
 
 
 @njit(cache=True)
@@ -216,8 +208,8 @@ def _merge_small(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, 
     """Step 4 of the module docstring: (count,) int32 merged id of each component (the merged
     ones numbered in raster order of their first pixel), their sizes, their count. The image is
     relabelled once, in `_finish`."""
-    keys = _refused_pair_keys(labels, sizes, count, right, down, merge_pixels, tex)
-    best = _partners(keys, count, _tall(labels, count, v_alpha, h_alpha))
+    keys, tall = _refused_pairs(labels, sizes, count, right, down, merge_pixels, tex, v_alpha, h_alpha)
+    best = _partners(keys, count, tall)
     parent = np.arange(count, dtype=np.int64)
     for a in np.argsort(sizes, kind="mergesort"):  # smallest first
         if sizes[a] >= merge_pixels:

@@ -124,13 +124,15 @@ def _texture(rng, ok, hb, hs, tb, ts, v_alpha):  # pragma: no cover - numba
     h, w = rng.shape
     rough = _rough_pixels(rng, ok, hb, hs, tb, ts)
     wr, wc = TEXTURE_WINDOW
-    cols = np.zeros((h, w), dtype=np.int32)  # rough pixels in each row's wc-column window
-    for r in prange(h):
+    # above[r, c]: rough pixels in the wc-column windows of rows 0..r-1, so that a pixel's vote
+    # over rows lo..hi is one difference
+    above = np.zeros((h + 1, w), dtype=np.int32)
+    for r in range(h):
         run = 0
         for k in range(wc):
             run += rough[r, k]
         for c in range(w):
-            cols[r, c] = run
+            above[r + 1, c] = above[r, c] + run
             if c + 1 < w:
                 run += rough[r, c + wc] - rough[r, c]
     # the vote spans hr = round(TEXTURE_HEIGHT / (range * beam step)) rows each side (at most
@@ -150,9 +152,7 @@ def _texture(rng, ok, hb, hs, tb, ts, v_alpha):  # pragma: no cover - numba
                 hr += 1 if rng[r, c] <= reach[r, k] else 0
             lo = max(0, r - hr)
             hi = min(h - 1, r + hr)
-            votes = 0
-            for k in range(lo, hi + 1):
-                votes += cols[k, c]
+            votes = above[hi + 1, c] - above[lo, c]
             out[r, c] = 2 if 2 * votes > (hi - lo + 1) * wc else 1
     return out
 
