@@ -179,3 +179,5 @@ def test_losses_count_wrong_non_ground_points_by_true_exported_class_and_source(
     wrong, total = tally(true, exported, source, ls)
     assert total == 5  # ground and unlabelled truth do not count
     assert wrong == {(bush, ground, 4): 2, (fence, bush, 2): 1, (fence, UNLABELLED, 0): 1}
+    # the ground points' losses: the one ground point, exported as bush (source 4: predicted)
+    assert tally(true, exported, source, ls, ground=True) == ({(ground, bush, 4): 1}, 1)
