@@ -6,11 +6,12 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pipeline.association import AssociationFrame, associate, moving_votes
+from pipeline.association import AssociationFrame, associate
 from pipeline.config import PipelineConfig
 from pipeline.errors import DataError
 from pipeline.processing import SequenceProcessor
 from pipeline.sensors import PRESETS
+from pipeline.votes import moving_votes
 from tests.pipeline.memory_source import MemorySource
 from tests.pipeline.scans import add_box, flat_ground, scan_from_range_image
 
