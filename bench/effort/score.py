@@ -60,6 +60,7 @@ def score_export(export: Export, truth: SequenceTruth) -> dict[str, Any]:
         "non_ground_right": share("ng_right", "ng"), "non_ground_unlabelled": share("ng_none", "ng"),
         "ground_right": share("g_right", "g"), "ground_unlabelled": share("g_none", "g"),
         "non_ground_points": n["ng"], "ground_points": n["g"],
+        "non_ground_right_points": n["ng_right"], "ground_right_points": n["g_right"],
         "recall_per_class": {names[c]: round(r / p, 4) for c, (p, r) in enumerate(per_class) if p},
         "non_ground_by_source": {sources[i]: {"share": round(int(a) / n["ng"], 4), "right": round(int(r) / int(a), 4)}
                                  for i, (a, r) in enumerate(per_source) if a and i < len(sources)},

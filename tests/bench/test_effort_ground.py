@@ -181,3 +181,23 @@ def test_losses_count_wrong_non_ground_points_by_true_exported_class_and_source(
     assert wrong == {(bush, ground, 4): 2, (fence, bush, 2): 1, (fence, UNLABELLED, 0): 1}
     # the ground points' losses: the one ground point, exported as bush (source 4: predicted)
     assert tally(true, exported, source, ls, ground=True) == ({(ground, bush, 4): 1}, 1)
+
+
+def test_score_export_counts_the_labelled_points_and_those_right_on_each_side_of_the_ground():
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from bench.effort.score import score_export
+    from bench.effort.service import Export
+    from bench.effort.truth import FrameTruth
+    from pipeline.label_sets import preset
+
+    ls = preset("paper")
+    bush, car, ground = (ls.point_class_names.index(c) for c in ("bush", "car", "ground"))
+    true = np.array([bush, bush, car, ground, ground, UNLABELLED], np.uint8)
+    words = np.array([70, 40, 10, 40, 10, 0], np.uint32)  # SemanticKITTI: vegetation, road, car, road, car
+    truth = SimpleNamespace(label_set=ls, labelled={"000000": FrameTruth(true, None, Path("000000.label"))})
+    s = score_export(Export({"000000": words}, {}, {}, b""), truth)
+    assert (s["non_ground_points"], s["non_ground_right_points"]) == (3, 2)  # the unlabelled row counts nowhere
+    assert (s["ground_points"], s["ground_right_points"]) == (2, 1)
+    assert s["non_ground_right"] == round(2 / 3, 4) and s["ground_right"] == 0.5
