@@ -19,9 +19,12 @@ A point's class comes, in this order, from
    then, for points that are not ground, the nearest point of its own frame that a region without
    heights gave an object class, within `region_radius` (`propagated`): the ground estimate took
    the low leaves of a bush the operator lassoed, and the rest of the bush stands just above them;
-4. its track's predicted class (`predicted`), else the nearest point of its own frame labelled so
-   far within `far_radius` (`ground_radius` for a point the ground estimate took; `predicted`, or
-   `propagated` when that point's class was decided);
+4. its track's predicted class (`predicted`), else, for a point the ground estimate did not take,
+   the nearest point of its own frame labelled so far within `far_radius` (`predicted`, or
+   `propagated` when that point's class was decided). This step never reaches a point the ground
+   estimate took: on kitti_seq00 after 200 operator actions, 9,259 of the 9,997 such points it
+   reached within `ground_radius` were ground (without a world search, the frame's own decided
+   points reach them within `ground_radius` here instead);
 5. the ground class, for ground points, when asked for (`ground`).
 
 A point none of these reaches keeps no class (`none`), and is counted. Distances are metres.
@@ -293,7 +296,9 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
         near = _nearest(world, out, ~by_region, rules.voxel)
         rest = ~out.labelled
         _take(out, rest & ~ground, world, near, max(rules.radius, rules.far_radius))
-        _take(out, rest & ground, world, near, rules.ground_radius)
+        if field is None:  # no world search reached the ground from the decided points: this frame's do
+            decided_near = _nearest(world, out, np.isin(out.source, DECIDED), rules.voxel)
+            _take(out, rest & ground, world, decided_near, rules.ground_radius)
     if ground_class is not None:
         out.set(~out.labelled & ground, ground_class, SOURCE["ground"], 1.0)
     return out

@@ -92,13 +92,20 @@ def test_propagation_thin_keeps_one_point_per_voxel():
     assert len(kept) == 2 and kept_lab.class_.tolist() == [1, 2]
 
 
-def test_propagation_ground_point_takes_a_nearby_prediction_within_the_ground_radius():
-    world = np.array([[10.0, 0, 1], [10.1, 0, 0.9], [10.5, 0, 0.9]])  # a predicted bush, two ground points
+def test_propagation_ground_points_take_a_nearby_decision_but_never_a_prediction():
+    # a bush segment and two ground points 0.1 m and 0.5 m from it
+    world = np.array([[10.0, 0, 1], [10.1, 0, 0.9], [10.5, 0, 0.9]])
     track, ground = np.array([2, 0, 0]), np.array([False, True, True])
-    predicted = TrackClasses.of([(2, BUSH, SOURCE["predicted"], 0.8)])
-    out = resolve_frame(track, ground, world, TrackClasses.of([]), predicted, None, Rules(), GROUND_CLASS)
-    assert out.class_.tolist() == [BUSH, BUSH, GROUND_CLASS]
-    assert out.source[1] == SOURCE["predicted"]
+    bush = TrackClasses.of([(2, BUSH, SOURCE["reviewed"], 1.0)])
+    predicted_bush = TrackClasses.of([(2, BUSH, SOURCE["predicted"], 0.8)])
+    for field in (None, _field(world, track, bush)):  # this frame's decisions, or the world search's
+        out = resolve_frame(track, ground, world, bush, TrackClasses.of([]), field, Rules(), GROUND_CLASS)
+        assert out.class_.tolist() == [BUSH, BUSH, GROUND_CLASS]
+        assert out.source[1] == SOURCE["propagated"]
+    # a prediction stops at the ground (pipeline.propagation, step 4)
+    out = resolve_frame(track, ground, world, TrackClasses.of([]), predicted_bush, None, Rules(), GROUND_CLASS)
+    assert out.class_.tolist() == [BUSH, GROUND_CLASS, GROUND_CLASS]
+    assert out.source.tolist() == [SOURCE["predicted"], SOURCE["ground"], SOURCE["ground"]]
 
 
 def test_ground_region_labels_the_ground_points_inside_it_and_nothing_else():
