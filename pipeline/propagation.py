@@ -296,7 +296,7 @@ def resolve_frame(track: np.ndarray, ground: np.ndarray, world: np.ndarray, deci
         near = _nearest(world, out, ~by_region, rules.voxel)
         rest = ~out.labelled
         _take(out, rest & ~ground, world, near, max(rules.radius, rules.far_radius))
-        if field is None:  # no world search reached the ground from the decided points: this frame's do
+        if field is None:  # no world search (step 3): this frame's decided points reach the ground here
             decided_near = _nearest(world, out, np.isin(out.source, DECIDED), rules.voxel)
             _take(out, rest & ground, world, decided_near, rules.ground_radius)
     if ground_class is not None:
