@@ -204,13 +204,12 @@ def _add_motion_scores(
     mv = np.flatnonzero(moving)
     pred = blk.cw_b[mv] + blk.vel_b[mv] * blk.dt
     gate = _gate(blk.speed[mv], blk.dt, config)  # (M,) metres: wider for faster tracks
-    cscore, dz, ia, jb = _motion_candidates(score, share, blk.n_a, blk.n_b, blk.cw_a, blk.cw_b, mv, pred, gate, config.min_score,
+    cscore, ia, jb = _motion_candidates(score, share, blk.n_a, blk.n_b, blk.cw_a, blk.cw_b, mv, pred, gate, config.min_score,
                                             config.strong_share, config.max_height_change, config.max_point_ratio)
     if len(ia):
         shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
         mvotes = vote_moving(np.stack([blk.va[ia], blk.vb[mv[jb]]], axis=1), shift)
-        _take_motion_votes(cscore, share, dz, ia, jb, mv, mvotes, blk.n_a, blk.n_b, config.min_overlap,
-                           config.max_height_change)
+        _take_motion_votes(cscore, share, ia, jb, mv, mvotes, blk.n_a, blk.n_b, config.min_overlap)
     _raise_weak(score, cscore, mv, config.min_score)
 
 
@@ -218,13 +217,12 @@ def _add_motion_scores(
 def _motion_candidates(score, share, n_a, n_b, cw_a, cw_b, mv, pred, gate, min_score, strong_share, max_dz,
                        max_ratio):  # pragma: no cover - numba
     """(A, M) predicted-centroid score of each t segment for each moving t-1 track (1 at the
-    predicted centroid, 0 at the gate), (A, M) height change, and the pairs (ia, jb) worth
+    predicted centroid, 0 at the gate) and the pairs (ia, jb) worth
     motion-compensated votes: near the gate, left under the score or the strong-share gate by
     their plain votes (only there can motion votes change the outcome), and passing the height
     and point-count gates (pairs those turn down anyway cost no votes)."""
     n_rows, m = cw_a.shape[0], mv.shape[0]
     cscore = np.zeros((n_rows, m))
-    dz = np.empty((n_rows, m))
     near = np.zeros((n_rows, m), dtype=np.bool_)
     for i in range(n_rows):
         for k in range(m):
@@ -233,24 +231,24 @@ def _motion_candidates(score, share, n_a, n_b, cw_a, cw_b, mv, pred, gate, min_s
             dy = cw_a[i, 1] - pred[k, 1]
             dist = np.sqrt(dx * dx + dy * dy)
             h = abs(cw_a[i, 2] - cw_b[b, 2])
-            dz[i, k] = h
             # a moving object keeps its height: a bollard under a crown is not the crown moved
             cscore[i, k] = 0.0 if h > max_dz else min(max(1.0 - dist / gate[k], 0.0), 1.0)
             ratio = n_a[i] / n_b[b]
             near[i, k] = ((dist < gate[k] + 1.5) and (score[i, b] < min_score or share[i, b] < strong_share)
                           and h <= max_dz and ratio <= max_ratio and ratio >= 1.0 / max_ratio)
     ia, jb = np.nonzero(near)
-    return cscore, dz, ia, jb
+    return cscore, ia, jb
 
 
 @njit(cache=True)
-def _take_motion_votes(cscore, share, dz, ia, jb, mv, mvotes, n_a, n_b, min_overlap, max_dz):  # pragma: no cover
-    """Raise, in place, cscore and share to the motion-compensated votes of pairs (ia, jb)."""
+def _take_motion_votes(cscore, share, ia, jb, mv, mvotes, n_a, n_b, min_overlap):  # pragma: no cover
+    """Raise, in place, cscore and share to the motion-compensated votes of pairs (ia, jb), which
+    passed the height gate in `_motion_candidates`."""
     for p in range(ia.shape[0]):
         i, k = ia[p], jb[p]
         b = mv[k]
         mshare = mvotes[p] / n_a[i]
-        if mshare >= min_overlap and dz[i, k] <= max_dz:
+        if mshare >= min_overlap:
             cscore[i, k] = max(cscore[i, k], mvotes[p] / max(n_a[i], n_b[b]))
             share[i, b] = max(share[i, b], mshare)
 
