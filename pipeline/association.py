@@ -205,7 +205,7 @@ def _add_motion_scores(
     pred = blk.cw_b[mv] + blk.vel_b[mv] * blk.dt
     gate = _gate(blk.speed[mv], blk.dt, config)  # (M,) metres: wider for faster tracks
     cscore, ia, jb = _motion_candidates(score, share, blk.n_a, blk.n_b, blk.cw_a, blk.cw_b, mv, pred, gate, config.min_score,
-                                            config.strong_share, config.max_height_change, config.max_point_ratio)
+                                        config.strong_share, config.max_height_change, config.max_point_ratio)
     if len(ia):
         shift = -(blk.vel_b[mv[jb]] * blk.dt) @ T_world_prev[:3, :3]  # world -> t-1 lidar frame: R^T d
         mvotes = vote_moving(np.stack([blk.va[ia], blk.vb[mv[jb]]], axis=1), shift)
@@ -217,10 +217,10 @@ def _add_motion_scores(
 def _motion_candidates(score, share, n_a, n_b, cw_a, cw_b, mv, pred, gate, min_score, strong_share, max_dz,
                        max_ratio):  # pragma: no cover - numba
     """(A, M) predicted-centroid score of each t segment for each moving t-1 track (1 at the
-    predicted centroid, 0 at the gate) and the pairs (ia, jb) worth
-    motion-compensated votes: near the gate, left under the score or the strong-share gate by
-    their plain votes (only there can motion votes change the outcome), and passing the height
-    and point-count gates (pairs those turn down anyway cost no votes)."""
+    predicted centroid, 0 at the gate) and the pairs (ia, jb) worth motion-compensated votes:
+    near the gate, left under the score or the strong-share gate by their plain votes (only there
+    can motion votes change the outcome), and passing the height and point-count gates (pairs
+    those turn down anyway cost no votes)."""
     n_rows, m = cw_a.shape[0], mv.shape[0]
     cscore = np.zeros((n_rows, m))
     near = np.zeros((n_rows, m), dtype=np.bool_)
